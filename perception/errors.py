@@ -1,0 +1,57 @@
+"""The exception hierarchy shared by every visuotactile package.
+
+Every error a user can trigger with bad input is a subclass of :class:`VisuotactileError`, and its message
+names the file or object concerned and the problem, so that ``except VisuotactileError`` catches all of
+them and the text alone says what to fix.
+"""
+
+from __future__ import annotations
+
+
+class VisuotactileError(Exception):
+    """Base class of all visuotactile errors."""
+
+
+class MeshLoadError(VisuotactileError):
+    """A mesh file is missing, unreadable, of an unknown type, or cannot be parsed."""
+
+
+class InvalidMeshError(VisuotactileError):
+    """Mesh arrays are empty, non-finite, badly shaped or index out of range, or nothing is left after repair."""
+
+
+class ContourError(VisuotactileError):
+    """A cutting plane is degenerate (near-collinear points) or misses the object, or a contour is unusable."""
+
+
+class SensorSpecError(VisuotactileError):
+    """A tactile sensor specification or a probe list is invalid (zero/negative sizes, empty list, ...)."""
+
+
+class SaliencyError(VisuotactileError):
+    """A saliency/attention request is invalid (unknown method, bad weights, bad ground-truth file)."""
+
+
+class DatasetError(VisuotactileError):
+    """A dataset folder or store is empty, malformed, or does not match what was asked for."""
+
+
+class ModelMismatchError(VisuotactileError):
+    """A trained model is given data from another sensor spec or class list."""
+
+
+class DeviceNotFoundError(VisuotactileError):
+    """No depth camera is connected (or it cannot be opened)."""
+
+
+__all__ = [
+    "VisuotactileError",
+    "MeshLoadError",
+    "InvalidMeshError",
+    "ContourError",
+    "SensorSpecError",
+    "SaliencyError",
+    "DatasetError",
+    "ModelMismatchError",
+    "DeviceNotFoundError",
+]
