@@ -1,0 +1,1 @@
+"""Learning and deciding: classifiers on tactile sequences, experiments, the command line."""

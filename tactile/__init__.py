@@ -1,0 +1,1 @@
+"""Touching: contours on the object surface and the virtual FSR tactile array pressed along them."""

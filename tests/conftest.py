@@ -1,0 +1,34 @@
+"""Shared fixtures: the real data folder (skipped, saying why, where absent)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("VISUOTACTILE_DATA", REPO.parent / "shared" / "data"))
+
+
+def data_folder(name: str) -> Path:
+    """The shared data subfolder ``name``, or skip the test with the reason."""
+    folder = DATA / name
+    if not folder.is_dir():
+        pytest.skip(f"real data {folder} is absent (set VISUOTACTILE_DATA to the shared data folder)")
+    return folder
+
+
+@pytest.fixture
+def shrec07() -> Path:
+    return data_folder("shrec07")
+
+
+@pytest.fixture
+def psb_open() -> Path:
+    return data_folder("psb_open")
+
+
+@pytest.fixture
+def ycb() -> Path:
+    return data_folder("ycb")
