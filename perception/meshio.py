@@ -164,7 +164,8 @@ def _texture_to_vertex_colors(mesh, n_vertices: int, n_triangles: int) -> np.nda
         return None
     h, w = texture.shape[:2]
     px = np.clip((uvs[:, 0] % 1.0) * (w - 1), 0, w - 1).round().astype(int)
-    py = np.clip((1.0 - uvs[:, 1] % 1.0) * (h - 1), 0, h - 1).round().astype(int)
+    # Open3D has already flipped v to image row order (checked on the YCB textures: no black lookups).
+    py = np.clip((uvs[:, 1] % 1.0) * (h - 1), 0, h - 1).round().astype(int)
     corner_rgb = texture[py, px, :3].astype(np.float64) / (255.0 if texture.dtype == np.uint8 else 1.0)
     corner_vertex = np.asarray(mesh.triangles).reshape(-1)
     sums = np.zeros((n_vertices, 3))

@@ -1,0 +1,215 @@
+"""Multi-view rendering by ray casting (Open3D ``RaycastingScene``): no OpenGL, no display, no EGL.
+
+Each view is an orthographic camera on a sphere around the object looking at its centre. Orthographic
+rays keep the pixel size (mm) the same everywhere, so image-space filters have one physical scale per
+view set. Per pixel a :class:`View` holds the hit triangle and its barycentric coordinates, which map any
+image value back to the exact surface point it came from (no depth re-projection).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from perception.geometry import ObjectModel
+
+log = logging.getLogger(__name__)
+
+#: Default number of views: every vertex of the built-in test shapes (torus, bowl, catalogue objects)
+#: is hit by at least one of them at the default resolution (``tests/perception/test_render.py``).
+DEFAULT_N_VIEWS = 20
+DEFAULT_SIZE_PX = 128
+#: The image side covers the bounding sphere (diameter = bounding-box diagonal) plus this margin.
+_MARGIN = 1.04
+
+
+@dataclass(frozen=True)
+class Camera:
+    """An orthographic camera: pixel (row, col) -> ray ``origin(row, col) + t * forward``.
+
+    Attributes:
+        position: (3,) unit vector from the object centre to the camera (its place on the view sphere).
+        center: (3,) the point the camera looks at, mm.
+        forward: (3,) unit viewing direction (``-position``).
+        right, up: (3,) unit image axes; columns grow along ``right``, rows grow along ``-up``.
+        width, height: image size, pixels.
+        pixel_mm: side of one pixel on the image plane, mm.
+        distance_mm: distance from the image plane to ``center`` along ``forward``, mm.
+    """
+
+    position: np.ndarray
+    center: np.ndarray
+    forward: np.ndarray
+    right: np.ndarray
+    up: np.ndarray
+    width: int
+    height: int
+    pixel_mm: float
+    distance_mm: float
+
+    def rays(self) -> np.ndarray:
+        """(H * W, 6) float32 rays (origin, unit direction), row-major over pixels."""
+        rows, cols = np.meshgrid(np.arange(self.height), np.arange(self.width), indexing="ij")
+        x = (cols.ravel() + 0.5 - self.width / 2) * self.pixel_mm
+        y = (self.height / 2 - rows.ravel() - 0.5) * self.pixel_mm
+        origins = (self.center - self.distance_mm * self.forward) + np.outer(x, self.right) + np.outer(y, self.up)
+        return np.hstack([origins, np.broadcast_to(self.forward, origins.shape)]).astype(np.float32)
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(N, 2) pixel coordinates (col, row), continuous, of (N, 3) points in mm (no visibility test)."""
+        rel = np.asarray(points, dtype=np.float64).reshape(-1, 3) - self.center
+        col = rel @ self.right / self.pixel_mm + self.width / 2 - 0.5
+        row = self.height / 2 - rel @ self.up / self.pixel_mm - 0.5
+        return np.stack([col, row], axis=1)
+
+
+@dataclass(frozen=True)
+class View:
+    """One rendered view. Background pixels have ``mask`` False, ``triangle_ids`` -1 and zeros elsewhere.
+
+    Attributes:
+        depth: (H, W) float32 distance from the image plane to the surface along the ray, mm.
+        mask: (H, W) bool, True where a ray hit the mesh.
+        normal: (H, W, 3) float32 world-frame unit normal, interpolated from the hit triangle's vertex normals.
+        intensity: (H, W) float32 Lambertian shading in [0, 1] from a headlight (light along the view ray).
+        color: (H, W, 3) float32 RGB in [0, 1] interpolated from vertex colours, or None without colours.
+        triangle_ids: (H, W) int32 hit triangle, -1 where nothing was hit.
+        barycentric: (H, W, 3) float32 weights of the hit triangle's three vertices (sum 1 on hits).
+        camera: the :class:`Camera`.
+    """
+
+    depth: np.ndarray
+    mask: np.ndarray
+    normal: np.ndarray
+    intensity: np.ndarray
+    color: np.ndarray | None
+    triangle_ids: np.ndarray
+    barycentric: np.ndarray
+    camera: Camera
+
+
+def view_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly over the sphere (Fibonacci lattice), deterministic.
+
+    Raises:
+        ValueError: ``n < 1``.
+    """
+    if n < 1:
+        raise ValueError(f"need at least one view direction, got n={n}")
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i  # golden angle
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def make_camera(model: ObjectModel, position: np.ndarray, width: int, height: int) -> Camera:
+    """An orthographic camera at unit direction ``position`` from the centre, framing the whole object."""
+    position = np.asarray(position, dtype=np.float64)
+    position = position / np.linalg.norm(position)
+    forward = -position
+    # Any fixed up hint works; fall back to x when looking along z.
+    hint = np.array([0.0, 0.0, 1.0]) if abs(forward[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    right = np.cross(forward, hint)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    extent = _MARGIN * model.diagonal
+    return Camera(
+        position=position,
+        center=model.center.copy(),
+        forward=forward,
+        right=right,
+        up=up,
+        width=int(width),
+        height=int(height),
+        pixel_mm=extent / min(width, height),
+        distance_mm=model.diagonal,  # the bounding sphere's radius is diagonal / 2: start outside it
+    )
+
+
+def render_views(
+    model: ObjectModel,
+    n_views: int = DEFAULT_N_VIEWS,
+    width: int = DEFAULT_SIZE_PX,
+    height: int = DEFAULT_SIZE_PX,
+    *,
+    directions: np.ndarray | None = None,
+) -> list[View]:
+    """Render ``n_views`` orthographic views of ``model`` (one ``cast_rays`` call for all of them).
+
+    Args:
+        model: the object.
+        n_views: number of views, on a Fibonacci sphere (ignored when ``directions`` is given).
+        width, height: image size in pixels.
+        directions: optional (K, 3) camera positions (unit vectors from the centre).
+
+    Raises:
+        ValueError: non-positive image size or view count.
+    """
+    if width < 1 or height < 1:
+        raise ValueError(f"{model.name}: image size must be positive, got {width} x {height}")
+    dirs = view_directions(n_views) if directions is None else np.asarray(directions, dtype=np.float64)
+    cameras = [make_camera(model, d, width, height) for d in dirs.reshape(-1, 3)]
+    rays = np.concatenate([c.rays() for c in cameras])
+    hits = model.scene.cast_rays(o3d.core.Tensor(rays))
+    t_hit = hits["t_hit"].numpy()
+    mask = np.isfinite(t_hit)
+    ids = np.where(mask, hits["primitive_ids"].numpy().astype(np.int64), -1)
+    uv = hits["primitive_uvs"].numpy().astype(np.float64)
+    # Open3D: point = (1 - u - v) * v0 + u * v1 + v * v2.
+    bary = np.where(mask[:, None], np.column_stack([1.0 - uv.sum(axis=1), uv]), 0.0)
+    corners = model.triangles[np.maximum(ids, 0)]
+    normal = np.einsum("nk,nkj->nj", bary, model.vertex_normals[corners])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 1e-12)
+    forward = np.repeat(np.stack([c.forward for c in cameras]), width * height, axis=0)
+    # Headlight: |cos| so that meshes with flipped normals still shade.
+    intensity = np.abs(np.einsum("nj,nj->n", normal, forward)) * mask
+    color = None
+    if model.has_colors:
+        color = np.einsum("nk,nkj->nj", bary, model.vertex_colors[corners]) * mask[:, None]
+    depth = np.where(mask, t_hit, 0.0)
+
+    shape = (len(cameras), height, width)
+    views = []
+    for k, cam in enumerate(cameras):
+        sl = slice(k * width * height, (k + 1) * width * height)
+        views.append(
+            View(
+                depth=depth[sl].reshape(shape[1:]).astype(np.float32),
+                mask=mask[sl].reshape(shape[1:]),
+                normal=normal[sl].reshape(*shape[1:], 3).astype(np.float32),
+                intensity=intensity[sl].reshape(shape[1:]).astype(np.float32),
+                color=None if color is None else np.clip(color[sl], 0, 1).reshape(*shape[1:], 3).astype(np.float32),
+                triangle_ids=ids[sl].reshape(shape[1:]).astype(np.int32),
+                barycentric=bary[sl].reshape(*shape[1:], 3).astype(np.float32),
+                camera=cam,
+            )
+        )
+    log.debug("%s: rendered %d views of %d x %d", model.name, len(views), width, height)
+    return views
+
+
+def surface_points(model: ObjectModel, view: View) -> np.ndarray:
+    """(H, W, 3) float64 exact surface points of each pixel (barycentric blend of the hit triangle), mm.
+
+    Background pixels are zero; use ``view.mask``.
+    """
+    ids = np.maximum(view.triangle_ids, 0)
+    corners = model.vertices[model.triangles[ids]]  # (H, W, 3, 3)
+    points = np.einsum("hwk,hwkj->hwj", view.barycentric.astype(np.float64), corners)
+    return points * view.mask[..., None]
+
+
+def vertex_coverage(model: ObjectModel, views: list[View]) -> np.ndarray:
+    """(V,) number of views in which each vertex belongs to at least one hit triangle."""
+    counts = np.zeros(model.n_vertices, dtype=np.int64)
+    for view in views:
+        tri = np.unique(view.triangle_ids[view.mask])
+        seen = np.zeros(model.n_vertices, dtype=bool)
+        seen[model.triangles[tri].ravel()] = True
+        counts += seen
+    return counts

@@ -1,0 +1,204 @@
+"""Loading, validation, repair, scaling and dataset listing, against hand-made files with known content."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from perception.errors import DatasetError, InvalidMeshError, MeshLoadError, VisuotactileError
+from perception.geometry import ObjectModel, load_dataset, load_object, normalize
+from perception.primitives import sphere
+
+# A unit cube as quads: 8 vertices, 6 faces -> 12 triangles after triangulation.
+CUBE_OFF = """OFF
+# a comment line
+8 6 0
+0 0 0
+1 0 0
+1 1 0
+0 1 0
+0 0 1
+1 0 1
+1 1 1
+0 1 1
+4 0 3 2 1
+4 4 5 6 7
+4 0 1 5 4
+4 1 2 6 5
+4 2 3 7 6
+4 3 0 4 7
+"""
+
+
+def write(tmp_path, name: str, content: str | bytes):
+    path = tmp_path / name
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    return path
+
+
+def signed_volume(model: ObjectModel) -> float:
+    v0, v1, v2 = (model.vertices[model.triangles[:, i]] for i in range(3))
+    return float(np.einsum("ij,ij->i", v0, np.cross(v1, v2)).sum() / 6.0)
+
+
+def test_off_polygon_faces_are_triangulated_and_scaled(tmp_path):
+    model = load_object(write(tmp_path, "cube.off", CUBE_OFF), label="box")
+    assert model.n_vertices == 8 and model.n_triangles == 12
+    assert model.is_watertight
+    assert model.diagonal == pytest.approx(150.0)
+    np.testing.assert_allclose(model.center, 0.0, atol=1e-12)
+    # A cube of side s has diagonal s * sqrt(3): side 150 / sqrt(3), volume side ** 3, outward winding.
+    side = 150.0 / np.sqrt(3.0)
+    assert signed_volume(model) == pytest.approx(side**3)
+    assert model.label == "box" and model.name == "cube"
+    # The transform maps source coordinates onto the model's.
+    source = np.array([[1.0, 1.0, 1.0, 1.0]])
+    np.testing.assert_allclose((model.transform @ source.T).T[0, :3], [side / 2] * 3)
+
+
+def test_glued_off_header_loads(tmp_path):
+    glued = CUBE_OFF.replace("OFF\n# a comment line\n8 6 0", "OFF8 6 0")
+    assert load_object(write(tmp_path, "glued.off", glued)).n_triangles == 12
+
+
+def test_size_none_keeps_source_coordinates(tmp_path):
+    model = load_object(write(tmp_path, "cube.off", CUBE_OFF), size_mm=None)
+    np.testing.assert_allclose(model.bounds, [[0, 0, 0], [1, 1, 1]])
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".obj", ".stl"])
+def test_open3d_formats_round_trip(tmp_path, suffix):
+    mesh = sphere(20.0, 2).to_open3d()
+    mesh.compute_triangle_normals()  # the STL writer needs them
+    path = tmp_path / f"ball{suffix}"
+    assert o3d.io.write_triangle_mesh(str(path), mesh)
+    model = load_object(path, size_mm=None)
+    # STL stores triangle soup; repair merges the duplicated corners back to the 162 icosphere vertices.
+    assert model.n_vertices == 162 and model.n_triangles == 320
+    np.testing.assert_allclose(np.linalg.norm(model.vertices, axis=1), 20.0, rtol=1e-5)
+
+
+def test_open3d_mesh_input():
+    model = load_object(sphere(10.0, 1).to_open3d(), label="ball")
+    assert model.name == "open3d-mesh" and model.label == "ball" and model.n_vertices == 42
+
+
+def test_repair_merges_duplicates_and_drops_degenerate_faces():
+    # Two triangles of a square with the shared corners duplicated, a zero-area face and an unused vertex.
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 0, 0], [1, 1, 0], [0, 1, 0], [5, 5, 5]], float)
+    t = np.array([[0, 1, 2], [3, 4, 5], [0, 0, 1]])
+    model = load_object(o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(t)),
+                        size_mm=None)
+    assert model.n_vertices == 4 and model.n_triangles == 2
+    assert model.triangle_areas.sum() == pytest.approx(1.0)
+    # Indices still consistent: every triangle has non-zero area.
+    assert (model.triangle_areas > 0).all()
+
+
+def test_vertex_colors_survive_repair(tmp_path):
+    coff = "COFF\n3 1 0\n0 0 0 255 0 0 255\n1 0 0 0 255 0 255\n0 1 0 0 0 255 255\n3 0 1 2\n"
+    model = load_object(write(tmp_path, "tri.off", coff))
+    assert model.has_colors
+    np.testing.assert_allclose(np.sort(model.vertex_colors.sum(axis=1)), [1.0, 1.0, 1.0])
+
+
+# --------------------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    ("name", "content", "error", "words"),
+    [
+        ("empty.off", b"", MeshLoadError, "empty"),
+        ("empty.ply", b"", MeshLoadError, "empty"),
+        ("noise.off", bytes(range(256)) * 8, MeshLoadError, "ASCII"),
+        ("noise.ply", bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8)), MeshLoadError, "PLY"),
+        ("noise.obj", bytes(np.random.default_rng(1).integers(0, 256, 4096, dtype=np.uint8)), MeshLoadError, "triangles"),
+        ("nan.off", "OFF\n3 1 0\n0 0 0\nnan 1 0\n0 1 0\n3 0 1 2\n", InvalidMeshError, "NaN"),
+        ("range.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", InvalidMeshError, "out of range"),
+        ("negative.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n", InvalidMeshError, "out of range"),
+        ("huge.off", "OFF\n100000000 1 0\n0 0 0\n", MeshLoadError, "more than"),
+        ("short.off", "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n", MeshLoadError, "truncated"),
+        ("header.off", "PLY\n3 1 0\n", MeshLoadError, "OFF header"),
+        ("flat.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n", InvalidMeshError, "non-zero area"),
+        ("huge.ply", "ply\nformat ascii 1.0\nelement vertex 999999999\nproperty float x\nend_header\n",
+         MeshLoadError, "declares"),
+        ("mesh.xyz", "0 0 0\n", MeshLoadError, "unknown mesh type"),
+    ],
+)
+def test_bad_files_raise_specific_errors_naming_the_file(tmp_path, name, content, error, words):
+    path = write(tmp_path, name, content)
+    with pytest.raises(error) as info:
+        load_object(path)
+    assert name in str(info.value) or path.stem in str(info.value)
+    assert words in str(info.value)
+    assert isinstance(info.value, VisuotactileError)
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(MeshLoadError, match="no such file"):
+        load_object(tmp_path / "nope.off")
+    (tmp_path / "dir.off").mkdir()
+    with pytest.raises(MeshLoadError, match="directory"):
+        load_object(tmp_path / "dir.off")
+
+
+@pytest.mark.parametrize(
+    ("vertices", "triangles", "words"),
+    [
+        (np.zeros((0, 3)), np.zeros((0, 3), int), "non-empty"),
+        (np.zeros((3, 2)), [[0, 1, 2]], "(V, 3)"),
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1]], "(F, 3)"),
+        ([[0, 0, 0], [1, 0, 0], [0, np.inf, 0]], [[0, 1, 2]], "Inf"),
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3]], "out of range"),
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 1.5]], "integers"),
+    ],
+)
+def test_object_model_validates_arrays(vertices, triangles, words):
+    with pytest.raises(InvalidMeshError, match=None) as info:
+        ObjectModel(np.asarray(vertices, float), np.asarray(triangles), name="thing")
+    assert "thing" in str(info.value) and words in str(info.value)
+
+
+def test_normalize_rejects_point_and_bad_size():
+    with pytest.raises(InvalidMeshError, match="zero extent"):
+        normalize(np.ones((4, 3)))
+    with pytest.raises(InvalidMeshError, match="size_mm"):
+        normalize(np.eye(3), size_mm=-1.0)
+
+
+# ----------------------------------------------------------------------------------------- dataset
+def test_load_dataset_lists_class_folders(tmp_path):
+    for cls, files in {"Cup": ["b.off", "a.off"], "Box": ["x.obj"]}.items():
+        (tmp_path / cls).mkdir()
+        for f in files:
+            write(tmp_path / cls, f, CUBE_OFF)
+    (tmp_path / "Cup" / "notes.txt").write_text("ignored")
+    (tmp_path / ".hidden").mkdir()
+    items = load_dataset(tmp_path)
+    assert [(p.name, label) for p, label in items] == [("x.obj", "Box"), ("a.off", "Cup"), ("b.off", "Cup")]
+
+
+def test_load_dataset_errors(tmp_path):
+    with pytest.raises(DatasetError, match="not a folder"):
+        load_dataset(tmp_path / "missing")
+    with pytest.raises(DatasetError, match="no class subfolders") as info:
+        load_dataset(tmp_path)
+    assert str(tmp_path) in str(info.value)
+    (tmp_path / "Empty").mkdir()
+    with pytest.raises(DatasetError, match="'Empty' holds no mesh files"):
+        load_dataset(tmp_path)
+    write(tmp_path, "loose.off", CUBE_OFF)
+    with pytest.raises(DatasetError, match="directly in the root"):
+        load_dataset(tmp_path)
+
+
+# ------------------------------------------------------------------------------------- derived data
+def test_cached_properties_and_open3d_copy():
+    model = sphere(30.0, 3)
+    assert model.scene is model.scene
+    assert model.vertex_normals is model.vertex_normals
+    mesh = model.to_open3d()
+    assert len(mesh.vertices) == model.n_vertices and mesh.has_vertex_normals()
+    # Closest point of an outside query on a sphere: along the ray from the centre, at distance |q| - R.
+    closest, dist = model.closest_points(np.array([[0.0, 0.0, 100.0]]))
+    assert dist[0] == pytest.approx(70.0, abs=0.1)
+    assert closest[0, 2] == pytest.approx(30.0, abs=0.1)
