@@ -273,12 +273,16 @@ def load_object(
         raw = meshio.read_mesh(path)
         vertices, triangles, colors = raw.vertices, raw.triangles, raw.vertex_colors
         src = str(path)
-    vertices, triangles = meshio.validate_arrays(vertices, triangles, name)
+    where = src or name  # errors name the file when there is one
+    vertices, triangles = meshio.validate_arrays(vertices, triangles, where)
     if repair:
-        vertices, triangles, colors = meshio.repair(vertices, triangles, colors, name)
+        vertices, triangles, colors = meshio.repair(vertices, triangles, colors, where)
     transform = np.eye(4)
     if size_mm is not None:
-        vertices, transform = normalize(vertices, size_mm)
+        try:
+            vertices, transform = normalize(vertices, size_mm)
+        except InvalidMeshError as exc:
+            raise InvalidMeshError(f"{where}: {exc}") from None
     return ObjectModel(
         vertices, triangles, name=name, label=label, vertex_colors=colors, transform=transform, source=src
     )
