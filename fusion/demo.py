@@ -73,8 +73,9 @@ def run_demo(out: Path, seed: int = 0) -> dict:
 def _touch(model, out: Path, seed: int) -> dict:
     """Saliency on one object, then blind and guided exploration with the FSR array."""
     from perception.saliency import plot_saliency, saliency
-    from tactile import explore_object
     from tactile.figures import plot_sequence
+
+    from tactile import explore_object
 
     result: dict = {"figures": []}
     start = time.perf_counter()

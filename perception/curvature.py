@@ -188,12 +188,12 @@ def _estimate(vertices: np.ndarray, triangles: np.ndarray, method: str, name: st
         mean = scalar("compute_scalar_by_discrete_curvature_per_vertex", curvaturetype="Mean Curvature")
         gauss = scalar("compute_scalar_by_discrete_curvature_per_vertex", curvaturetype="Gaussian Curvature")
         try:
-            kwargs = dict(method="Taubin approximation", curvcolormethod="None", autoclean=False)
+            kwargs = {"method": "Taubin approximation", "curvcolormethod": "None", "autoclean": False}
             scalar("compute_curvature_principal_directions_per_vertex", **kwargs)
         except pymeshlab.PyMeshLabException:  # non-manifold: no directions; tangent-basis fallback applies
             return mean, gauss, np.full((n, 3), np.nan), np.full((n, 3), np.nan)
     else:
-        kwargs = dict(method=_PRINCIPAL_METHODS[method], autoclean=False)
+        kwargs = {"method": _PRINCIPAL_METHODS[method], "autoclean": False}
         if method == "scale_quadric":
             kwargs["scale"] = pymeshlab.PercentageValue(1.0)
         mean = scalar("compute_curvature_principal_directions_per_vertex", curvcolormethod="Mean Curvature", **kwargs)

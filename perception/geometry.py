@@ -139,7 +139,7 @@ class ObjectModel:
         directed = np.concatenate(
             [self.triangles[:, [0, 1]], self.triangles[:, [1, 2]], self.triangles[:, [2, 0]]]
         )
-        undirected, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+        _undirected, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
         if not np.all(counts == 2):
             return False
         # Consistent orientation: each directed edge appears once.

@@ -186,9 +186,8 @@ def validate_arrays(vertices, triangles, name: str) -> tuple[np.ndarray, np.ndar
         raise InvalidMeshError(f"{name}: vertices must be a non-empty (V, 3) array, got shape {v.shape}")
     if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
         raise InvalidMeshError(f"{name}: triangles must be a non-empty (F, 3) array, got shape {t.shape}")
-    if not np.issubdtype(t.dtype, np.integer):
-        if not np.all(np.isfinite(t)) or not np.all(t == np.round(t)):
-            raise InvalidMeshError(f"{name}: triangle indices must be integers")
+    if not np.issubdtype(t.dtype, np.integer) and not (np.all(np.isfinite(t)) and np.all(t == np.round(t))):
+        raise InvalidMeshError(f"{name}: triangle indices must be integers")
     v = v.astype(np.float64, copy=False)
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():

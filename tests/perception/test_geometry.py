@@ -123,9 +123,9 @@ def test_vertex_colors_survive_repair(tmp_path):
          MeshLoadError, "declares"),
         ("mesh.xyz", "0 0 0\n", MeshLoadError, "unknown mesh type"),
         ("nan.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", InvalidMeshError, "NaN"),
-        ("range.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        ("range.ply", ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
          "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
-         "0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n", InvalidMeshError, "out of range"),
+         "0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n"), InvalidMeshError, "out of range"),
     ],
 )
 def test_bad_files_raise_specific_errors_naming_the_file(tmp_path, name, content, error, words):
