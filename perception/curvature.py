@@ -1,9 +1,9 @@
 """Vertex normals and curvature estimators (pymeshlab, Open3D), all on the mesh's own vertex order.
 
 Facts this module relies on (pymeshlab 2025.7, checked in ``tests/perception/test_curvature.py`` and
-``benchmarks/geometry.py``): "Quadric Fitting" gives |H| within ~0.5 % on a sphere; "Scale Dependent
-Quadric Fitting" is steadier for principal *directions* on irregular meshes but returns directions scaled
-by the curvature (we normalise them); the discrete (Meyer et al.) operator gives mean and Gaussian
+``benchmarks/geometry.py``): "Quadric Fitting" gives |H| within ~0.5 % on a sphere; principal directions
+come back unordered and, from "Scale Dependent Quadric Fitting", scaled by the curvature (we normalise and
+order them, see ``_order_directions``); the discrete (Meyer et al.) operator gives mean and Gaussian
 curvature but no directions; ``autoclean=True`` may delete vertices and re-index, so it is always off and the
 vertex count is checked.
 """
@@ -117,12 +117,40 @@ def compute_curvature(model, method: str = "quadric"):
     k1, k2 = mean + root, mean - root
 
     normals = model.vertex_normals
+    dir1, dir2 = _order_directions(
+        model.vertices, model.triangles, normals, np.nan_to_num(dir1), np.nan_to_num(dir2)
+    )
     fallback1, fallback2 = _tangent_basis(normals)
-    no_dir = ~(np.isfinite(dir1).all(axis=1) & np.isfinite(dir2).all(axis=1))
-    no_dir |= (np.linalg.norm(dir1, axis=1) < 1e-12) | (np.linalg.norm(dir2, axis=1) < 1e-12)
-    dir1 = np.where(no_dir[:, None], fallback1, _unit_or_default(np.nan_to_num(dir1)))
-    dir2 = np.where(no_dir[:, None], fallback2, _unit_or_default(np.nan_to_num(dir2)))
+    no_dir = (np.linalg.norm(dir1, axis=1) < 1e-12) | (np.linalg.norm(dir2, axis=1) < 1e-12)
+    dir1 = np.where(no_dir[:, None], fallback1, dir1)
+    dir2 = np.where(no_dir[:, None], fallback2, dir2)
     return Curvature(mean=mean, gaussian=gauss, k1=k1, k2=k2, dir1=dir1, dir2=dir2, method=method)
+
+
+def _order_directions(vertices, triangles, normals, dir1, dir2):
+    """Make ``dir1`` the k1 (larger curvature) direction and ``dir2`` the k2 one.
+
+    pymeshlab's directions are not reliably ordered (quadric fitting swaps them on a third of a torus,
+    Taubin on all of a cylinder) and scale-dependent fitting returns a zero vector where a curvature is 0.
+    A zero direction is first rebuilt from the other one and the normal; then, by Euler's formula, the
+    one-ring edges closer to the k1 direction bend more (normal curvature of an edge e at a vertex with
+    normal n: -2 n.e / |e|^2), so a vertex whose edges bend more across ``dir1`` than along it is swapped.
+    """
+    ok1 = np.linalg.norm(dir1, axis=1) > 1e-12
+    ok2 = np.linalg.norm(dir2, axis=1) > 1e-12
+    dir1 = np.where((ok2 & ~ok1)[:, None], np.cross(dir2, normals), dir1)
+    dir2 = np.where((ok1 & ~ok2)[:, None], np.cross(normals, dir1), dir2)
+    dir1, dir2 = _unit_or_default(dir1), _unit_or_default(dir2)
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    edges = np.concatenate([edges, edges[:, ::-1]])
+    i, j = edges[:, 0], edges[:, 1]
+    edge = vertices[j] - vertices[i]
+    height = np.einsum("ij,ij->i", normals[i], edge)
+    bend = -2.0 * height / np.maximum(np.einsum("ij,ij->i", edge, edge), 1e-300)
+    tangent = edge - height[:, None] * normals[i]
+    cos2 = np.einsum("ij,ij->i", tangent, dir1[i]) ** 2 / np.maximum(np.einsum("ij,ij->i", tangent, tangent), 1e-300)
+    swap = (np.bincount(i, bend * (cos2 - 0.5), minlength=len(vertices)) < 0)[:, None]
+    return np.where(swap, dir2, dir1), np.where(swap, dir1, dir2)
 
 
 def _estimate_safely(model, method: str):
@@ -132,6 +160,7 @@ def _estimate_safely(model, method: str):
     edges and vertices split, values mapped back by position); if even that fails, zeros.
     """
     import concurrent.futures
+    import faulthandler
     import multiprocessing
 
     import pymeshlab
@@ -141,7 +170,9 @@ def _estimate_safely(model, method: str):
         return _estimate(*args)
     try:
         # pymeshlab aborts the whole process on some open meshes: run it in a forked child.
-        with concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork")) as pool:
+        with concurrent.futures.ProcessPoolExecutor(
+            1, mp_context=multiprocessing.get_context("fork"), initializer=faulthandler.disable
+        ) as pool:
             return pool.submit(_estimate, *args).result()
     except (concurrent.futures.process.BrokenProcessPool, pymeshlab.PyMeshLabException) as exc:
         reason = "crashed" if isinstance(exc, concurrent.futures.process.BrokenProcessPool) else "refused"
