@@ -72,12 +72,18 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray, method: str = "a
     return _unit_or_default(normals)
 
 
-def _unit_or_default(vectors: np.ndarray) -> np.ndarray:
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    """Rows scaled to unit length; zero, tiny or non-finite rows become zero."""
     norm = np.linalg.norm(vectors, axis=1, keepdims=True)
     good = np.isfinite(vectors).all(axis=1, keepdims=True) & (norm > 1e-12)
     with np.errstate(invalid="ignore", divide="ignore"):
-        unit = np.where(good, vectors / np.where(good, norm, 1.0), 0.0)
-    unit[~good[:, 0]] = (0.0, 0.0, 1.0)
+        return np.where(good, vectors / np.where(good, norm, 1.0), 0.0)
+
+
+def _unit_or_default(vectors: np.ndarray) -> np.ndarray:
+    """Like :func:`_unit`, but degenerate rows become (0, 0, 1)."""
+    unit = _unit(vectors)
+    unit[~unit.any(axis=1)] = (0.0, 0.0, 1.0)
     return unit
 
 
@@ -140,7 +146,7 @@ def _order_directions(vertices, triangles, normals, dir1, dir2):
     ok2 = np.linalg.norm(dir2, axis=1) > 1e-12
     dir1 = np.where((ok2 & ~ok1)[:, None], np.cross(dir2, normals), dir1)
     dir2 = np.where((ok1 & ~ok2)[:, None], np.cross(normals, dir1), dir2)
-    dir1, dir2 = _unit_or_default(dir1), _unit_or_default(dir2)
+    dir1, dir2 = _unit(dir1), _unit(dir2)
     edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     edges = np.concatenate([edges, edges[:, ::-1]])
     i, j = edges[:, 0], edges[:, 1]
