@@ -45,13 +45,13 @@ class DeviceNotFoundError(VisuotactileError):
 
 
 __all__ = [
-    "VisuotactileError",
-    "MeshLoadError",
-    "InvalidMeshError",
     "ContourError",
-    "SensorSpecError",
-    "SaliencyError",
     "DatasetError",
-    "ModelMismatchError",
     "DeviceNotFoundError",
+    "InvalidMeshError",
+    "MeshLoadError",
+    "ModelMismatchError",
+    "SaliencyError",
+    "SensorSpecError",
+    "VisuotactileError",
 ]

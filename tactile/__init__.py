@@ -1,1 +1,16 @@
 """Touching: contours on the object surface and the virtual FSR tactile array pressed along them."""
+
+from tactile.contours import Contour, Plane, make_contour, plane_through, section
+from tactile.explore import TactileSequence, explore
+from tactile.sensor import FSRSensor
+
+__all__ = [
+    "Contour",
+    "FSRSensor",
+    "Plane",
+    "TactileSequence",
+    "explore",
+    "make_contour",
+    "plane_through",
+    "section",
+]

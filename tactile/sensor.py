@@ -1,0 +1,352 @@
+"""The virtual FSR tactile array: a square pad of taxels pressed on the surface by ray casting.
+
+At each probe the pad lies in the tangent plane (x = tangent, y = normal x tangent), centred at the
+probe. Each taxel casts one ray from a stand-off ``h`` above the pad along the outward normal back
+towards the surface; ``gap = t_hit - h`` is the distance from the pad plane to the surface (0 where they
+touch, negative where the surface pokes through the pad). All taxels of a batch of probes go into one
+``RaycastingScene.cast_rays`` call. Where the pad penetrates (a concave spot) it shrinks, keeping its
+taxel count (finer pitch), and only those probes are cast again.
+
+Frames are indexed ``[row, col]``: columns run along the pad x axis (the contour tangent), rows along
+the pad y axis, both increasing with the index.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass
+from numbers import Integral, Real
+
+import numpy as np
+import open3d as o3d
+
+from perception.errors import SensorSpecError
+from perception.geometry import ObjectModel
+from tactile.contours import orthonormal_tangents
+
+log = logging.getLogger(__name__)
+
+#: Upper bound on rays per ``cast_rays`` call (bounds memory; 2**20 rays is 24 MiB of float32 input).
+MAX_RAYS_PER_CAST = 1 << 20
+
+MODES = ("gap", "contact")
+
+
+def unit_taxel_grid(rows: int, cols: int) -> np.ndarray:
+    """(rows * cols, 2) taxel-centre (x, y) on a pad of unit side centred at 0, row-major (x along cols)."""
+    x = (np.arange(cols) + 0.5) / cols - 0.5
+    y = (np.arange(rows) + 0.5) / rows - 0.5
+    yy, xx = np.meshgrid(y, x, indexing="ij")
+    return np.stack([xx.ravel(), yy.ravel()], axis=1)
+
+
+@dataclass(frozen=True)
+class FSRSensor:
+    """Specification of a virtual FSR tactile array, and :meth:`press` to read it.
+
+    Attributes:
+        rows, cols: taxel counts (pad y and x).
+        side_mm: pad side before any shrinking, mm.
+        min_side_mm: smallest side the adaptive pad shrinks to, mm.
+        mode: ``"gap"``: the distance image (mm from each taxel to the surface, clipped to
+            [0, ``range_mm``]; a flat surface reads all zeros). ``"contact"``: pressure
+            ``stiffness * max(0, indent_mm - gap)``, saturated at ``saturation`` and quantised to
+            ``adc_bits``.
+        range_mm: sensing range: the reading where a ray misses or the surface is further away.
+        standoff_mm: height above the pad where taxel rays start. Surface poking through the pad by
+            more than this reads as exactly ``-standoff_mm`` on watertight meshes (the ray starts inside).
+        indent_mm: indentation depth delta of the contact model, mm.
+        stiffness: pressure per mm of indentation (contact mode).
+        saturation: largest pressure the taxel reports (contact mode).
+        adc_bits: quantisation of the pressure (contact mode), levels 2**bits - 1 over [0, saturation].
+        noise_std: Gaussian taxel noise (mm in gap mode, pressure units in contact mode), 0 for none.
+        dead_taxel_rate: fraction of taxels that read nothing (range in gap mode, 0 in contact mode);
+            drawn once per :meth:`press` call.
+        penetration_eps_mm: the pad counts as penetrating where min(gap) < -eps. It absorbs the
+            tessellation (the pad follows the interpolated normal, so flat facets near the probe poke
+            through by a fraction of a millimetre on coarse meshes) and stands for the skin's give.
+        shrink_factor: the adaptive pad's sides form the ladder side_mm * shrink_factor**k (k >= 0),
+            never below min_side_mm; in (0, 1).
+        survey_taxels: before the full-resolution cast, an adaptive press surveys the pad with a
+            survey_taxels x survey_taxels subset of its taxels (shrinking on that cheap grid first), so
+            most probes are cast at full resolution once; 0 turns the survey off.
+
+    Raises:
+        SensorSpecError: a non-positive size, ``min_side_mm`` > ``side_mm``, an unknown mode, a rate or
+            factor out of range, or a non-numeric value.
+    """
+
+    rows: int = 32
+    cols: int = 32
+    side_mm: float = 20.0
+    min_side_mm: float = 5.0
+    mode: str = "gap"
+    range_mm: float = 10.0
+    standoff_mm: float = 5.0
+    indent_mm: float = 1.0
+    stiffness: float = 1.0
+    saturation: float = 1.0
+    adc_bits: int = 12
+    noise_std: float = 0.0
+    dead_taxel_rate: float = 0.0
+    penetration_eps_mm: float = 0.2
+    shrink_factor: float = 0.8
+    survey_taxels: int = 8
+
+    def __post_init__(self) -> None:
+        for name in ("rows", "cols", "adc_bits", "survey_taxels"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, Integral):
+                raise SensorSpecError(f"FSRSensor.{name} must be an integer, got {value!r}")
+        for name in ("rows", "cols"):
+            if not 1 <= getattr(self, name) <= 1024:
+                raise SensorSpecError(
+                    f"FSRSensor.{name} must be in 1..1024 taxels, got {getattr(self, name)}"
+                )
+        if not 0 <= self.survey_taxels <= 1024:
+            raise SensorSpecError(f"FSRSensor.survey_taxels must be in 0..1024, got {self.survey_taxels}")
+        if not 1 <= self.adc_bits <= 32:
+            raise SensorSpecError(f"FSRSensor.adc_bits must be in 1..32, got {self.adc_bits}")
+        if self.mode not in MODES:
+            raise SensorSpecError(f"FSRSensor.mode must be one of {MODES}, got {self.mode!r}")
+        positive = ("side_mm", "min_side_mm", "range_mm", "standoff_mm", "stiffness", "saturation")
+        non_negative = ("indent_mm", "noise_std", "dead_taxel_rate", "penetration_eps_mm")
+        for name in (*positive, *non_negative, "shrink_factor"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, Real) or not np.isfinite(value):
+                raise SensorSpecError(f"FSRSensor.{name} must be a finite number, got {value!r}")
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise SensorSpecError(f"FSRSensor.{name} must be > 0, got {getattr(self, name)}")
+        for name in non_negative:
+            if getattr(self, name) < 0:
+                raise SensorSpecError(f"FSRSensor.{name} must be >= 0, got {getattr(self, name)}")
+        if self.min_side_mm > self.side_mm:
+            raise SensorSpecError(
+                f"FSRSensor.min_side_mm ({self.min_side_mm}) must not exceed side_mm ({self.side_mm})"
+            )
+        if not 0 < self.shrink_factor < 1:
+            raise SensorSpecError(f"FSRSensor.shrink_factor must be in (0, 1), got {self.shrink_factor}")
+        if self.dead_taxel_rate >= 1:
+            raise SensorSpecError(f"FSRSensor.dead_taxel_rate must be < 1, got {self.dead_taxel_rate}")
+        object.__setattr__(self, "_unit_grid", unit_taxel_grid(self.rows, self.cols))
+
+    # ------------------------------------------------------------------------------------ spec
+    def spec(self) -> dict:
+        """JSON-able specification (for dataset metadata and model compatibility checks)."""
+        return {"sensor": "FSRSensor", **asdict(self)}
+
+    def taxel_coordinates(self, side_mm: float | None = None) -> np.ndarray:
+        """(rows, cols, 2) pad (x, y) coordinates of the taxel centres, mm, for a pad of ``side_mm``."""
+        side = self.side_mm if side_mm is None else float(side_mm)
+        return (side * self._unit_grid).reshape(self.rows, self.cols, 2)
+
+    # ----------------------------------------------------------------------------------- press
+    def measure_gaps(
+        self,
+        model: ObjectModel,
+        positions,
+        normals,
+        tangents,
+        sides_mm,
+    ) -> np.ndarray:
+        """Raw gaps (N, rows, cols) float32, mm, of pads of the given sides (N,): pad plane to surface
+        along -normal, one ray per taxel, no adaptation and no read-out model.
+
+        Negative where the surface pokes through the pad; ``range_mm`` where the ray misses or the
+        surface lies further than the range.
+
+        Raises:
+            SensorSpecError: as :meth:`press`, or sides that are not positive and finite.
+        """
+        positions, normals, tangents = self._check_poses(model, positions, normals, tangents)
+        sides = np.broadcast_to(np.asarray(sides_mm, dtype=np.float64), (len(positions),))
+        if not (np.isfinite(sides).all() and (sides > 0).all()):
+            raise SensorSpecError(f"{model.name}: pad sides must be positive and finite, got {sides_mm!r}")
+        return self._gaps(model, positions, normals, tangents, sides)
+
+    def _gaps(self, model, positions, normals, tangents, sides_mm, unit_grid=None) -> np.ndarray:
+        """:meth:`measure_gaps` on checked poses; with ``unit_grid`` (T, 2) instead of the taxel grid,
+        the result is (N, T)."""
+        grid = self._unit_grid if unit_grid is None else unit_grid
+        # Rows (x, y, 1) so that one matmul per probe gives x * tangent + y * binormal + origin.
+        grid = np.concatenate([grid, np.ones((len(grid), 1))], axis=1).astype(np.float32)
+        n_probes, n_taxels = len(positions), len(grid)
+        out = np.empty((n_probes, n_taxels), dtype=np.float32)
+        per_cast = max(1, MAX_RAYS_PER_CAST // n_taxels)
+        backface_is_inside = model.is_watertight
+        binormals = np.cross(normals, tangents)
+        standoff = np.float32(self.standoff_mm)
+        for lo in range(0, n_probes, per_cast):
+            sl = slice(lo, lo + per_cast)
+            frames = np.stack(
+                [
+                    tangents[sl] * sides_mm[sl, None],
+                    binormals[sl] * sides_mm[sl, None],
+                    positions[sl] + self.standoff_mm * normals[sl],
+                ],
+                axis=1,
+            ).astype(np.float32)  # (B, 3, 3)
+            inward = (-normals[sl]).astype(np.float32)
+            rays = np.empty((len(frames), n_taxels, 6), dtype=np.float32)
+            np.matmul(grid, frames, out=rays[..., :3])
+            rays[..., 3:] = inward[:, None, :]
+            hits = model.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
+            gap = hits["t_hit"].numpy().reshape(len(frames), n_taxels) - standoff
+            if backface_is_inside:
+                # Hitting a triangle from behind means the ray started inside the solid: the surface
+                # rises above the stand-off, so the pad penetrates by at least that much.
+                face = hits["primitive_normals"].numpy().reshape(len(frames), n_taxels, 3)
+                facing = np.matmul(face, inward[:, :, None])[..., 0]
+                gap[np.isfinite(gap) & (facing > 0)] = -standoff
+            out[sl] = np.where(np.isfinite(gap), np.minimum(gap, np.float32(self.range_mm)), self.range_mm)
+        return out if unit_grid is not None else out.reshape(n_probes, self.rows, self.cols)
+
+    def press(
+        self,
+        model: ObjectModel,
+        positions,
+        normals,
+        tangents,
+        *,
+        seed: int | np.random.Generator | None = None,
+        adaptive: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Press the pad at N probe poses on ``model`` and read it.
+
+        Args:
+            positions: (N, 3) pad centres on the surface, mm.
+            normals: (N, 3) outward surface normals (normalised here).
+            tangents: (N, 3) pad x axes (made orthogonal to the normals here).
+            seed: seed or Generator for taxel noise and dead taxels (unused when both are off).
+            adaptive: shrink penetrating pads (see :meth:`_shrink`), re-casting only those probes.
+
+        Returns:
+            frames (N, rows, cols) float32 (mm in gap mode, pressure in contact mode) and the pad side
+            of each frame (N,) float64, mm.
+
+        Raises:
+            SensorSpecError: an empty probe list, mismatched or non-finite arrays, a zero normal.
+        """
+        positions, normals, tangents = self._check_poses(model, positions, normals, tangents)
+        poses = (model, positions, normals, tangents)
+        steps = np.zeros(len(positions), dtype=np.int64)
+        if adaptive and self.survey_taxels and self.survey_taxels < max(self.rows, self.cols):
+            # A coarse survey of the full pad picks each probe's side before the one full-resolution cast.
+            survey = self._survey_grid()
+            coarse = self._gaps(*poses, self._ladder(steps), unit_grid=survey)
+            self._shrink(poses, coarse, steps, survey)
+        gaps = self._gaps(*poses, self._ladder(steps)).reshape(len(positions), -1)
+        if adaptive:
+            self._shrink(poses, gaps, steps, self._unit_grid)
+        sides = self._ladder(steps)
+        return self._read(gaps.reshape(-1, self.rows, self.cols), np.random.default_rng(seed)), sides
+
+    def _survey_grid(self) -> np.ndarray:
+        """A survey_taxels x survey_taxels subset of the taxel grid, outermost rows and columns included,
+        so that a side passing the survey fails the full cast only through the taxels in between."""
+        rows = np.round(np.linspace(0, self.rows - 1, min(self.survey_taxels, self.rows))).astype(np.int64)
+        cols = np.round(np.linspace(0, self.cols - 1, min(self.survey_taxels, self.cols))).astype(np.int64)
+        return self._unit_grid.reshape(self.rows, self.cols, 2)[np.ix_(rows, cols)].reshape(-1, 2)
+
+    def _ladder(self, steps: np.ndarray) -> np.ndarray:
+        """Pad sides side_mm * shrink_factor**steps, never below min_side_mm."""
+        return np.maximum(self.side_mm * self.shrink_factor ** steps.astype(np.float64), self.min_side_mm)
+
+    def _next_steps(self, gaps: np.ndarray, unit_grid: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """Ladder steps after seeing ``gaps`` (N, T) on pads of ``_ladder(steps)``.
+
+        A penetrating taxel (gap < -eps) at Chebyshev distance c from the pad centre is inside every pad
+        of side > 2c (the gap at a point of the pad plane does not depend on the pad side), so the pad
+        jumps to the first ladder side <= 2c of the nearest such taxel, at least one step down.
+        """
+        sides = self._ladder(steps)
+        chebyshev = np.abs(unit_grid).max(axis=1)[None, :] * sides[:, None]
+        nearest = np.where(gaps < -self.penetration_eps_mm, chebyshev, np.inf).min(axis=1)
+        hit = np.isfinite(nearest) & (sides > self.min_side_mm)
+        # Past the step that reaches min_side_mm further steps change nothing: cap there.
+        last = max(int(np.ceil(np.log(self.min_side_mm / self.side_mm) / np.log(self.shrink_factor))), 0)
+        # A taxel at the very centre (nearest = 0) penetrates every pad: straight to the last step.
+        ratio = np.maximum(2 * nearest[hit] / self.side_mm, 1e-300)
+        needed = np.minimum(np.ceil(np.log(ratio) / np.log(self.shrink_factor)), last).astype(np.int64)
+        new = steps.copy()
+        new[hit] = np.minimum(np.maximum(needed, steps[hit] + 1), last)
+        return new
+
+    def _shrink(self, poses, gaps: np.ndarray, steps: np.ndarray, unit_grid: np.ndarray) -> None:
+        """Shrink penetrating pads in place (``gaps`` (N, T) seen on ``unit_grid``, and ``steps``),
+        re-casting only them on the same grid.
+
+        Every round moves each still-penetrating pad at least one ladder step down until it reaches
+        min_side_mm, so the loop ends after at most log(min_side / side) / log(shrink_factor) + 1 rounds.
+        """
+        model, positions, normals, tangents = poses
+        grid = None if unit_grid is self._unit_grid else unit_grid
+        rounds = 0
+        while True:
+            new = self._next_steps(gaps, unit_grid, steps)
+            active = np.flatnonzero(new != steps)
+            if not active.size:
+                break
+            steps[active] = new[active]
+            gaps[active] = self._gaps(
+                model, positions[active], normals[active], tangents[active], self._ladder(steps[active]), grid
+            ).reshape(len(active), -1)
+            rounds += 1
+        if rounds:
+            log.debug(
+                "%s: adaptive pad took %d re-cast rounds on %d taxels", model.name, rounds, len(unit_grid)
+            )
+
+    def _read(self, gaps: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Turn raw gaps into readings: range clip or contact pressure, noise, ADC, dead taxels."""
+        dead = rng.random((self.rows, self.cols)) < self.dead_taxel_rate if self.dead_taxel_rate > 0 else None
+        if self.mode == "gap":
+            frames = np.clip(gaps, 0.0, self.range_mm)
+            if self.noise_std > 0:
+                frames = np.clip(frames + rng.normal(0.0, self.noise_std, frames.shape), 0.0, self.range_mm)
+            if dead is not None:
+                frames[:, dead] = self.range_mm
+            return frames.astype(np.float32)
+        pressure = self.stiffness * np.maximum(0.0, self.indent_mm - gaps.astype(np.float64))
+        if self.noise_std > 0:
+            pressure = pressure + rng.normal(0.0, self.noise_std, pressure.shape)
+        pressure = np.clip(pressure, 0.0, self.saturation)
+        levels = 2**self.adc_bits - 1
+        pressure = np.round(pressure * (levels / self.saturation)) * (self.saturation / levels)
+        if dead is not None:
+            pressure[:, dead] = 0.0
+        return pressure.astype(np.float32)
+
+    def _check_poses(self, model, positions, normals, tangents):
+        arrays = []
+        for name, value in (("positions", positions), ("normals", normals), ("tangents", tangents)):
+            try:
+                array = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise SensorSpecError(f"{model.name}: probe {name} are not numeric: {exc}") from exc
+            if array.size == 0:
+                raise SensorSpecError(
+                    f"{model.name}: empty probe list ({name} has no rows); give at least one probe"
+                )
+            if array.ndim == 1 and array.shape == (3,):
+                array = array[None, :]
+            if array.ndim != 2 or array.shape[1] != 3:
+                raise SensorSpecError(f"{model.name}: probe {name} must be (N, 3), got shape {array.shape}")
+            if not np.isfinite(array).all():
+                raise SensorSpecError(f"{model.name}: probe {name} contain NaN or Inf")
+            arrays.append(array)
+        positions, normals, tangents = arrays
+        if not len(positions) == len(normals) == len(tangents):
+            raise SensorSpecError(
+                f"{model.name}: {len(positions)} positions, {len(normals)} normals and {len(tangents)} tangents differ"
+            )
+        length = np.linalg.norm(normals, axis=1)
+        if (length < 1e-12).any():
+            raise SensorSpecError(f"{model.name}: probe {int(np.argmin(length))} has a zero normal")
+        normals = normals / length[:, None]
+        tangents = orthonormal_tangents(normals, tangents, np.array([0.0, 0.0, 1.0]))
+        return positions, normals, tangents
+
+
+__all__ = ["MAX_RAYS_PER_CAST", "MODES", "FSRSensor", "unit_taxel_grid"]
