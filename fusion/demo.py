@@ -83,7 +83,7 @@ def _touch(model, out: Path, seed: int) -> dict:
     result["saliency_seconds"] = round(time.perf_counter() - start, 3)
     print(f"\nSaliency of {model.name} ({attention.method}): {result['saliency_seconds']} s, "
           f"channels {', '.join(attention.channels_computed)}")
-    plot_saliency(model, attention, out / "saliency.png", n_points=10)
+    plot_saliency(attention, out / "saliency.png", n_points=10)
     result["figures"].append("saliency.png")
 
     for strategy in ("blind", "guided"):
@@ -93,7 +93,8 @@ def _touch(model, out: Path, seed: int) -> dict:
         sides = np.concatenate([s.pad_sides_mm for s in sequences])
         print(f"{strategy:>6}: {len(sequences)} contours x {len(sequences[0].frames)} probes in {seconds:.2f} s, "
               f"pad side {sides.min():.1f}-{sides.max():.1f} mm")
-        plot_sequence(model, sequences[0], out / f"contour_{strategy}.png")
+        first = sequences[0]
+        plot_sequence(model, make_contour(model, first.plane, first.n_probes), first, out / f"contour_{strategy}.png")
         result["figures"].append(f"contour_{strategy}.png")
         result[f"{strategy}_seconds"] = round(seconds, 3)
     return result

@@ -14,3 +14,7 @@ __all__ = [
     "plane_through",
     "section",
 ]
+
+from tactile.sampling import explore_object, sample_planes
+
+__all__ += ["explore_object", "sample_planes"]

@@ -1,0 +1,228 @@
+"""Image channels of the multi-view attention model, computed on a stack of rendered views at once.
+
+Every channel works on (N, H, W) stacks (N views) with filters that act only within each view
+(``sigma = (0, s, s)``), so all views cost one filter call. Background pixels never count: smoothing is
+normalised convolution over the object mask, and filters that need a full image see the background
+filled with the nearby object intensity (so the silhouette against an empty background is not mistaken for
+texture; the ``edges`` channel is where silhouettes count, as depth discontinuities).
+
+Channels (scales in pixels; one pixel is ``camera.pixel_mm`` mm, about 1.2 mm at the defaults):
+
+- ``intensity``: centre-surround |G(1) - G(4)| of the headlight shading (Itti et al. 1998).
+- ``contrast``: local standard deviation of the shading in a Gaussian window (sigma 2).
+- ``orientation``: energy of complex Gabor filters (wavelength 6, sigma 3) at 0, 45, 90 and 135 degrees,
+  each normalised, then summed.
+- ``curvature``: RMS curvature of the surface from the normal map, sqrt((|dn/dx|^2 + |dn/dy|^2) / 2), in
+  1/mm, zero across depth discontinuities.
+- ``edges``: depth discontinuities (a jump of more than 4 pixels between neighbours, silhouettes included)
+  plus normal creases (1 - cos of the angle between neighbouring normals).
+- ``entropy``: Shannon entropy of the shading quantised to 16 levels in a Gaussian window (sigma 2), in [0, 1].
+- ``symmetry``: the generalised symmetry transform of Reisfeld, Wolfson & Yeshurun (1995): pairs of gradient
+  pixels at distances 4, 8, 12 placed symmetrically about the pixel vote with their log-magnitudes times
+  the phase weight (1 - cos(t1 + t2 - 2 a))(1 - cos(t1 - t2)), weighted by exp(-distance / 8).
+- ``color_opponency`` (coloured meshes only): centre-surround of R - G and B - (R + G) / 2.
+- ``dkl`` (coloured meshes only): centre-surround of the two chromatic axes of DKL space, L - M and
+  S - (L + M), from RGB through the LMS matrix of Reinhard et al. (2001).
+
+Each channel becomes a conspicuity map with :func:`itti_normalize`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage, signal
+
+#: Channels computed for every mesh, in order.
+GEOMETRY_CHANNELS = ("intensity", "contrast", "orientation", "curvature", "edges", "entropy", "symmetry")
+#: Channels computed only when the mesh has vertex colours.
+COLOR_CHANNELS = ("color_opponency", "dkl")
+ALL_CHANNELS = GEOMETRY_CHANNELS + COLOR_CHANNELS
+
+_EPS = 1e-9
+_RGB_TO_LMS = np.array([[0.3811, 0.5783, 0.0402], [0.1967, 0.7244, 0.0782], [0.0241, 0.1288, 0.8444]])
+
+
+def _blur(x: np.ndarray, sigma: float) -> np.ndarray:
+    return ndimage.gaussian_filter(x, sigma=(0, sigma, sigma), mode="constant")
+
+
+def masked_blur(x: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur of ``x`` over the object pixels only (normalised convolution); 0 on the background."""
+    weight = _blur(mask.astype(np.float64), sigma)
+    value = _blur(x * mask, sigma)
+    return np.divide(value, weight, out=np.zeros_like(value), where=weight > 1e-3) * mask
+
+
+def fill_background(x: np.ndarray, mask: np.ndarray, sigma: float = 4.0) -> np.ndarray:
+    """Copy of ``x`` whose background pixels hold the nearby object value (else the view's object mean)."""
+    weight = _blur(mask.astype(np.float64), sigma)
+    near = np.divide(_blur(x * mask, sigma), weight, out=np.zeros_like(x), where=weight > 1e-3)
+    counts = mask.sum(axis=(1, 2), keepdims=True)
+    mean = np.divide(
+        (x * mask).sum(axis=(1, 2), keepdims=True), counts, out=np.zeros(counts.shape), where=counts > 0
+    )
+    far = np.where(weight > 1e-3, near, mean)
+    return np.where(mask, x, far)
+
+
+def itti_normalize(maps: np.ndarray, mask: np.ndarray | None = None, window: int = 7) -> np.ndarray:
+    """Itti's map normalisation N(.) over a whole stack: scale to [0, 1] by the global maximum, then
+    multiply by (1 - m)^2, m = mean of the other local maxima, promoting maps with few strong peaks.
+
+    Local maxima are pixels equal to the maximum in a ``window`` x ``window`` neighbourhood and above 5 % of the
+    global maximum (so that flat zero regions are not counted). Returns float64 in [0, 1]; all zero when the
+    input is.
+    """
+    maps = np.where(mask, maps, 0.0) if mask is not None else np.asarray(maps, dtype=np.float64)
+    top = float(maps.max()) if maps.size else 0.0
+    if not np.isfinite(top) or top <= _EPS:
+        return np.zeros(maps.shape)
+    x = np.clip(maps / top, 0.0, 1.0)
+    peaks = (x == ndimage.maximum_filter(x, size=(1, window, window))) & (x > 0.05)
+    values = np.sort(x[peaks])[:-1]  # drop the global maximum itself
+    mean_other = float(values.mean()) if values.size else 0.0
+    return x * (1.0 - mean_other) ** 2
+
+
+def _center_surround(
+    x: np.ndarray, mask: np.ndarray, center: float = 1.0, surround: float = 4.0
+) -> np.ndarray:
+    return np.abs(masked_blur(x, mask, center) - masked_blur(x, mask, surround))
+
+
+def _gabor_kernel(theta: float, wavelength: float = 6.0, sigma: float = 3.0) -> np.ndarray:
+    half = int(np.ceil(2.5 * sigma))
+    y, x = np.mgrid[-half : half + 1, -half : half + 1].astype(np.float64)
+    xr = x * np.cos(theta) + y * np.sin(theta)
+    envelope = np.exp(-(x * x + y * y) / (2 * sigma * sigma))
+    kernel = envelope * np.exp(2j * np.pi * xr / wavelength)
+    # Zero-mean real part: a flat patch must give no response.
+    return kernel - envelope * (kernel.sum() / envelope.sum())
+
+
+def _orientation(filled: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    total = np.zeros(filled.shape)
+    for theta in np.deg2rad([0.0, 45.0, 90.0, 135.0]):
+        kernel = _gabor_kernel(theta)[None]
+        response = np.abs(signal.fftconvolve(filled, kernel, mode="same", axes=(1, 2)))
+        total += itti_normalize(response, mask)
+    return total
+
+
+def _curvature(normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: float) -> np.ndarray:
+    sq = np.zeros(mask.shape)
+    for axis in (1, 2):
+        dn = (np.roll(normal, -1, axis=axis) - np.roll(normal, 1, axis=axis)) / (2 * pixel_mm)
+        jump = np.abs(np.roll(depth, -1, axis=axis) - np.roll(depth, 1, axis=axis))
+        ok = mask & np.roll(mask, -1, axis=axis) & np.roll(mask, 1, axis=axis) & (jump < 8 * pixel_mm)
+        sq += np.where(ok, (dn * dn).sum(axis=-1), 0.0)
+    return masked_blur(np.sqrt(sq / 2), mask, 1.0)
+
+
+def _edges(normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: float) -> np.ndarray:
+    far = np.where(mask, depth, depth.max() + 10 * pixel_mm)  # silhouettes are depth discontinuities
+    edge = np.zeros(mask.shape)
+    for axis in (1, 2):
+        for shift in (-1, 1):
+            jump = np.abs(np.roll(far, shift, axis=axis) - far) > 4 * pixel_mm
+            crease = 1.0 - (np.roll(normal, shift, axis=axis) * normal).sum(axis=-1)
+            crease = np.where(np.roll(mask, shift, axis=axis), crease, 0.0)
+            edge = np.maximum(edge, np.maximum(jump.astype(np.float64), np.clip(crease, 0.0, 1.0)))
+    return masked_blur(edge, mask, 1.0)
+
+
+def _entropy(filled: np.ndarray, mask: np.ndarray, levels: int = 16, sigma: float = 2.0) -> np.ndarray:
+    q = np.clip((filled * levels).astype(np.int64), 0, levels - 1)
+    entropy = np.zeros(filled.shape)
+    for level in range(levels):
+        p = _blur((q == level).astype(np.float64), sigma)
+        entropy -= np.where(p > 1e-6, p * np.log2(np.maximum(p, 1e-6)), 0.0)
+    return np.clip(entropy / np.log2(levels), 0.0, 1.0) * mask
+
+
+def _symmetry(filled: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    gx = ndimage.sobel(filled, axis=2)
+    gy = ndimage.sobel(filled, axis=1)
+    strength = np.log1p(np.hypot(gx, gy))
+    phase = np.arctan2(gy, gx)
+    total = np.zeros(filled.shape)
+    for radius in (2, 4, 6):
+        for alpha in np.arange(8) * np.pi / 8:
+            dy, dx = round(radius * np.sin(alpha)), round(radius * np.cos(alpha))
+            a = np.arctan2(dy, dx)
+            t1 = np.roll(phase, (dy, dx), axis=(1, 2))  # value at x - d
+            t2 = np.roll(phase, (-dy, -dx), axis=(1, 2))  # value at x + d
+            r1 = np.roll(strength, (dy, dx), axis=(1, 2))
+            r2 = np.roll(strength, (-dy, -dx), axis=(1, 2))
+            weight = (1 - np.cos(t1 + t2 - 2 * a)) * (1 - np.cos(t1 - t2)) / 4
+            total += np.exp(-2 * np.hypot(dy, dx) / 8) * weight * r1 * r2
+    return total * mask
+
+
+def _color_opponency(color: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    r, g, b = color[..., 0], color[..., 1], color[..., 2]
+    rg = _center_surround(r - g, mask)
+    by = _center_surround(b - (r + g) / 2, mask)
+    return itti_normalize(rg, mask) + itti_normalize(by, mask)
+
+
+def _dkl(color: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    lms = color @ _RGB_TO_LMS.T
+    l_, m_, s_ = lms[..., 0], lms[..., 1], lms[..., 2]
+    red_green = _center_surround(l_ - m_, mask)
+    blue_yellow = _center_surround(s_ - (l_ + m_), mask)
+    return itti_normalize(red_green, mask) + itti_normalize(blue_yellow, mask)
+
+
+def compute_channels(
+    intensity: np.ndarray,
+    depth: np.ndarray,
+    normal: np.ndarray,
+    mask: np.ndarray,
+    pixel_mm: float,
+    channels: tuple[str, ...],
+    color: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """Conspicuity maps (N, H, W) in [0, 1] for the named channels of a view stack.
+
+    Args:
+        intensity, depth: (N, H, W) shading in [0, 1] and depth in mm.
+        normal: (N, H, W, 3) unit normals.
+        mask: (N, H, W) bool object pixels.
+        pixel_mm: pixel side, mm.
+        channels: names from :data:`ALL_CHANNELS`; colour channels need ``color``.
+        color: (N, H, W, 3) RGB in [0, 1], or None.
+
+    Raises:
+        ValueError: an unknown channel, or a colour channel without ``color``.
+    """
+    intensity = intensity.astype(np.float64)
+    normal = normal.astype(np.float64)
+    depth = depth.astype(np.float64)
+    filled = fill_background(intensity, mask)
+    raw = {}
+    for name in channels:
+        if name in COLOR_CHANNELS and color is None:
+            raise ValueError(f"channel {name!r} needs colours")
+        if name == "intensity":
+            raw[name] = _center_surround(intensity, mask)
+        elif name == "contrast":
+            mean = masked_blur(intensity, mask, 2.0)
+            raw[name] = np.sqrt(np.clip(masked_blur(intensity**2, mask, 2.0) - mean**2, 0.0, None))
+        elif name == "orientation":
+            raw[name] = _orientation(filled, mask)
+        elif name == "curvature":
+            raw[name] = _curvature(normal, depth, mask, pixel_mm)
+        elif name == "edges":
+            raw[name] = _edges(normal, depth, mask, pixel_mm)
+        elif name == "entropy":
+            raw[name] = _entropy(filled, mask)
+        elif name == "symmetry":
+            raw[name] = _symmetry(filled, mask)
+        elif name == "color_opponency":
+            raw[name] = _color_opponency(color.astype(np.float64), mask)
+        elif name == "dkl":
+            raw[name] = _dkl(color.astype(np.float64), mask)
+        else:
+            raise ValueError(f"unknown channel {name!r}; known: {', '.join(ALL_CHANNELS)}")
+    return {name: itti_normalize(value, mask) for name, value in raw.items()}

@@ -1,0 +1,421 @@
+"""3D visual attention: where on an object to look (and so, where to touch).
+
+``saliency(model, method)`` gives a :class:`Saliency` with per-vertex scores in [0, 1]:
+
+- ``"multiview"`` (the paper's model): views rendered by ray casting (:mod:`perception.render`), image channels
+  (:mod:`perception.channels`), each an Itti conspicuity map, combined as eq. 1 (weighted sum over the sum of
+  weights), then pooled per vertex: every object pixel adds its combined value to its hit triangle's three
+  vertices with weight (barycentric coordinate x cosine of the viewing angle, so grazing views count least);
+  a vertex's score is the weighted mean over all views. Vertices no ray hit (triangles below pixel size)
+  take their nearest seen vertex's score. Non-maximum suppression of each view's combined map (local maxima in
+  a 9 x 9 window, at least 25 % of the global maximum) gives *fixations*: the peak pixels back-projected to
+  the exact surface point of their hit triangle (barycentric, no depth re-projection).
+- ``"mesh"``: mesh saliency of Lee, Varshney & Jacobs (2005) (:mod:`perception.mesh_saliency`).
+- ``"iss"``: Open3D ISS keypoints spread by a small Gaussian.
+
+Channel weights are uniform unless given; :func:`fit_channel_weights` learns them from human-marked points.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage, sparse
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+from scipy.stats import rankdata
+
+from perception import mesh_saliency
+from perception.channels import ALL_CHANNELS, COLOR_CHANNELS, GEOMETRY_CHANNELS, compute_channels
+from perception.errors import SaliencyError
+from perception.geometry import ObjectModel
+from perception.render import (
+    DEFAULT_N_VIEWS,
+    DEFAULT_SIZE_PX,
+    View,
+    render_views,
+    surface_points,
+    view_directions,
+)
+
+log = logging.getLogger(__name__)
+
+METHODS = ("multiview", "mesh", "iss")
+#: Default separation of interest points, as a fraction of the bounding-box diagonal (15 mm at 150 mm).
+DEFAULT_SEPARATION_FRACTION = 0.1
+#: Marked points label vertices within this fraction of the diagonal as "salient" (3 mm at 150 mm).
+MARK_RADIUS_FRACTION = 0.02
+
+
+@dataclass(frozen=True, eq=False)
+class Saliency:
+    """Per-vertex saliency of one object.
+
+    Attributes:
+        model: the object scored.
+        scores: (V,) float64 in [0, 1].
+        method: "multiview", "mesh" or "iss".
+        channels_computed: channel names evaluated (multiview only; empty otherwise).
+        channels_skipped: channels not evaluated and why, e.g. ``{"dkl": "mesh has no colours"}``.
+        channel_maps: per-channel (V,) pooled conspicuity, multiview only.
+        weights: the channel weights used (multiview only).
+        fixations: (K, 3) surface points (mm) of the per-view non-maximum-suppressed peaks (multiview only).
+    """
+
+    model: ObjectModel = field(repr=False)
+    scores: np.ndarray
+    method: str
+    channels_computed: tuple[str, ...] = ()
+    channels_skipped: dict[str, str] = field(default_factory=dict)
+    channel_maps: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    weights: dict[str, float] = field(default_factory=dict)
+    fixations: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+
+    def _candidates(self) -> tuple[np.ndarray, np.ndarray]:
+        """Candidate surface points and their scores: the vertices, then the fixations (scores interpolated)."""
+        points, scores = self.model.vertices, self.scores
+        if len(self.fixations):
+            closest, _ = self.model.closest_points(self.fixations)
+            _, nearest = cKDTree(self.model.vertices).query(closest)
+            points = np.vstack([points, self.fixations])
+            scores = np.concatenate([scores, self.scores[nearest]])
+        return points, scores
+
+    def interest_points(self, n: int, *, min_distance_mm: float | None = None) -> np.ndarray:
+        """(n, 3) surface points (mm), greedily picked by decreasing score, at least ``min_distance_mm`` apart
+        (Euclidean; default 10 % of the diagonal). Where fewer than n fit, the distance is halved and the
+        search continues, so the n points always come back. Deterministic (ties broken by index).
+
+        Raises:
+            SaliencyError: n < 1, n larger than the number of candidate points, or a negative distance.
+        """
+        points, scores = self._candidates()
+        if n < 1 or n > len(points):
+            raise SaliencyError(
+                f"{self.model.name}: cannot pick {n} interest points from {len(points)} candidates"
+            )
+        distance = (
+            DEFAULT_SEPARATION_FRACTION * self.model.diagonal if min_distance_mm is None else min_distance_mm
+        )
+        if not np.isfinite(distance) or distance < 0:
+            raise SaliencyError(f"{self.model.name}: min_distance_mm must be >= 0, got {min_distance_mm!r}")
+        order = np.argsort(-scores, kind="stable")
+        chosen: list[int] = []
+        while len(chosen) < n:
+            for index in order:
+                if len(chosen) == n:
+                    break
+                if index in chosen:
+                    continue
+                if chosen and np.min(np.linalg.norm(points[chosen] - points[index], axis=1)) < distance:
+                    continue
+                chosen.append(int(index))
+            distance = distance / 2 if distance > 1e-9 * self.model.diagonal else 0.0
+        return points[chosen].copy()
+
+
+@dataclass(frozen=True)
+class ViewMaps:
+    """Per-view multiview maps: the views, per-channel conspicuity (N, H, W), the combined map and its peaks."""
+
+    views: list[View]
+    channels: dict[str, np.ndarray]
+    combined: np.ndarray
+    peaks: np.ndarray
+
+
+def _check_weights(
+    weights: dict[str, float] | None, channels: tuple[str, ...], name: str
+) -> dict[str, float]:
+    if weights is None:
+        return {c: 1.0 for c in channels}
+    unknown = sorted(set(weights) - set(ALL_CHANNELS))
+    if unknown:
+        raise SaliencyError(f"{name}: unknown channel weight(s) {unknown}; known: {', '.join(ALL_CHANNELS)}")
+    values = {c: float(weights.get(c, 0.0)) for c in channels}
+    if any(not np.isfinite(v) or v < 0 for v in values.values()):
+        raise SaliencyError(f"{name}: channel weights must be finite and >= 0, got {weights}")
+    if sum(values.values()) <= 0:
+        raise SaliencyError(f"{name}: the weights of the computed channels {channels} sum to zero")
+    return values
+
+
+def _channels_for(model: ObjectModel) -> tuple[tuple[str, ...], dict[str, str]]:
+    if model.has_colors:
+        return ALL_CHANNELS, {}
+    return GEOMETRY_CHANNELS, {c: "mesh has no colours" for c in COLOR_CHANNELS}
+
+
+def multiview_maps(
+    model: ObjectModel,
+    *,
+    weights: dict[str, float] | None = None,
+    n_views: int | None = None,
+    size_px: int | None = None,
+    seed: int = 0,
+) -> ViewMaps:
+    """Render the views and compute every channel's conspicuity and the combined map (eq. 1) per view.
+
+    The view sphere (a Fibonacci lattice) is turned by a random rotation drawn from ``seed``.
+
+    Raises:
+        SaliencyError: bad weights or view settings.
+    """
+    n_views = DEFAULT_N_VIEWS if n_views is None else int(n_views)
+    size_px = DEFAULT_SIZE_PX if size_px is None else int(size_px)
+    if n_views < 1 or size_px < 8:
+        raise SaliencyError(f"{model.name}: need n_views >= 1 and size_px >= 8, got {n_views}, {size_px}")
+    channels, _ = _channels_for(model)
+    w = _check_weights(weights, channels, model.name)
+    rotation = Rotation.random(random_state=np.random.default_rng(seed)).as_matrix()
+    views = render_views(
+        model, width=size_px, height=size_px, directions=view_directions(n_views) @ rotation.T
+    )
+    mask = np.stack([v.mask for v in views])
+    maps = compute_channels(
+        np.stack([v.intensity for v in views]),
+        np.stack([v.depth for v in views]),
+        np.stack([v.normal for v in views]),
+        mask,
+        views[0].camera.pixel_mm,
+        channels,
+        color=np.stack([v.color for v in views]) if model.has_colors else None,
+    )
+    combined = sum(w[c] * maps[c] for c in channels) / sum(w.values())
+    top = combined.max()
+    peaks = (combined == ndimage.maximum_filter(combined, size=(1, 9, 9))) & mask & (combined >= 0.25 * top)
+    return ViewMaps(views, maps, combined, peaks & (top > 0))
+
+
+def _pool(model: ObjectModel, views: list[View], values: np.ndarray) -> np.ndarray:
+    """Per-vertex weighted mean of per-pixel ``values`` (C, N, H, W) -> (C, V); see the module docstring."""
+    ids = np.concatenate([v.triangle_ids[v.mask] for v in views])
+    bary = np.concatenate([v.barycentric[v.mask] for v in views]).astype(np.float64)
+    cosine = np.concatenate([v.intensity[v.mask] for v in views]).astype(np.float64)
+    mask = np.stack([v.mask for v in views])
+    weight = (bary * cosine[:, None]).ravel()
+    rows = model.triangles[ids].ravel()
+    cols = np.repeat(np.arange(len(ids)), 3)
+    spread = sparse.csr_matrix((weight, (rows, cols)), shape=(model.n_vertices, len(ids)))
+    pixel_values = values[:, mask].T  # (P, C)
+    total = spread @ pixel_values
+    norm = np.asarray(spread.sum(axis=1)).ravel()
+    seen = norm > 1e-12
+    pooled = np.zeros((values.shape[0], model.n_vertices))
+    pooled[:, seen] = (total[seen] / norm[seen, None]).T
+    if not seen.all() and seen.any():
+        _, nearest = cKDTree(model.vertices[seen]).query(model.vertices[~seen])
+        pooled[:, ~seen] = pooled[:, np.flatnonzero(seen)[nearest]]
+    return pooled
+
+
+def _unit_max(x: np.ndarray) -> np.ndarray:
+    x = np.nan_to_num(np.asarray(x, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    top = x.max() if x.size else 0.0
+    return np.clip(x / top, 0.0, 1.0) if top > 0 else np.zeros_like(x)
+
+
+def saliency(
+    model: ObjectModel,
+    method: str = "multiview",
+    *,
+    weights: dict[str, float] | None = None,
+    n_views: int | None = None,
+    size_px: int | None = None,
+    seed: int = 0,
+) -> Saliency:
+    """Per-vertex saliency of ``model`` with the given method (see the module docstring). Deterministic.
+
+    Args:
+        model: the object.
+        method: "multiview", "mesh" or "iss".
+        weights: multiview channel weights (missing channels weigh 0); uniform when None.
+        n_views, size_px: multiview views and image side (defaults 20 and 128).
+        seed: turns the multiview view sphere; the 3D methods do not use it.
+
+    Raises:
+        SaliencyError: unknown method, bad weights or view settings.
+    """
+    if method not in METHODS:
+        raise SaliencyError(
+            f"{model.name}: unknown saliency method {method!r}; choose one of {', '.join(METHODS)}"
+        )
+    if method == "mesh":
+        return Saliency(model, _unit_max(mesh_saliency.mesh_saliency(model)), method)
+    if method == "iss":
+        return Saliency(model, _unit_max(mesh_saliency.iss_saliency(model)), method)
+    channels, skipped = _channels_for(model)
+    if skipped:
+        log.info("%s: colour channels skipped (mesh has no colours)", model.name)
+    maps = multiview_maps(model, weights=weights, n_views=n_views, size_px=size_px, seed=seed)
+    stack = np.stack([maps.channels[c] for c in channels] + [maps.combined])
+    pooled = _pool(model, maps.views, stack)
+    fixations = np.concatenate(
+        [surface_points(model, v, p) for v, p in zip(maps.views, maps.peaks, strict=True)]
+    ).reshape(-1, 3)
+    return Saliency(
+        model,
+        _unit_max(pooled[-1]),
+        method,
+        channels_computed=channels,
+        channels_skipped=skipped,
+        channel_maps={c: _unit_max(pooled[k]) for k, c in enumerate(channels)},
+        weights=_check_weights(weights, channels, model.name),
+        fixations=fixations,
+    )
+
+
+# ------------------------------------------------------------------------------------ learned weights
+def load_marked_points(path: str | Path) -> np.ndarray:
+    """(K, 3) float64 human-marked points from a text file of ``x y z`` lines (mm; ``#`` comments allowed).
+
+    Raises:
+        SaliencyError: missing or unreadable file, wrong column count, non-finite values, or no points.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SaliencyError(f"{path}: cannot read marked points ({exc})") from exc
+    rows = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.replace(",", " ").split()
+        try:
+            values = [float(p) for p in parts]
+        except ValueError as exc:
+            raise SaliencyError(f"{path}:{number}: not a number in {line!r}") from exc
+        if len(values) != 3 or not np.all(np.isfinite(values)):
+            raise SaliencyError(f"{path}:{number}: expected three finite numbers 'x y z', got {line!r}")
+        rows.append(values)
+    if not rows:
+        raise SaliencyError(f"{path}: no marked points")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def _auc(values: np.ndarray, positive: np.ndarray) -> float:
+    """ROC area under the curve of ``values`` separating ``positive`` from the rest (ties count half)."""
+    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
+    if n_pos == 0 or n_neg == 0:
+        return 0.5
+    ranks = rankdata(values)
+    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def fit_channel_weights(
+    models: list[ObjectModel],
+    ground_truth_points: list[np.ndarray | str | Path],
+    *,
+    radius_mm: float | None = None,
+    n_views: int | None = None,
+    size_px: int | None = None,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Learn multiview channel weights from human-marked points (one (K, 3) array or file per model).
+
+    A vertex is "marked" if it is the nearest vertex of a marked point or lies within ``radius_mm``
+    (default 2 % of the diagonal) of one. Each channel's weight is its Somers' D, 2 AUC - 1 (clipped at 0),
+    for ranking marked above unmarked vertices by its pooled per-vertex conspicuity, averaged over the
+    models, then normalised to sum 1. ``n_views``, ``size_px`` and ``seed`` are passed to :func:`saliency`. A rank measure, not a regression: the channels are strongly
+    correlated (on simple shapes several rank the same vertices), and least-squares fits then pick an
+    arbitrary one of them. Channels computed for only some models (colour) are left out.
+
+    Raises:
+        SaliencyError: mismatched lists, bad marked points, or no channel ranking the marks above chance.
+    """
+    if len(models) != len(ground_truth_points) or not models:
+        raise SaliencyError(
+            f"need one set of marked points per model, got {len(models)} models and {len(ground_truth_points)} sets"
+        )
+    maps, labels = [], []
+    for model, marks in zip(models, ground_truth_points, strict=True):
+        points = load_marked_points(marks) if isinstance(marks, (str, Path)) else np.asarray(marks, float)
+        if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0 or not np.isfinite(points).all():
+            raise SaliencyError(f"{model.name}: marked points must be a non-empty finite (K, 3) array")
+        radius = MARK_RADIUS_FRACTION * model.diagonal if radius_mm is None else radius_mm
+        distance, _ = cKDTree(points).query(model.vertices)
+        positive = distance <= radius
+        positive[cKDTree(model.vertices).query(points)[1]] = True
+        labels.append(positive)
+        maps.append(saliency(model, "multiview", n_views=n_views, size_px=size_px, seed=seed).channel_maps)
+    channels = [c for c in ALL_CHANNELS if all(c in m for m in maps)]
+    score = np.array([np.mean([_auc(m[c], y) for m, y in zip(maps, labels, strict=True)]) for c in channels])
+    w = np.clip(2 * score - 1, 0.0, None)
+    if w.sum() <= 0:
+        raise SaliencyError("no channel ranks the marked points above chance; keep uniform weights")
+    return {c: float(v / w.sum()) for c, v in zip(channels, w, strict=True)}
+
+
+# ---------------------------------------------------------------------------------------------- figures
+def plot_channels(model: ObjectModel, path: str | Path, *, n_rows: int = 3, seed: int = 0) -> Path:
+    """PNG grid: for ``n_rows`` views (those showing the most object), the shading, every channel's
+    conspicuity map and the combined map with its non-maximum-suppressed peaks (red dots). Returns the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    maps = multiview_maps(model, seed=seed)
+    rows = np.argsort([-v.mask.sum() for v in maps.views], kind="stable")[:n_rows]
+    columns = ["shading", *maps.channels, "combined"]
+    fig, axes = plt.subplots(
+        len(rows), len(columns), figsize=(1.8 * len(columns), 1.9 * len(rows)), squeeze=False
+    )
+    for r, k in enumerate(rows):
+        images = [maps.views[k].intensity, *(maps.channels[c][k] for c in maps.channels), maps.combined[k]]
+        for c, (title, image) in enumerate(zip(columns, images, strict=True)):
+            ax = axes[r, c]
+            ax.imshow(image, cmap="gray" if c == 0 else "inferno", vmin=0, vmax=max(float(image.max()), 1e-9))
+            if title == "combined":
+                peak_rows, peak_cols = np.nonzero(maps.peaks[k])
+                ax.plot(peak_cols, peak_rows, "o", color="red", markersize=2)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(title, fontsize=8)
+    fig.suptitle(f"{model.name}: multiview channels (conspicuity) and eq. 1 combination", fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_saliency(sal: Saliency, path: str | Path, *, n_points: int = 10, size_px: int = 256) -> Path:
+    """PNG of the per-vertex scores on the mesh from two opposite views (shaded, colour = score) with the
+    ``n_points`` interest points marked where visible. Returns the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from perception.render import interpolate_values, visible
+
+    model = sal.model
+    points = sal.interest_points(n_points)
+    directions = np.array([[1.0, -1.0, 0.8], [-1.0, 1.0, -0.8]])
+    views = render_views(model, width=size_px, height=size_px, directions=directions)
+    fig, axes = plt.subplots(1, 2, figsize=(8, 4.3))
+    cmap = plt.get_cmap("inferno")
+    for ax, view in zip(axes, views, strict=True):
+        colour = cmap(interpolate_values(model, view, sal.scores))[..., :3]
+        image = colour * (0.35 + 0.65 * view.intensity[..., None])
+        image[~view.mask] = 1.0
+        ax.imshow(image)
+        seen = visible(view, points, 0.01 * model.diagonal)
+        pix = view.camera.project(points[seen])
+        ax.plot(
+            pix[:, 0], pix[:, 1], "o", markerfacecolor="none", markeredgecolor="cyan", markersize=9, mew=2
+        )
+        ax.set_axis_off()
+    fig.suptitle(f"{model.name}: {sal.method} saliency, {n_points} interest points (cyan)", fontsize=10)
+    fig.colorbar(plt.cm.ScalarMappable(cmap=cmap), ax=axes, shrink=0.8, label="score")
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
