@@ -63,7 +63,9 @@ def run_demo(out: Path, seed: int = 0) -> dict:
     summary["figures"].append("catalogue.png")
 
     model = make_object("mug", seed)
-    summary.update(_touch(model, out, seed))
+    touched = _touch(model, out, seed)
+    summary["figures"] += touched.pop("figures")
+    summary.update(touched)
 
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"\nWrote {', '.join(summary['figures'])} and summary.json to {out}/")
@@ -75,7 +77,7 @@ def _touch(model, out: Path, seed: int) -> dict:
     from perception.saliency import plot_saliency, saliency
     from tactile.figures import plot_sequence
 
-    from tactile import explore_object
+    from tactile import explore_object, make_contour
 
     result: dict = {"figures": []}
     start = time.perf_counter()
