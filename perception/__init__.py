@@ -2,5 +2,6 @@
 
 from perception.errors import VisuotactileError
 from perception.geometry import Curvature, ObjectModel, load_dataset, load_object
+from perception.shapes import CLASSES, make_object
 
-__all__ = ["Curvature", "ObjectModel", "VisuotactileError", "load_dataset", "load_object"]
+__all__ = ["CLASSES", "Curvature", "ObjectModel", "VisuotactileError", "load_dataset", "load_object", "make_object"]

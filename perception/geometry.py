@@ -136,14 +136,16 @@ class ObjectModel:
     @cached_property
     def is_watertight(self) -> bool:
         """True when every edge is shared by exactly two triangles, consistently oriented."""
-        directed = np.concatenate(
-            [self.triangles[:, [0, 1]], self.triangles[:, [1, 2]], self.triangles[:, [2, 0]]]
-        )
-        _undirected, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+        n = len(self.vertices)
+        t = self.triangles.astype(np.int64)
+        directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+        undirected = np.sort(directed, axis=1)
+        # 1-D keys (i * n + j): ~10x faster than np.unique(axis=0) on (E, 2) rows.
+        _, counts = np.unique(undirected[:, 0] * n + undirected[:, 1], return_counts=True)
         if not np.all(counts == 2):
             return False
         # Consistent orientation: each directed edge appears once.
-        return len(np.unique(directed, axis=0)) == len(directed)
+        return len(np.unique(directed[:, 0] * n + directed[:, 1])) == len(directed)
 
     # ----------------------------------------------------------------------------------- derived
     @cached_property
