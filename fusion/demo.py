@@ -75,9 +75,8 @@ def run_demo(out: Path, seed: int = 0) -> dict:
 def _touch(model, out: Path, seed: int) -> dict:
     """Saliency on one object, then blind and guided exploration with the FSR array."""
     from perception.saliency import plot_saliency, saliency
-    from tactile.figures import plot_sequence
-
     from tactile import explore_object, make_contour
+    from tactile.figures import plot_sequence
 
     result: dict = {"figures": []}
     start = time.perf_counter()

@@ -1,0 +1,32 @@
+"""The command line: benchmark dispatch and the demo's outputs."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fusion.cli import available_benchmarks, main
+
+
+def test_benchmarks_are_listed_and_unknown_ones_refused(capsys):
+    assert {"geometry", "tactile", "saliency"} <= set(available_benchmarks())
+    assert main(["bench", "no-such-bench"]) == 2
+    assert "available: " in capsys.readouterr().err
+
+
+def test_unknown_arguments_are_refused_outside_bench():
+    with pytest.raises(SystemExit):
+        main(["demo", "--no-such-flag"])
+
+
+def test_demo_writes_figures_and_summary(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["figures"] == ["catalogue.png", "saliency.png", "contour_blind.png", "contour_guided.png"]
+    for name in summary["figures"]:
+        data = (tmp_path / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    rows = summary["catalogue"]
+    assert all(row["watertight"] and row["diagonal_mm"] == 150.0 for row in rows)
+    assert "mug" in capsys.readouterr().out
