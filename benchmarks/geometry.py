@@ -20,14 +20,13 @@ observed order p of the mean error, err ~ h^p with spacing h ~ V^(-1/2), fitted 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import platform
 import statistics
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
@@ -35,7 +34,7 @@ import numpy as np
 from tqdm import tqdm
 
 from perception import primitives
-from perception.curvature import NORMAL_METHODS, vertex_normals
+from perception.curvature import NORMAL_METHODS, quiet_stdout, vertex_normals
 from perception.geometry import CURVATURE_METHODS, ObjectModel
 
 SPHERE_R_MM = 50.0
@@ -110,20 +109,6 @@ def surfaces(
     return {name: rows[levels] for name, rows in table.items()}
 
 
-@contextlib.contextmanager
-def _quiet_stdout() -> Iterator[None]:
-    """Silence pymeshlab's C++ chatter on file descriptor 1 (it would corrupt --json output)."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    with open(os.devnull, "w") as null:
-        os.dup2(null.fileno(), 1)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 1)
-            os.close(saved)
-
-
 def _median_time(fn: Callable[[], object], repeats: int):
     times, result = [], None
     for _ in range(repeats):
@@ -153,7 +138,7 @@ def measure(quick: bool = False, repeats: int = 3) -> dict:
         vertices, triangles = model.vertices, model.triangles
         base = {"surface": name, "vertices": model.n_vertices, "measured_vertices": int(keep.sum())}
         for method in NORMAL_METHODS:
-            with _quiet_stdout():
+            with quiet_stdout():
                 seconds, normals = _median_time(partial(vertex_normals, vertices, triangles, method), repeats)
             cosine = np.clip(np.einsum("ij,ij->i", normals[keep], truth.normals[keep]), -1.0, 1.0)
             mean_deg, max_deg = _stats(np.degrees(np.arccos(cosine)))
@@ -161,7 +146,7 @@ def measure(quick: bool = False, repeats: int = 3) -> dict:
                 base | {"method": method, "seconds": seconds, "mean_deg": mean_deg, "max_deg": max_deg}
             )
         for method in CURVATURE_METHODS:
-            with _quiet_stdout():
+            with quiet_stdout():
                 run = partial(_fresh_curvature, vertices, triangles, model.name, method)
                 seconds, curvature = _median_time(run, repeats)
             h_err = 100 * np.abs(curvature.mean - truth.mean)[keep] / np.abs(truth.mean[keep]).max()

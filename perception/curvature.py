@@ -10,7 +10,11 @@ vertex count is checked.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import sys
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -27,6 +31,20 @@ _PYMESHLAB_NORMAL_MODES = {
     "uniform": "Simple Average",
 }
 _PRINCIPAL_METHODS = {"quadric": "Quadric Fitting", "scale_quadric": "Scale Dependent Quadric Fitting"}
+
+
+@contextlib.contextmanager
+def quiet_stdout() -> Iterator[None]:
+    """Silence C++ chatter on file descriptor 1 (pymeshlab's quadric fits print a line per call)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with open(os.devnull, "w") as null:
+        os.dup2(null.fileno(), 1)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
 
 
 def _meshset(vertices: np.ndarray, triangles: np.ndarray):
@@ -215,7 +233,8 @@ def _estimate(vertices: np.ndarray, triangles: np.ndarray, method: str, name: st
     n = len(vertices)
 
     def scalar(filter_name: str, **kwargs) -> np.ndarray:
-        getattr(ms, filter_name)(**kwargs)
+        with quiet_stdout():
+            getattr(ms, filter_name)(**kwargs)
         mesh = ms.current_mesh()
         if mesh.vertex_number() != n:  # pymeshlab must not re-index behind our back
             raise InvalidMeshError(f"{name}: pymeshlab changed the vertex count during {filter_name}")
