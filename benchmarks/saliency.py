@@ -33,7 +33,8 @@ from scipy.spatial import cKDTree
 from scipy.stats import spearmanr
 from tqdm import tqdm
 
-from benchmarks.geometry import _quiet_stdout, machine
+from benchmarks.geometry import machine
+from perception.curvature import quiet_stdout
 from perception.geometry import ObjectModel, load_dataset, load_object
 from perception.saliency import METHODS, saliency
 
@@ -69,7 +70,7 @@ def _run_method(model: ObjectModel, method: str) -> dict:
     for _ in range(2):
         copy = _fresh(model)
         start = time.perf_counter()
-        with _quiet_stdout():
+        with quiet_stdout():
             result = saliency(copy, method)
         runs.append((time.perf_counter() - start, result))
     (t1, first), (t2, second) = runs
@@ -114,7 +115,7 @@ def measure(folder: Path, limit: int | None, methods: list[str], peers: bool) ->
             f"PCL peer skipped: {PEER_BINARY} is absent (build it with `make -C benchmarks/peers pcl`)"
         )
     for path, label in tqdm(items, desc="saliency", disable=None):
-        with _quiet_stdout():
+        with quiet_stdout():
             model = load_object(path, label=label)
         for method in methods:
             rows.append({"mesh": f"{label}/{path.stem}", "method": method, **_run_method(model, method)})

@@ -30,3 +30,11 @@ def test_demo_writes_figures_and_summary(tmp_path, capsys):
     rows = summary["catalogue"]
     assert all(row["watertight"] and row["diagonal_mm"] == 150.0 for row in rows)
     assert "mug" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name", available_benchmarks())
+def test_every_benchmark_imports_and_has_main(name):
+    import importlib
+
+    module = importlib.import_module(f"benchmarks.{name}")
+    assert callable(module.main)
