@@ -24,6 +24,10 @@ def available_benchmarks() -> list[str]:
 
 def _bench(args: argparse.Namespace, rest: list[str]) -> int:
     names = available_benchmarks()
+    if args.name is None:
+        print(f"usage: visuotactile bench NAME [options]; NAME is one of: {', '.join(names)}; "
+              "`visuotactile bench NAME --help` lists its options")
+        return 0 if {"-h", "--help"} & set(rest) else 2
     if args.name not in names:
         print(f"unknown benchmark {args.name!r}; available: {', '.join(names)}", file=sys.stderr)
         return 2
@@ -50,10 +54,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(func=_demo)
 
+    # No help flag of its own: `bench NAME --help` reaches the benchmark's parser.
     bench = sub.add_parser(
-        "bench", help="run a benchmark from benchmarks/ (extra arguments, e.g. --json, are passed on)"
+        "bench", add_help=False, help="run a benchmark from benchmarks/ (extra arguments, e.g. --json, are passed on)"
     )
-    bench.add_argument("name", help=f"one of: {', '.join(available_benchmarks())}")
+    bench.add_argument("name", nargs="?", help=f"one of: {', '.join(available_benchmarks())}")
     bench.set_defaults(func=_bench)
     return parser
 

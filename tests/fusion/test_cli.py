@@ -38,3 +38,11 @@ def test_every_benchmark_imports_and_has_main(name):
 
     module = importlib.import_module(f"benchmarks.{name}")
     assert callable(module.main)
+
+
+def test_bench_help_reaches_the_benchmark(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["bench", "geometry", "--help"])
+    assert info.value.code == 0
+    assert "--quick" in capsys.readouterr().out
+    assert main(["bench"]) == 2
