@@ -31,21 +31,23 @@ def test_all_shrec07_meshes_load(shrec07):
         assert model.is_watertight, path
 
 
-def test_all_psb_open_polygon_soups_load(psb_open):
-    paths = sorted(psb_open.glob("*.obj"))
-    assert len(paths) == 20
-    for path in paths:
-        model = load_object(path)
+def load_checked(folder, expected: int) -> list:
+    """Load every OBJ in ``folder`` (there must be ``expected``), checking each is finite."""
+    paths = sorted(folder.glob("*.obj"))
+    assert len(paths) == expected
+    models = [load_object(path) for path in paths]
+    for model in models:
         check_finite(model)
-        assert not model.is_watertight  # these are the open ones
+    return models
+
+
+def test_all_psb_open_polygon_soups_load(psb_open):
+    for model in load_checked(psb_open, 20):
+        assert not model.is_watertight, model.name  # these are the open ones
 
 
 def test_all_ycb_meshes_load_with_texture_colours(ycb):
-    paths = sorted(ycb.glob("*.obj"))
-    assert len(paths) == 10
-    for path in paths:
-        model = load_object(path)
-        check_finite(model)
-        assert model.has_colors
+    for model in load_checked(ycb, 10):
+        assert model.has_colors, model.name
         # Texture colours are real images, not a constant fill.
-        assert model.vertex_colors.std(axis=0).max() > 0.02
+        assert model.vertex_colors.std(axis=0).max() > 0.02, model.name
