@@ -69,7 +69,8 @@ class FSRSensor:
             never below min_side_mm; in (0, 1).
         survey_taxels: before the full-resolution cast, an adaptive press surveys the pad with a
             survey_taxels x survey_taxels subset of its taxels (shrinking on that cheap grid first), so
-            most probes are cast at full resolution once; 0 turns the survey off.
+            most probes are cast at full resolution once, and that cast skips the survey's taxels (read
+            at the same side already); 0 turns the survey off.
 
     Raises:
         SensorSpecError: a non-positive size, ``min_side_mm`` > ``side_mm``, an unknown mode, a rate or
@@ -130,6 +131,15 @@ class FSRSensor:
         if self.dead_taxel_rate >= 1:
             raise SensorSpecError(f"FSRSensor.dead_taxel_rate must be < 1, got {self.dead_taxel_rate}")
         object.__setattr__(self, "_unit_grid", unit_taxel_grid(self.rows, self.cols))
+        # Chebyshev distance of each taxel centre from the pad centre on the unit pad.
+        object.__setattr__(self, "_unit_chebyshev", np.abs(self._unit_grid).max(axis=1))
+        # Taxel indices (into the row-major grid) of the survey subset and of the taxels it leaves out,
+        # and the permutation that puts the survey's readings followed by the rest back in grid order.
+        survey = self._survey_indices()
+        rest = np.setdiff1d(np.arange(self.rows * self.cols), survey)
+        object.__setattr__(self, "_survey_index", survey)
+        object.__setattr__(self, "_rest_index", rest)
+        object.__setattr__(self, "_survey_order", np.argsort(np.concatenate([survey, rest])))
 
     # ------------------------------------------------------------------------------------ spec
     def spec(self) -> dict:
@@ -165,42 +175,47 @@ class FSRSensor:
             raise SensorSpecError(f"{model.name}: pad sides must be positive and finite, got {sides_mm!r}")
         return self._gaps(model, positions, normals, tangents, sides)
 
-    def _gaps(self, model, positions, normals, tangents, sides_mm, unit_grid=None) -> np.ndarray:
-        """:meth:`measure_gaps` on checked poses; with ``unit_grid`` (T, 2) instead of the taxel grid,
-        the result is (N, T)."""
-        grid = self._unit_grid if unit_grid is None else unit_grid
-        # Rows (x, y, 1) so that one matmul per probe gives x * tangent + y * binormal + origin.
+    def _gaps(self, model, positions, normals, tangents, sides_mm, taxels=None) -> np.ndarray:
+        """:meth:`measure_gaps` on checked poses; with ``taxels`` (T,) indices into the taxel grid,
+        only those taxels are cast and the result is (N, T)."""
+        grid = self._unit_grid if taxels is None else self._unit_grid[taxels]
         grid = np.concatenate([grid, np.ones((len(grid), 1))], axis=1).astype(np.float32)
         n_probes, n_taxels = len(positions), len(grid)
         out = np.empty((n_probes, n_taxels), dtype=np.float32)
         per_cast = max(1, MAX_RAYS_PER_CAST // n_taxels)
         backface_is_inside = model.is_watertight
-        binormals = np.cross(normals, tangents)
+        # normals x tangents, as np.cross computes it, without its set-up cost on small batches.
+        binormals = (
+            normals[:, [1, 2, 0]] * tangents[:, [2, 0, 1]] - normals[:, [2, 0, 1]] * tangents[:, [1, 2, 0]]
+        )
         standoff = np.float32(self.standoff_mm)
         for lo in range(0, n_probes, per_cast):
             sl = slice(lo, lo + per_cast)
-            frames = np.stack(
-                [
-                    tangents[sl] * sides_mm[sl, None],
-                    binormals[sl] * sides_mm[sl, None],
-                    positions[sl] + self.standoff_mm * normals[sl],
-                ],
-                axis=1,
-            ).astype(np.float32)  # (B, 3, 3)
+            # Grid rows (x, y, 1) times the frame rows (side * tangent, 0), (side * binormal, 0) and
+            # (origin, inward) build whole rays in one matmul: origin x * tangent + y * binormal + origin
+            # and direction inward, written contiguously (cheaper than filling the directions apart).
             inward = (-normals[sl]).astype(np.float32)
-            rays = np.empty((len(frames), n_taxels, 6), dtype=np.float32)
-            np.matmul(grid, frames, out=rays[..., :3])
-            rays[..., 3:] = inward[:, None, :]
+            frames = np.zeros((len(inward), 3, 6), dtype=np.float32)
+            frames[:, 0, :3] = tangents[sl] * sides_mm[sl, None]
+            frames[:, 1, :3] = binormals[sl] * sides_mm[sl, None]
+            frames[:, 2, :3] = positions[sl] + self.standoff_mm * normals[sl]
+            frames[:, 2, 3:] = inward
+            rays = np.matmul(grid, frames)
+            # Adding the zero terms turns a -0.0 direction component into +0.0: put those back.
+            signed_zero = np.flatnonzero((np.signbit(inward) & (inward == 0)).any(axis=1))
+            rays[signed_zero, :, 3:] = inward[signed_zero, None, :]
             hits = model.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
-            gap = hits["t_hit"].numpy().reshape(len(frames), n_taxels) - standoff
+            gap = hits["t_hit"].numpy().reshape(len(inward), n_taxels)
+            gap -= standoff
             if backface_is_inside:
                 # Hitting a triangle from behind means the ray started inside the solid: the surface
                 # rises above the stand-off, so the pad penetrates by at least that much.
-                face = hits["primitive_normals"].numpy().reshape(len(frames), n_taxels, 3)
+                face = hits["primitive_normals"].numpy().reshape(len(inward), n_taxels, 3)
                 facing = np.matmul(face, inward[:, :, None])[..., 0]
                 gap[np.isfinite(gap) & (facing > 0)] = -standoff
-            out[sl] = np.where(np.isfinite(gap), np.minimum(gap, np.float32(self.range_mm)), self.range_mm)
-        return out if unit_grid is not None else out.reshape(n_probes, self.rows, self.cols)
+            # fmin: a miss (t_hit = inf) reads the range.
+            np.fmin(gap, np.float32(self.range_mm), out=out[sl])
+        return out if taxels is not None else out.reshape(n_probes, self.rows, self.cols)
 
     def press(
         self,
@@ -233,36 +248,45 @@ class FSRSensor:
         steps = np.zeros(len(positions), dtype=np.int64)
         if adaptive and self.survey_taxels and self.survey_taxels < max(self.rows, self.cols):
             # A coarse survey of the full pad picks each probe's side before the one full-resolution cast.
-            survey = self._survey_grid()
-            coarse = self._gaps(*poses, self._ladder(steps), unit_grid=survey)
-            self._shrink(poses, coarse, steps, survey)
-        gaps = self._gaps(*poses, self._ladder(steps)).reshape(len(positions), -1)
+            coarse = self._gaps(*poses, self._ladder(steps), self._survey_index)
+            self._shrink(poses, coarse, steps, self._survey_index)
+            # The survey's last cast was at the final side, so its taxels need no second cast.
+            rest = self._gaps(*poses, self._ladder(steps), self._rest_index)
+            gaps = np.take(np.concatenate([coarse, rest], axis=1), self._survey_order, axis=1)
+        else:
+            gaps = self._gaps(*poses, self._ladder(steps)).reshape(len(positions), -1)
         if adaptive:
-            self._shrink(poses, gaps, steps, self._unit_grid)
+            self._shrink(poses, gaps, steps)
         sides = self._ladder(steps)
         return self._read(gaps.reshape(-1, self.rows, self.cols), np.random.default_rng(seed)), sides
 
-    def _survey_grid(self) -> np.ndarray:
-        """A survey_taxels x survey_taxels subset of the taxel grid, outermost rows and columns included,
-        so that a side passing the survey fails the full cast only through the taxels in between."""
+    def _survey_indices(self) -> np.ndarray:
+        """Row-major taxel indices of a survey_taxels x survey_taxels subset of the taxel grid, outermost
+        rows and columns included, so that a side passing the survey fails the full cast only through the
+        taxels in between."""
         rows = np.round(np.linspace(0, self.rows - 1, min(self.survey_taxels, self.rows))).astype(np.int64)
         cols = np.round(np.linspace(0, self.cols - 1, min(self.survey_taxels, self.cols))).astype(np.int64)
-        return self._unit_grid.reshape(self.rows, self.cols, 2)[np.ix_(rows, cols)].reshape(-1, 2)
+        return (rows[:, None] * self.cols + cols[None, :]).ravel()
 
     def _ladder(self, steps: np.ndarray) -> np.ndarray:
         """Pad sides side_mm * shrink_factor**steps, never below min_side_mm."""
         return np.maximum(self.side_mm * self.shrink_factor ** steps.astype(np.float64), self.min_side_mm)
 
-    def _next_steps(self, gaps: np.ndarray, unit_grid: np.ndarray, steps: np.ndarray) -> np.ndarray:
-        """Ladder steps after seeing ``gaps`` (N, T) on pads of ``_ladder(steps)``.
+    def _next_steps(self, gaps: np.ndarray, taxels, steps: np.ndarray) -> np.ndarray:
+        """Ladder steps after seeing ``gaps`` (N, T) of the ``taxels`` (None: all) on pads of
+        ``_ladder(steps)``.
 
         A penetrating taxel (gap < -eps) at Chebyshev distance c from the pad centre is inside every pad
         of side > 2c (the gap at a point of the pad plane does not depend on the pad side), so the pad
         jumps to the first ladder side <= 2c of the nearest such taxel, at least one step down.
         """
         sides = self._ladder(steps)
-        chebyshev = np.abs(unit_grid).max(axis=1)[None, :] * sides[:, None]
-        nearest = np.where(gaps < -self.penetration_eps_mm, chebyshev, np.inf).min(axis=1)
+        unit_chebyshev = self._unit_chebyshev if taxels is None else self._unit_chebyshev[taxels]
+        penetrating = gaps < -self.penetration_eps_mm
+        some = np.flatnonzero(penetrating.any(axis=1))  # usually few pads: look only at those
+        nearest = np.full(len(steps), np.inf)
+        # side * min(c) == min(side * c): rounding is monotonic, so this is the nearest taxel's distance.
+        nearest[some] = sides[some] * np.where(penetrating[some], unit_chebyshev, np.inf).min(axis=1)
         hit = np.isfinite(nearest) & (sides > self.min_side_mm)
         # Past the step that reaches min_side_mm further steps change nothing: cap there.
         last = max(int(np.ceil(np.log(self.min_side_mm / self.side_mm) / np.log(self.shrink_factor))), 0)
@@ -273,29 +297,33 @@ class FSRSensor:
         new[hit] = np.minimum(np.maximum(needed, steps[hit] + 1), last)
         return new
 
-    def _shrink(self, poses, gaps: np.ndarray, steps: np.ndarray, unit_grid: np.ndarray) -> None:
-        """Shrink penetrating pads in place (``gaps`` (N, T) seen on ``unit_grid``, and ``steps``),
-        re-casting only them on the same grid.
+    def _shrink(self, poses, gaps: np.ndarray, steps: np.ndarray, taxels=None) -> None:
+        """Shrink penetrating pads in place (``gaps`` (N, T) seen on the ``taxels``, None: all, and
+        ``steps``), re-casting only them on the same taxels.
 
         Every round moves each still-penetrating pad at least one ladder step down until it reaches
         min_side_mm, so the loop ends after at most log(min_side / side) / log(shrink_factor) + 1 rounds.
         """
         model, positions, normals, tangents = poses
-        grid = None if unit_grid is self._unit_grid else unit_grid
         rounds = 0
         while True:
-            new = self._next_steps(gaps, unit_grid, steps)
+            new = self._next_steps(gaps, taxels, steps)
             active = np.flatnonzero(new != steps)
             if not active.size:
                 break
             steps[active] = new[active]
             gaps[active] = self._gaps(
-                model, positions[active], normals[active], tangents[active], self._ladder(steps[active]), grid
+                model,
+                positions[active],
+                normals[active],
+                tangents[active],
+                self._ladder(steps[active]),
+                taxels,
             ).reshape(len(active), -1)
             rounds += 1
         if rounds:
             log.debug(
-                "%s: adaptive pad took %d re-cast rounds on %d taxels", model.name, rounds, len(unit_grid)
+                "%s: adaptive pad took %d re-cast rounds on %d taxels", model.name, rounds, gaps.shape[1]
             )
 
     def _read(self, gaps: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -307,7 +335,7 @@ class FSRSensor:
                 frames = np.clip(frames + rng.normal(0.0, self.noise_std, frames.shape), 0.0, self.range_mm)
             if dead is not None:
                 frames[:, dead] = self.range_mm
-            return frames.astype(np.float32)
+            return frames.astype(np.float32, copy=False)
         pressure = self.stiffness * np.maximum(0.0, self.indent_mm - gaps.astype(np.float64))
         if self.noise_std > 0:
             pressure = pressure + rng.normal(0.0, self.noise_std, pressure.shape)

@@ -176,6 +176,22 @@ def test_adaptive_sides_match_the_stepwise_rule_in_a_bowl(bowl, survey):
     assert ((gaps.min(axis=(1, 2)) >= -sensor.penetration_eps_mm) | (sides == sensor.min_side_mm)).all()
 
 
+@pytest.mark.parametrize("survey", [0, 8])
+def test_adaptive_frames_equal_a_fresh_cast_at_the_chosen_sides(bowl, survey):
+    # The full cast after the survey reuses the survey's readings: they must be the very bytes a
+    # fresh cast of the whole pad at the chosen side gives.
+    sensor = FSRSensor(min_side_mm=1.0, penetration_eps_mm=0.5, survey_taxels=survey)
+    angles = np.radians(np.linspace(0, 60, 5))
+    inside = np.stack([26.0 * np.sin(angles), np.zeros_like(angles), -26.0 * np.cos(angles)], axis=1)
+    positions = np.concatenate([inside, [[0, 0, -30.0], [0, 30.0, 0]]])
+    normals = np.concatenate([-inside / 26.0, [[0, 0, -1.0], [0, 1.0, 0]]])
+    tangents = np.tile([1.0, 0, 0], (len(positions), 1))
+    frames, sides = sensor.press(bowl, positions, normals, tangents)
+    assert (sides[:5] < 20.0).all() and (sides[5:] == 20.0).all()
+    fresh = np.clip(sensor.measure_gaps(bowl, positions, normals, tangents, sides), 0.0, sensor.range_mm)
+    assert frames.tobytes() == fresh.tobytes()
+
+
 def test_convex_pads_do_not_shrink(fine_sphere):
     contour = make_contour(fine_sphere, plane_through([0, 0, 0], [1, 0.2, 0], [0, 0.3, 1]))
     _, sides = FSRSensor().press(fine_sphere, contour.positions, contour.normals, contour.tangents)
