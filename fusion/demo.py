@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from perception.atomic import write_text
+
 log = logging.getLogger(__name__)
 
 
@@ -67,7 +69,7 @@ def run_demo(out: Path, seed: int = 0) -> dict:
     summary["figures"] += touched.pop("figures")
     summary.update(touched)
 
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_text(out / "summary.json", json.dumps(summary, indent=2))
     print(f"\nWrote {', '.join(summary['figures'])} and summary.json to {out}/")
     return summary
 

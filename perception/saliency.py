@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import rankdata
 
 from perception import mesh_saliency
+from perception.atomic import save_figure
 from perception.channels import ALL_CHANNELS, COLOR_CHANNELS, GEOMETRY_CHANNELS, compute_channels
 from perception.errors import SaliencyError
 from perception.geometry import ObjectModel
@@ -381,7 +382,7 @@ def plot_channels(model: ObjectModel, path: str | Path, *, n_rows: int = 3, seed
     fig.suptitle(f"{model.name}: multiview channels (conspicuity) and eq. 1 combination", fontsize=9)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -416,6 +417,6 @@ def plot_saliency(sal: Saliency, path: str | Path, *, n_points: int = 10, size_p
     fig.suptitle(f"{model.name}: {sal.method} saliency, {n_points} interest points (cyan)", fontsize=10)
     fig.colorbar(plt.cm.ScalarMappable(cmap=cmap), ax=axes, shrink=0.8, label="score")
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -23,8 +23,6 @@ the 0.6 mm pitch of a 32 x 32, 20 mm tactile pad. A different ``size_mm`` scales
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 import zlib
 from collections.abc import Callable
 from pathlib import Path
@@ -33,6 +31,7 @@ import manifold3d as mf
 import numpy as np
 from tqdm import tqdm
 
+from perception.atomic import save_figure
 from perception.errors import DatasetError, InvalidMeshError
 from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
 
@@ -944,13 +943,6 @@ def catalogue_figure(path: str | Path, seed: int = 0, *, pixels: int = 240) -> P
         ax.set_title(f"{model.name}  ({model.n_triangles} tri)", fontsize=9)
         ax.set_axis_off()
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    save_figure(fig, path, format="png")
     log.info("wrote the catalogue sheet %s", path)
     return path

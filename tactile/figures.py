@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # after choosing the backend
 import numpy as np
 
+from perception.atomic import save_figure
 from perception.geometry import ObjectModel
 from tactile.contours import Contour
 from tactile.explore import TactileSequence
@@ -66,7 +67,7 @@ def plot_sequence(model: ObjectModel, contour: Contour, sequence: TactileSequenc
             sub.set_title(f"{k}: {sequence.pad_sides_mm[k]:.3g} mm", fontsize=6)
     if image is not None:
         fig.colorbar(image, ax=fig.axes[1:], shrink=0.6, label="gap mm" if frames.max() > 1.5 else "reading")
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    save_figure(fig, path, dpi=120, bbox_inches="tight")
     plt.close(fig)
     return path
 

@@ -1,0 +1,26 @@
+"""Atomic writes: complete or untouched, never half-written, no temporary files left behind."""
+
+from __future__ import annotations
+
+import pytest
+
+from perception.atomic import atomic_path, write_text
+
+
+def test_write_replaces_and_leaves_no_temporary(tmp_path):
+    target = tmp_path / "sub" / "summary.json"
+    write_text(target, "first")
+    write_text(target, "second")
+    assert target.read_text() == "second"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["summary.json"]
+
+
+def test_interrupted_write_keeps_the_old_file(tmp_path):
+    target = tmp_path / "figure.png"
+    target.write_text("old")
+    with pytest.raises(KeyboardInterrupt), atomic_path(target) as tmp:
+        assert tmp.suffix == ".png" and tmp.parent == tmp_path
+        tmp.write_text("half")
+        raise KeyboardInterrupt
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["figure.png"]
