@@ -184,7 +184,6 @@ def _estimate_safely(model, method: str):
     edges and vertices split, values mapped back by position); if even that fails, zeros.
     """
     import concurrent.futures
-    import faulthandler
     import multiprocessing
 
     import pymeshlab
@@ -195,7 +194,7 @@ def _estimate_safely(model, method: str):
     try:
         # pymeshlab aborts the whole process on some open meshes: run it in a forked child.
         with concurrent.futures.ProcessPoolExecutor(
-            1, mp_context=multiprocessing.get_context("fork"), initializer=faulthandler.disable
+            1, mp_context=multiprocessing.get_context("fork"), initializer=_quiet_child
         ) as pool:
             return pool.submit(_estimate, *args).result()
     except (concurrent.futures.process.BrokenProcessPool, pymeshlab.PyMeshLabException) as exc:
@@ -209,6 +208,17 @@ def _estimate_safely(model, method: str):
         log.warning("%s: no curvature estimator accepts this mesh; curvature set to 0", model.name)
         n = model.n_vertices
         return np.zeros(n), np.zeros(n), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+
+
+def _quiet_child() -> None:
+    """In the forked curvature child: an expected abort should not print a stack or glibc's message."""
+    import faulthandler
+
+    faulthandler.disable()
+    os.environ["LIBC_FATAL_STDERR_"] = "1"  # glibc's fatal messages go to stderr, not the terminal
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    os.close(devnull)
 
 
 def _manifold_copy(vertices: np.ndarray, triangles: np.ndarray):

@@ -51,3 +51,19 @@ def test_all_ycb_meshes_load_with_texture_colours(ycb):
         assert model.has_colors, model.name
         # Texture colours are real images, not a constant fill.
         assert model.vertex_colors.std(axis=0).max() > 0.02, model.name
+
+
+@pytest.mark.slow
+def test_attention_and_touch_on_every_open_and_scanned_mesh(psb_open, ycb):
+    """Polygon soups and scans (non-manifold, several components, seams) survive the whole path, finite."""
+    from perception.saliency import saliency
+    from tactile import explore_object
+
+    for model in [*load_checked(psb_open, 20), *load_checked(ycb, 10)]:
+        for method in ("multiview", "mesh", "iss"):
+            attention = saliency(model, method)
+            assert np.isfinite(attention.scores).all() and np.isfinite(attention.interest_points(10)).all()
+        for strategy in ("blind", "guided"):
+            for seq in explore_object(model, strategy=strategy, n_contours=3, seed=1):
+                for array in (seq.frames, seq.normals, seq.positions, seq.pad_sides_mm):
+                    assert np.isfinite(array).all(), model.name
