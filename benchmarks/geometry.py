@@ -1,7 +1,7 @@
 """Error against run time of vertex normals and curvature estimators on analytic surfaces.
 
 Every normal method of :data:`perception.curvature.NORMAL_METHODS` and every curvature method of
-:data:`perception.geometry.CURVATURE_METHODS` runs on a sphere (R = 50 mm), an ellipsoid (60, 40, 30 mm), a
+:data:`perception.curvature.CURVATURE_METHODS` runs on a sphere (R = 50 mm), an ellipsoid (60, 40, 30 mm), a
 torus (50 / 20 mm) and a closed cylinder (R = 30 mm, h = 100 mm), each at four resolutions, against the
 exact answers of :mod:`perception.primitives`.
 
@@ -21,11 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import statistics
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
@@ -33,9 +29,10 @@ from functools import partial
 import numpy as np
 from tqdm import tqdm
 
+from benchmarks._common import machine, median_time
 from perception import primitives
-from perception.curvature import NORMAL_METHODS, quiet_stdout, vertex_normals
-from perception.geometry import CURVATURE_METHODS, ObjectModel
+from perception.curvature import CURVATURE_METHODS, NORMAL_METHODS, quiet_stdout, vertex_normals
+from perception.geometry import ObjectModel
 
 SPHERE_R_MM = 50.0
 ELLIPSOID_AXES_MM = (60.0, 40.0, 30.0)
@@ -109,15 +106,6 @@ def surfaces(
     return {name: rows[levels] for name, rows in table.items()}
 
 
-def _median_time(fn: Callable[[], object], repeats: int):
-    times, result = [], None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times), result
-
-
 def _fresh_curvature(vertices: np.ndarray, triangles: np.ndarray, name: str, method: str):
     """Curvature on a new ObjectModel, so nothing cached (normals, watertightness) hides its cost."""
     return ObjectModel(vertices, triangles, name=name).compute_curvature(method)
@@ -139,7 +127,7 @@ def measure(quick: bool = False, repeats: int = 3) -> dict:
         base = {"surface": name, "vertices": model.n_vertices, "measured_vertices": int(keep.sum())}
         for method in NORMAL_METHODS:
             with quiet_stdout():
-                seconds, normals = _median_time(partial(vertex_normals, vertices, triangles, method), repeats)
+                seconds, normals = median_time(partial(vertex_normals, vertices, triangles, method), repeats)
             cosine = np.clip(np.einsum("ij,ij->i", normals[keep], truth.normals[keep]), -1.0, 1.0)
             mean_deg, max_deg = _stats(np.degrees(np.arccos(cosine)))
             normal_rows.append(
@@ -148,7 +136,7 @@ def measure(quick: bool = False, repeats: int = 3) -> dict:
         for method in CURVATURE_METHODS:
             with quiet_stdout():
                 run = partial(_fresh_curvature, vertices, triangles, model.name, method)
-                seconds, curvature = _median_time(run, repeats)
+                seconds, curvature = median_time(run, repeats)
             h_err = 100 * np.abs(curvature.mean - truth.mean)[keep] / np.abs(truth.mean[keep]).max()
             k_err = 100 * np.abs(curvature.gaussian - truth.gaussian)[keep] / truth.gaussian_scale
             h_mean, h_max = _stats(h_err)
@@ -201,26 +189,6 @@ def convergence(rows: list[dict], error_key: str, floor: float) -> list[dict]:
             }
         )
     return out
-
-
-def machine() -> dict:
-    """Where the numbers were measured."""
-    from importlib.metadata import version
-
-    import open3d
-
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "cores_available": len(os.sched_getaffinity(0))
-        if hasattr(os, "sched_getaffinity")
-        else os.cpu_count(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "open3d": open3d.__version__,
-        "pymeshlab": version("pymeshlab"),
-    }
 
 
 def _print_tables(result: dict) -> None:

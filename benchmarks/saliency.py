@@ -33,12 +33,11 @@ from scipy.spatial import cKDTree
 from scipy.stats import spearmanr
 from tqdm import tqdm
 
-from benchmarks.geometry import machine
+from benchmarks._common import DATA, machine
 from perception.curvature import quiet_stdout
 from perception.geometry import ObjectModel, load_dataset, load_object
 from perception.saliency import METHODS, saliency
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "shrec07"
 PEER_BINARY = Path(__file__).resolve().parent / "peers" / "pcl_keypoints"
 N_INTEREST = 10
 NEAR_MM = 5.0
@@ -190,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print a JSON result after the table")
     parser.add_argument("--limit", type=int, default=None, help="first N meshes only")
     parser.add_argument(
-        "--data", type=Path, default=DATA, help="class-per-folder mesh set (default: shrec07)"
+        "--data", type=Path, default=DATA / "shrec07", help="class-per-folder mesh set (default: shrec07)"
     )
     parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     parser.add_argument("--peers", action="store_true", help="also run the PCL peer (benchmarks/peers)")

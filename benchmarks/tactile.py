@@ -25,40 +25,27 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
-import platform
 import statistics
 import sys
-import time
 from functools import partial
-from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 from tqdm import tqdm
 
+from benchmarks._common import DATA, machine, median_time
 from perception import primitives
 from perception.errors import ContourError
 from perception.geometry import ObjectModel, load_dataset, load_object
 from tactile.contours import interpolate_normals, make_contour, plane_through, section_chains
 from tactile.sensor import FSRSensor
 
-DATA = Path(os.environ.get("VISUOTACTILE_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 TAXELS = (8, 16, 32, 64)
 SPHERE_SUBDIVISIONS = (3, 4, 5, 6)
 CYLINDER_AROUND = (32, 64, 128, 256)
 PLANE_GRIDS = (11, 41)
 SPHERE_DIRECTION = np.array([0.2, -0.3, 0.9]) / np.linalg.norm([0.2, -0.3, 0.9])
 RAYS_PER_FRAME = 1024
-
-
-def _median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def _surface_pose(model: ObjectModel, direction: np.ndarray, normal: str):
@@ -78,7 +65,7 @@ def _surface_pose(model: ObjectModel, direction: np.ndarray, normal: str):
 # --------------------------------------------------------------------------------------- imprint
 def _imprint_row(shape, resolution, model, taxels, normal, position, normals, tangent, analytic_fn, repeats):
     sensor = FSRSensor(rows=taxels, cols=taxels)
-    seconds = _median_time(lambda: sensor.press(model, position, normals, tangent), repeats)
+    seconds = median_time(lambda: sensor.press(model, position, normals, tangent), repeats)[0]
     gaps = sensor.measure_gaps(model, position, normals, tangent, np.array([sensor.side_mm]))[0]
     analytic, defined = analytic_fn(sensor.taxel_coordinates())
     seen = defined & (gaps < sensor.range_mm)
@@ -231,9 +218,9 @@ def throughput(models: list[ObjectModel], n_contours: int, repeats: int, seed: i
         sensor.press(model, *poses)
         ours, raw, fixed = [], [], []
         for _ in range(repeats):
-            ours.append(_median_time(partial(sensor.press, model, *poses), 1))
-            raw.append(_median_time(partial(model.scene.cast_rays, tensor), 1))
-            fixed.append(_median_time(partial(sensor.press, model, *poses, adaptive=False), 1))
+            ours.append(median_time(partial(sensor.press, model, *poses), 1)[0])
+            raw.append(median_time(partial(model.scene.cast_rays, tensor), 1)[0])
+            fixed.append(median_time(partial(sensor.press, model, *poses, adaptive=False), 1)[0])
         counting = _CountingScene(model.scene)
         model.__dict__["scene"] = counting
         _, sides = sensor.press(model, *poses)
@@ -290,11 +277,11 @@ def slicing(models: list[ObjectModel], n_planes: int, repeats: int, seed: int) -
             i, j = rng.choice(model.n_vertices, 2, replace=False)
             with contextlib.suppress(ContourError):  # near-collinear draw: draw again
                 planes.append(plane_through(model.center, model.vertices[i], model.vertices[j]))
-        t_ours = _median_time(partial(_slice_all, section_chains, model, planes), repeats) / n_planes
+        t_ours = median_time(partial(_slice_all, section_chains, model, planes), repeats)[0] / n_planes
         row = {"mesh": model.name, "triangles": model.n_triangles, "ours_ms": 1e3 * t_ours}
         if trimesh is not None:
             peer = trimesh.Trimesh(model.vertices, model.triangles, process=False)
-            t_peer = _median_time(partial(_slice_all, _trimesh_section, peer, planes), repeats) / n_planes
+            t_peer = median_time(partial(_slice_all, _trimesh_section, peer, planes), repeats)[0] / n_planes
             ours_len = [sum(c.length_mm for c in section_chains(model, p)) for p in planes]
             peer_len = [
                 float(s.length) if (s := peer.section(plane_origin=p.point, plane_normal=p.normal)) else 0.0
@@ -308,17 +295,6 @@ def slicing(models: list[ObjectModel], n_planes: int, repeats: int, seed: int) -
 
 
 # ------------------------------------------------------------------------------------------- main
-def _machine() -> dict:
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cores": os.cpu_count(),
-        "python": platform.python_version(),
-        "open3d": o3d.__version__,
-        "numpy": np.__version__,
-    }
-
-
 def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -> None:
     print(f"\n{title}")
     widths = [max(len(head), 10) for head, _ in columns]
@@ -346,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     repeats = args.repeats or (3 if args.quick else 7)
     n_meshes = args.meshes or (2 if args.quick else 5)
 
-    result = {"machine": _machine(), "imprint": imprint(repeats, args.quick)}
+    result = {"machine": machine(), "imprint": imprint(repeats, args.quick)}
     _print_table(
         "(a) imprint error vs run time (one 20 mm pad; error in % of the analytic depth range)",
         result["imprint"],
@@ -399,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         result["note"] = f"{DATA / 'shrec07'} is absent: throughput and slicing skipped"
         print(result["note"])
-    print(f"\nmachine: {result['machine']['platform']}, {result['machine']['cores']} cores")
+    print(f"\nmachine: {result['machine']['platform']}, {result['machine']['cores_available']} of {result['machine']['cpu_count']} cores")
     if args.json:
         print(json.dumps(result, indent=1))
     return 0

@@ -15,17 +15,19 @@ from pathlib import Path
 import numpy as np
 
 from perception.atomic import write_text
+from perception.geometry import ObjectModel
 
 log = logging.getLogger(__name__)
 
 
-def _catalogue_table(seed: int) -> list[dict]:
+def _build_catalogue(seed: int) -> tuple[dict[str, ObjectModel], list[dict]]:
+    """One instance per class, and a table row per instance (build and curvature time included)."""
     from perception.shapes import CLASSES, make_object
 
-    rows = []
+    models, rows = {}, []
     for name in CLASSES:
         start = time.perf_counter()
-        model = make_object(name, seed)
+        model = models[name] = make_object(name, seed)
         curvature = model.curvature
         rows.append(
             {
@@ -39,7 +41,7 @@ def _catalogue_table(seed: int) -> list[dict]:
                 "seconds": round(time.perf_counter() - start, 3),
             }
         )
-    return rows
+    return models, rows
 
 
 def _print_table(rows: list[dict]) -> None:
@@ -52,20 +54,19 @@ def _print_table(rows: list[dict]) -> None:
 
 def run_demo(out: Path, seed: int = 0) -> dict:
     """Run the demo, writing figures and ``summary.json`` into ``out``; returns the summary."""
-    from perception.shapes import catalogue_figure, make_object
+    from perception.shapes import catalogue_figure
 
     out.mkdir(parents=True, exist_ok=True)
     summary: dict = {"seed": seed, "figures": []}
 
     print("Built-in catalogue, one instance per class:")
-    rows = _catalogue_table(seed)
+    models, rows = _build_catalogue(seed)
     _print_table(rows)
     summary["catalogue"] = rows
-    catalogue_figure(out / "catalogue.png", seed=seed)
+    catalogue_figure(out / "catalogue.png", seed=seed, models=list(models.values()))
     summary["figures"].append("catalogue.png")
 
-    model = make_object("mug", seed)
-    touched = _touch(model, out, seed)
+    touched = _touch(models["mug"], out, seed)
     summary["figures"] += touched.pop("figures")
     summary.update(touched)
 

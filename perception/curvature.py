@@ -15,12 +15,34 @@ import logging
 import os
 import sys
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from perception.errors import InvalidMeshError
 
 log = logging.getLogger(__name__)
+
+#: Curvature estimators offered by :meth:`ObjectModel.compute_curvature`.
+CURVATURE_METHODS = ("quadric", "scale_quadric", "discrete")
+
+
+@dataclass(frozen=True)
+class Curvature:
+    """Per-vertex curvature, in 1/mm, with outward normals: convex bumps have positive ``mean``.
+
+    ``k1 >= k2`` are the principal curvatures, ``dir1``/``dir2`` (V x 3, unit) their directions,
+    ``mean = (k1 + k2) / 2`` and ``gaussian = k1 * k2`` (1/mm^2).
+    """
+
+    mean: np.ndarray
+    gaussian: np.ndarray
+    k1: np.ndarray
+    k2: np.ndarray
+    dir1: np.ndarray
+    dir2: np.ndarray
+    method: str
+
 
 #: pymeshlab weightings for vertex normals, plus Open3D's mesh and point-cloud estimators.
 NORMAL_METHODS = ("angle", "area", "max", "uniform", "open3d", "open3d_pca")
@@ -128,10 +150,8 @@ def compute_curvature(model, method: str = "quadric"):
     the fit therefore runs in a forked child; if the child dies, the discrete estimator is used instead and a
     warning says so.
     """
-    from perception.geometry import Curvature
-
-    if method not in ("quadric", "scale_quadric", "discrete"):
-        raise ValueError(f"unknown curvature method {method!r}; choose from quadric, scale_quadric, discrete")
+    if method not in CURVATURE_METHODS:
+        raise ValueError(f"unknown curvature method {method!r}; choose from {', '.join(CURVATURE_METHODS)}")
     mean, gauss, dir1, dir2 = _estimate_safely(model, method)
     bad = ~(np.isfinite(mean) & np.isfinite(gauss))
     if bad.any():

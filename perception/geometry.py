@@ -17,33 +17,13 @@ import numpy as np
 import open3d as o3d
 
 from perception import meshio
+from perception.curvature import Curvature, compute_curvature, vertex_normals
 from perception.errors import DatasetError, InvalidMeshError
 
 log = logging.getLogger(__name__)
 
 #: Default bounding-box diagonal of a loaded object, in millimetres.
 DEFAULT_SIZE_MM = 150.0
-
-#: Curvature estimators offered by :meth:`ObjectModel.compute_curvature` (see :mod:`perception.curvature`).
-CURVATURE_METHODS = ("quadric", "scale_quadric", "discrete")
-
-
-@dataclass(frozen=True)
-class Curvature:
-    """Per-vertex curvature, in 1/mm, with outward normals: convex bumps have positive ``mean``.
-
-    ``k1 >= k2`` are the principal curvatures, ``dir1``/``dir2`` (V x 3, unit) their directions,
-    ``mean = (k1 + k2) / 2`` and ``gaussian = k1 * k2`` (1/mm^2).
-    """
-
-    mean: np.ndarray
-    gaussian: np.ndarray
-    k1: np.ndarray
-    k2: np.ndarray
-    dir1: np.ndarray
-    dir2: np.ndarray
-    method: str
-
 
 @dataclass(eq=False)
 class ObjectModel:
@@ -128,24 +108,28 @@ class ObjectModel:
         return np.cross(v1 - v0, v2 - v0)
 
     @cached_property
+    def _directed_edges(self) -> np.ndarray:
+        """(3F, 2) int64 directed edges of every triangle, in winding order."""
+        t = self.triangles.astype(np.int64)
+        return np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+
+    def _edge_keys(self, pairs: np.ndarray) -> np.ndarray:
+        # 1-D keys (i * V + j): ~10x faster to np.unique than (E, 2) rows with axis=0.
+        return pairs[:, 0] * self.n_vertices + pairs[:, 1]
+
+    @cached_property
     def edges(self) -> np.ndarray:
         """(E, 2) unique undirected edges, sorted per row."""
-        e = np.concatenate([self.triangles[:, [0, 1]], self.triangles[:, [1, 2]], self.triangles[:, [2, 0]]])
-        return np.unique(np.sort(e, axis=1), axis=0)
+        keys = np.unique(self._edge_keys(np.sort(self._directed_edges, axis=1)))
+        return np.stack([keys // self.n_vertices, keys % self.n_vertices], axis=1)
 
     @cached_property
     def is_watertight(self) -> bool:
         """True when every edge is shared by exactly two triangles, consistently oriented."""
-        n = len(self.vertices)
-        t = self.triangles.astype(np.int64)
-        directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-        undirected = np.sort(directed, axis=1)
-        # 1-D keys (i * n + j): ~10x faster than np.unique(axis=0) on (E, 2) rows.
-        _, counts = np.unique(undirected[:, 0] * n + undirected[:, 1], return_counts=True)
-        if not np.all(counts == 2):
-            return False
+        directed = self._directed_edges
+        _, counts = np.unique(self._edge_keys(np.sort(directed, axis=1)), return_counts=True)
         # Consistent orientation: each directed edge appears once.
-        return len(np.unique(directed[:, 0] * n + directed[:, 1])) == len(directed)
+        return bool(np.all(counts == 2)) and len(np.unique(self._edge_keys(directed))) == len(directed)
 
     # ----------------------------------------------------------------------------------- derived
     @cached_property
@@ -155,8 +139,6 @@ class ObjectModel:
         Angle weighting (Thürmer & Wüthrich) is the least sensitive to tessellation; see
         ``benchmarks/geometry.py`` for its error against the other estimators. Isolated vertices get (0, 0, 1).
         """
-        from perception.curvature import vertex_normals
-
         return vertex_normals(self.vertices, self.triangles, method="angle")
 
     @cached_property
@@ -168,15 +150,13 @@ class ObjectModel:
         """Per-vertex curvature with the given estimator, cached per method.
 
         Args:
-            method: one of :data:`CURVATURE_METHODS`.
+            method: one of :data:`perception.curvature.CURVATURE_METHODS`.
 
         Raises:
             ValueError: unknown method.
         """
         cache = self.__dict__.setdefault("_curvature_cache", {})
         if method not in cache:
-            from perception.curvature import compute_curvature
-
             cache[method] = compute_curvature(self, method)
         return cache[method]
 

@@ -891,37 +891,26 @@ def make_dataset(
 
 
 def _shade(model: ObjectModel, direction: np.ndarray, pixels: int) -> np.ndarray:
-    """Orthographic Lambert-shaded image (pixels x pixels, values in [0, 1], NaN for background)."""
-    import open3d as o3d
+    """Lambert-shaded orthographic view along ``direction`` (pixels x pixels, values in [0, 1], NaN for
+    background), lit from above-left of the camera rather than by a headlight, so shapes read as 3D."""
+    from perception.render import render_views
 
-    forward = direction / np.linalg.norm(direction)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    half = 0.5 * model.diagonal
-    s = np.linspace(-half, half, pixels)
-    u, v = np.meshgrid(s, -s)
-    origins = model.center + u[..., None] * right + v[..., None] * up - 2 * half * forward
-    rays = np.concatenate([origins.reshape(-1, 3), np.broadcast_to(forward, (pixels * pixels, 3))], axis=1)
-    hit = model.scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
-    ids = hit["primitive_ids"].numpy().astype(np.int64)
-    found = ids != o3d.t.geometry.RaycastingScene.INVALID_ID
-    bary = hit["primitive_uvs"].numpy().astype(np.float64)[found]
-    corners = model.triangles[ids[found]]
-    normals = model.vertex_normals
-    # Smooth (interpolated) normals, so the figure shows the surface rather than the tessellation.
-    n = (1 - bary.sum(1))[:, None] * normals[corners[:, 0]] + bary[:, :1] * normals[corners[:, 1]]
-    n += bary[:, 1:] * normals[corners[:, 2]]
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    light = -forward + 0.6 * up + 0.4 * right
+    view = render_views(
+        model, width=pixels, height=pixels, directions=-np.asarray(direction, dtype=np.float64)[None]
+    )[0]
+    cam = view.camera
+    light = -cam.forward + 0.6 * cam.up + 0.4 * cam.right
     light /= np.linalg.norm(light)
-    image = np.full(pixels * pixels, np.nan)
-    image[found] = 0.2 + 0.8 * np.clip(n @ light, 0.0, 1.0)
-    return image.reshape(pixels, pixels)
+    # The view's normals are interpolated, so the figure shows the surface rather than the tessellation.
+    return np.where(view.mask, 0.2 + 0.8 * np.clip(view.normal @ light, 0.0, 1.0), np.nan)
 
 
-def catalogue_figure(path: str | Path, seed: int = 0, *, pixels: int = 240) -> Path:
+def catalogue_figure(
+    path: str | Path, seed: int = 0, *, pixels: int = 240, models: list[ObjectModel] | None = None
+) -> Path:
     """Write a PNG sheet with one shaded instance of every class (seed ``seed``) to ``path``; return it.
+
+    ``models`` (one per class, in :data:`CLASSES` order) reuses objects the caller already built.
 
     Rendering is Open3D ray casting (no OpenGL), the sheet matplotlib (Agg). The file is written
     atomically (temporary file, then rename).
@@ -929,15 +918,14 @@ def catalogue_figure(path: str | Path, seed: int = 0, *, pixels: int = 240) -> P
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     cols = 5
-    rows = int(np.ceil(len(CLASSES) / cols))
+    if models is None:
+        models = [make_object(class_name, seed) for class_name in CLASSES]
+    rows = int(np.ceil(len(models) / cols))
     fig = Figure(figsize=(2.4 * cols, 2.6 * rows), dpi=100)
     FigureCanvasAgg(fig)
     direction = np.array([-1.0, 1.4, -0.9])
-    for i, class_name in enumerate(CLASSES):
-        model = make_object(class_name, seed)
+    for i, model in enumerate(models):
         ax = fig.add_subplot(rows, cols, i + 1)
         ax.imshow(_shade(model, direction, pixels), cmap="gray", vmin=0, vmax=1, interpolation="bilinear")
         ax.set_title(f"{model.name}  ({model.n_triangles} tri)", fontsize=9)

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("VISUOTACTILE_DATA", REPO.parent / "shared" / "data"))
+from benchmarks._common import DATA
 
 
 def data_folder(name: str) -> Path:

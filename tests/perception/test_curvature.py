@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from perception import primitives
-from perception.curvature import NORMAL_METHODS, vertex_normals
-from perception.geometry import CURVATURE_METHODS, ObjectModel, load_object
+from perception.curvature import CURVATURE_METHODS, NORMAL_METHODS, vertex_normals
+from perception.geometry import ObjectModel, load_object
 
 R_MM = 50.0
 AXES_MM = (60.0, 40.0, 30.0)

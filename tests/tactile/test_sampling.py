@@ -74,17 +74,24 @@ def test_precomputed_saliency_is_reused_and_checked(cube, no_saliency, strategy,
         sample_planes(cube, strategy, 3, saliency=wrong)
 
 
-def test_near_collinear_draws_are_redrawn_then_refused(cube, monkeypatch):
-    original = sampling.plane_through
-    failures = {"left": 5}
+def fail_first(monkeypatch, name: str, times: int, message: str) -> dict:
+    """Make ``sampling.<name>`` raise ContourError(message) on its first ``times`` calls; returns the
+    counter of failures still to come."""
+    original = getattr(sampling, name)
+    left = {"left": times}
 
     def flaky(*args, **kwargs):
-        if failures["left"]:
-            failures["left"] -= 1
-            raise ContourError("near-collinear")
+        if left["left"]:
+            left["left"] -= 1
+            raise ContourError(message)
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(sampling, "plane_through", flaky)
+    monkeypatch.setattr(sampling, name, flaky)
+    return left
+
+
+def test_near_collinear_draws_are_redrawn_then_refused(cube, monkeypatch):
+    failures = fail_first(monkeypatch, "plane_through", 5, "near-collinear")
     assert len(sample_planes(cube, "blind", 2, seed=0)) == 2
     assert failures["left"] == 0
     # A needle: every pair of its vertices is near-collinear with the centre, so the draws run out.
@@ -99,16 +106,7 @@ def test_near_collinear_draws_are_redrawn_then_refused(cube, monkeypatch):
 
 
 def test_planes_that_miss_are_redrawn(cube, monkeypatch):
-    original = sampling.make_contour
-    misses = {"left": 3}
-
-    def missing(*args, **kwargs):
-        if misses["left"]:
-            misses["left"] -= 1
-            raise ContourError("misses the object")
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(sampling, "make_contour", missing)
+    misses = fail_first(monkeypatch, "make_contour", 3, "misses the object")
     sequences = explore_object(
         cube, "blind", n_contours=2, probes=6, seed=2, sensor=FSRSensor(rows=8, cols=8)
     )
