@@ -47,7 +47,7 @@ $(VENV)/bin/python:
 $(STAMP): setup.cfg pyproject.toml | system-deps $(VENV)/bin/python
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[camera,dev]'
+	$(PY) -m pip install -q -e '.[camera,dist,dev]'
 	touch $(STAMP)
 
 clean:

@@ -1,13 +1,14 @@
 """Touching: contours on the object surface and the virtual FSR tactile array pressed along them."""
 
 from tactile.contours import Contour, Plane, make_contour, plane_through, section
-from tactile.explore import TactileSequence, explore
+from tactile.explore import SequenceBatch, TactileSequence, explore
 from tactile.sensor import FSRSensor
 
 __all__ = [
     "Contour",
     "FSRSensor",
     "Plane",
+    "SequenceBatch",
     "TactileSequence",
     "explore",
     "make_contour",

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 
+from perception.errors import DatasetError
 from perception.geometry import ObjectModel
 from tactile.contours import Contour, Plane
 from tactile.sensor import FSRSensor
@@ -76,4 +78,122 @@ def explore(
     )
 
 
-__all__ = ["TactileSequence", "explore"]
+@dataclass(eq=False)
+class SequenceBatch:
+    """S tactile sequences of P probes each, stacked: what a dataset store holds and a classifier takes.
+
+    The contract between :mod:`tactile.dataset` (which writes and reads it) and :mod:`fusion` (which learns
+    from it). Arrays are in the object's frame, mm.
+
+    Attributes:
+        frames: (S, P, rows, cols) float32 cutaneous images (mm in gap mode).
+        normals: (S, P, 3) float32 unit outward normals at the probes (the paper's kinesthetic cue).
+        positions: (S, P, 3) float32 probe positions, mm.
+        tangents: (S, P, 3) float32 unit pad x axes (along the contour).
+        pad_sides_mm: (S, P) float32 pad side after adaptive shrinking, mm.
+        plane_points: (S, 3) float64 a point of each contour plane (the object centre), mm.
+        plane_normals: (S, 3) float64 unit normal of each contour plane.
+        labels: (S,) int64 class index into ``class_names``, -1 where unknown.
+        object_ids: (S,) int64 which object each sequence touched (index into ``object_names``).
+        class_names: the class list the labels index.
+        object_names: the object list the object ids index.
+        sensor_spec: :meth:`FSRSensor.spec` of the sensor that recorded the frames.
+    """
+
+    frames: np.ndarray
+    normals: np.ndarray
+    positions: np.ndarray
+    tangents: np.ndarray
+    pad_sides_mm: np.ndarray
+    plane_points: np.ndarray
+    plane_normals: np.ndarray
+    labels: np.ndarray
+    object_ids: np.ndarray
+    class_names: tuple[str, ...] = ()
+    object_names: tuple[str, ...] = ()
+    sensor_spec: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.class_names = tuple(self.class_names)
+        self.object_names = tuple(self.object_names)
+        if self.frames.ndim != 4:
+            raise DatasetError(f"SequenceBatch: frames must be (S, P, rows, cols), got shape {self.frames.shape}")
+        s, p = self.frames.shape[:2]
+        expected = {
+            "normals": (s, p, 3), "positions": (s, p, 3), "tangents": (s, p, 3), "pad_sides_mm": (s, p),
+            "plane_points": (s, 3), "plane_normals": (s, 3), "labels": (s,), "object_ids": (s,),
+        }
+        for name, shape in expected.items():
+            if np.shape(getattr(self, name)) != shape:
+                raise DatasetError(
+                    f"SequenceBatch: {name} must have shape {shape} to match frames {self.frames.shape}, "
+                    f"got {np.shape(getattr(self, name))}"
+                )
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @property
+    def n_probes(self) -> int:
+        return self.frames.shape[1]
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        """Taxel (rows, cols)."""
+        return self.frames.shape[2], self.frames.shape[3]
+
+    def subset(self, index) -> "SequenceBatch":
+        """The sequences at ``index`` (an index array, a boolean mask or a slice), same class/object lists."""
+        pick = lambda a: np.asarray(a)[index]  # noqa: E731
+        return SequenceBatch(
+            frames=pick(self.frames), normals=pick(self.normals), positions=pick(self.positions),
+            tangents=pick(self.tangents), pad_sides_mm=pick(self.pad_sides_mm),
+            plane_points=pick(self.plane_points), plane_normals=pick(self.plane_normals),
+            labels=pick(self.labels), object_ids=pick(self.object_ids), class_names=self.class_names,
+            object_names=self.object_names, sensor_spec=dict(self.sensor_spec),
+        )
+
+    @classmethod
+    def from_sequences(
+        cls,
+        sequences: Sequence[TactileSequence],
+        class_names: Sequence[str] | None = None,
+        sensor_spec: dict | None = None,
+    ) -> "SequenceBatch":
+        """Stack explored sequences (same probe count and taxel grid). Labels index ``class_names``
+        (default: the sorted labels present); objects are numbered in order of first appearance.
+
+        Raises:
+            DatasetError: no sequences, mixed shapes, or a label not in ``class_names``.
+        """
+        if not sequences:
+            raise DatasetError("SequenceBatch.from_sequences: no sequences given")
+        shapes = {s.frames.shape for s in sequences}
+        if len(shapes) != 1:
+            raise DatasetError(f"SequenceBatch.from_sequences: sequences differ in shape: {sorted(shapes)}")
+        if class_names is None:
+            class_names = sorted({s.label for s in sequences if s.label is not None})
+        class_index = {name: i for i, name in enumerate(class_names)}
+        unknown = {s.label for s in sequences if s.label is not None and s.label not in class_index}
+        if unknown:
+            raise DatasetError(f"SequenceBatch.from_sequences: labels {sorted(unknown)} not in {list(class_names)}")
+        object_names = list(dict.fromkeys(s.object_name for s in sequences))
+        object_index = {name: i for i, name in enumerate(object_names)}
+        stack = lambda attr, dtype: np.stack([getattr(s, attr) for s in sequences]).astype(dtype)  # noqa: E731
+        return cls(
+            frames=stack("frames", np.float32),
+            normals=stack("normals", np.float32),
+            positions=stack("positions", np.float32),
+            tangents=stack("tangents", np.float32),
+            pad_sides_mm=stack("pad_sides_mm", np.float32),
+            plane_points=np.stack([s.plane.point for s in sequences]).astype(np.float64),
+            plane_normals=np.stack([s.plane.normal for s in sequences]).astype(np.float64),
+            labels=np.array([class_index.get(s.label, -1) for s in sequences], dtype=np.int64),
+            object_ids=np.array([object_index[s.object_name] for s in sequences], dtype=np.int64),
+            class_names=tuple(class_names),
+            object_names=tuple(object_names),
+            sensor_spec=dict(sensor_spec or {}),
+        )
+
+
+__all__ = ["SequenceBatch", "TactileSequence", "explore"]

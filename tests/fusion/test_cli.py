@@ -6,7 +6,8 @@ import json
 
 import pytest
 
-from fusion.cli import available_benchmarks, main
+from fusion.cli import main
+from fusion.commands.bench import available_benchmarks
 
 
 def test_benchmarks_are_listed_and_unknown_ones_refused(capsys):
