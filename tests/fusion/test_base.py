@@ -1,0 +1,98 @@
+"""The classifier base: labels, sensor compatibility, multi-touch, save / load, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion.base import TactileClassifier, load_model
+from perception.errors import DatasetError, ModelMismatchError
+from tactile.sensor import FSRSensor
+from tests.fusion._synthetic import circle_batch
+
+
+class MeanFrame(TactileClassifier):
+    """Nearest class mean of the mean frame reading, with softmax probabilities (a stand-in classifier)."""
+
+    def __init__(self, temperature: float = 1.0):
+        self.temperature = temperature
+
+    def _fit(self, batch, y):
+        means = batch.frames.mean(axis=(1, 2, 3))
+        self.centres_ = np.array([means[y == k].mean() for k in range(len(self.classes_))])
+
+    def _predict_proba(self, batch):
+        d = -np.abs(batch.frames.mean(axis=(1, 2, 3))[:, None] - self.centres_[None]) / self.temperature
+        e = np.exp(d - d.max(axis=1, keepdims=True))
+        return e / e.sum(axis=1, keepdims=True)
+
+
+@pytest.fixture
+def batch():
+    # Class 0: radii near 20 mm, class 1: near 60 mm.
+    return circle_batch([19, 20, 21, 22, 58, 60, 61, 63], labels=[0, 0, 0, 0, 1, 1, 1, 1])
+
+
+def test_fit_predict_score_with_class_names(batch):
+    model = MeanFrame().fit(batch)
+    assert list(model.classes_) == ["c0", "c1"]
+    assert model.score(batch) == 1.0
+    probe = circle_batch([18.0, 70.0])
+    np.testing.assert_array_equal(model.predict(probe), ["c0", "c1"])
+    proba = model.predict_proba(probe)
+    assert proba.shape == (2, 2) and np.allclose(proba.sum(axis=1), 1.0)
+
+
+def test_explicit_labels_by_name(batch):
+    model = MeanFrame().fit(batch, y=["small"] * 4 + ["large"] * 4)
+    assert list(model.classes_) == ["large", "small"]
+    assert list(model.predict(circle_batch([18.0]))) == ["small"]
+
+
+def test_multi_touch_groups(batch):
+    model = MeanFrame(temperature=30.0).fit(batch)
+    fused = model.predict_proba_touches(batch, np.array([[0, 1, 2], [4, 5, 6]]))
+    assert fused.shape == (2, 2) and fused[0].argmax() == 0 and fused[1].argmax() == 1
+    # Three agreeing touches are more confident than one.
+    assert fused[0, 0] > model.predict_proba(batch)[0, 0]
+
+
+def test_one_class_nan_and_wrong_types_are_refused(batch):
+    with pytest.raises(DatasetError, match="only one class"):
+        MeanFrame().fit(batch.subset(slice(0, 4)))
+    broken = batch.subset(slice(None))
+    broken.frames[0, 0, 0, 0] = np.nan
+    with pytest.raises(DatasetError, match="NaN"):
+        MeanFrame().fit(broken)
+    with pytest.raises(DatasetError, match="expected a SequenceBatch"):
+        MeanFrame().fit(np.zeros((3, 4)))
+
+
+def test_data_from_another_sensor_is_refused_but_noise_settings_may_differ(batch):
+    model = MeanFrame().fit(batch)
+    other = circle_batch([20.0])
+    other.sensor_spec = FSRSensor(rows=4, cols=4, side_mm=30.0).spec()
+    with pytest.raises(ModelMismatchError, match="side_mm 20.0 \\(model\\) vs 30.0 \\(data\\)"):
+        model.predict(other)
+    noisy = circle_batch([20.0])
+    noisy.sensor_spec = FSRSensor(rows=4, cols=4, noise_std=0.1, dead_taxel_rate=0.05).spec()
+    assert list(model.predict(noisy)) == ["c0"]
+    with pytest.raises(ModelMismatchError, match="12 probes of 4 x 4"):
+        model.predict(circle_batch([20.0], probes=10))
+    assert model.sensor() == FSRSensor(rows=4, cols=4)
+
+
+def test_save_load_round_trip(batch, tmp_path):
+    model = MeanFrame().fit(batch)
+    path = model.save(tmp_path / "m.pkl")
+    loaded = load_model(path)
+    np.testing.assert_array_equal(loaded.predict_proba(batch), model.predict_proba(batch))
+    assert list(loaded.classes_) == list(model.classes_)
+
+
+def test_loading_garbage_or_missing_files_is_refused(tmp_path):
+    with pytest.raises(DatasetError, match="no such model file"):
+        load_model(tmp_path / "missing.pkl")
+    (tmp_path / "junk.pkl").write_bytes(b"not a pickle at all")
+    with pytest.raises(DatasetError, match="not a visuotactile model"):
+        load_model(tmp_path / "junk.pkl")

@@ -1,0 +1,44 @@
+"""SequenceBatch: stacking explored sequences and checking shapes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from perception import primitives
+from perception.errors import DatasetError
+from tactile import FSRSensor, SequenceBatch, explore, make_contour, plane_through
+
+
+@pytest.fixture(scope="module")
+def sequences():
+    sensor = FSRSensor(rows=8, cols=8)
+    out = []
+    for name, label, radius in (("s1", "ball", 30.0), ("s2", "ball", 40.0), ("s3", "box", 30.0)):
+        model = primitives.sphere(radius, 2)
+        object.__setattr__(model, "name", name)
+        object.__setattr__(model, "label", label)
+        contour = make_contour(model, plane_through([0, 0, 0], [1, 0, 0], [0, 1, 0.3]), 9)
+        out.append(explore(model, contour, sensor, seed=1))
+    return out
+
+
+def test_stacks_sequences_with_labels_and_objects(sequences):
+    batch = SequenceBatch.from_sequences(sequences, sensor_spec=FSRSensor(rows=8, cols=8).spec())
+    assert len(batch) == 3 and batch.n_probes == 9 and batch.grid == (8, 8)
+    assert batch.class_names == ("ball", "box") and list(batch.labels) == [0, 0, 1]
+    assert batch.object_names == ("s1", "s2", "s3") and list(batch.object_ids) == [0, 1, 2]
+    np.testing.assert_array_equal(batch.frames[2], sequences[2].frames)
+    np.testing.assert_allclose(batch.plane_normals[0], sequences[0].plane.normal)
+    sub = batch.subset(np.array([2, 0]))
+    assert list(sub.labels) == [1, 0] and sub.class_names == batch.class_names
+
+
+def test_unknown_labels_and_mixed_shapes_are_refused(sequences):
+    with pytest.raises(DatasetError, match="not in"):
+        SequenceBatch.from_sequences(sequences, class_names=["ball"])
+    with pytest.raises(DatasetError, match="no sequences"):
+        SequenceBatch.from_sequences([])
+    batch = SequenceBatch.from_sequences(sequences)
+    with pytest.raises(DatasetError, match="normals must have shape"):
+        SequenceBatch(**{**batch.__dict__, "normals": batch.normals[:, :3]})
