@@ -1,0 +1,28 @@
+"""The classifiers by name, for the CLI and the experiments: ``cnn`` (CNN pair, probability fusion),
+``svm`` and ``knn`` (contourlet + wavelet features)."""
+
+from __future__ import annotations
+
+from perception.errors import DatasetError
+
+CLASSIFIERS = ("cnn", "svm", "knn")
+
+
+def make_classifier(name: str, *, cue: str = "normals", seed: int = 0, progress: bool = False, **options):
+    """A new, unfitted classifier ``name`` with kinesthetic ``cue`` and ``seed``; ``options`` go to its constructor.
+
+    Raises:
+        DatasetError: unknown name.
+    """
+    if name == "cnn":
+        from fusion.cnn import CNNClassifier
+
+        return CNNClassifier(cue=cue, seed=seed, progress=progress, **options)
+    if name in ("svm", "knn"):
+        from fusion.conventional import ConventionalClassifier
+
+        return ConventionalClassifier(kind=name, cue=cue, seed=seed, **options)
+    raise DatasetError(f"unknown classifier {name!r}; choose one of {', '.join(CLASSIFIERS)}")
+
+
+__all__ = ["CLASSIFIERS", "make_classifier"]
