@@ -1,8 +1,16 @@
-"""``make demo`` / ``visuotactile demo``: the pipeline on built-in objects, as tables and figures.
+"""``make demo`` / ``visuotactile demo``: the toolkit end to end on built-in objects.
 
-What it runs grows with the toolkit: today it builds one instance of every catalogue class, measures it
-(size, watertightness, curvature), draws the catalogue, attends to one object (saliency), and touches it
-along blind and guided contours with the virtual FSR array, writing PNGs and a JSON summary.
+1. The catalogue: one instance per class, measured (size, watertightness, curvature) and drawn.
+2. Attention and touch: saliency of a mug, blind and guided contours touched with the FSR array (figures).
+3. Recognition, with the experiments' machinery (:mod:`fusion.experiments`): guided and blind tactile data
+   of ``objects_per_class`` instances per class (:data:`DEMO_SIZES`), one instance per class held out as
+   *unseen*; CNN fusion, SVM and kNN trained on 80 % of the other instances' sequences and tested on the
+   remaining 20 % (the paper's by-sequence protocol) and on the unseen instances; K touches per decision on
+   the unseen instances. A Table-1-style table is printed and ``report.md`` written with the figures.
+
+Default sizes (about 3-4 minutes on 2 CPU cores): 10 classes x 3 instances, 40 contours per object and
+strategy (2,400 sequences), CNN at most 15 epochs. Models are saved in ``<out>/models/`` (guided) and
+``<out>/models/blind/`` for ``visuotactile recognize``; stores, models and predictions are reused by a re-run.
 """
 
 from __future__ import annotations
@@ -10,14 +18,46 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from fusion.evaluate import PAPER_TABLE1, confusion, markdown_table, plot_confusion
+from fusion.experiments.analysis import score
+from fusion.experiments.data import catalogue_objects, ensure_store
+from fusion.experiments.figures import plot_touches
+from fusion.experiments.models import DISPLAY, MODALITY_DISPLAY, Predictions, digest, train_and_predict
+from fusion.experiments.protocol import STRATEGIES, _loader, touches_rows
+from fusion.experiments.report import pct
 from perception.atomic import write_text
+from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DemoSizes:
+    """Sizes of the demo's recognition part (defaults fit in about 5 minutes on 2 CPU cores)."""
+
+    objects_per_class: int = 3
+    contours: int = 40
+    epochs: int = 15
+    touches: tuple[int, ...] = (1, 2, 4, 8)
+    classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
+    strategies: tuple[str, ...] = STRATEGIES
+
+    def __post_init__(self) -> None:
+        if self.objects_per_class < 2:
+            raise InvalidArgumentError(
+                f"the demo needs at least 2 objects per class (one is held out as unseen), got {self.objects_per_class}")
+        if self.contours < max(self.touches):
+            raise InvalidArgumentError(f"contours ({self.contours}) must be at least the largest K {max(self.touches)}")
+
+
+DEMO_SIZES = DemoSizes()
 
 
 def _build_catalogue(seed: int) -> tuple[dict[str, ObjectModel], list[dict]]:
@@ -44,38 +84,54 @@ def _build_catalogue(seed: int) -> tuple[dict[str, ObjectModel], list[dict]]:
     return models, rows
 
 
-def _print_table(rows: list[dict]) -> None:
+def format_table(rows: list[dict]) -> str:
+    """Rows as aligned plain-text columns."""
     keys = list(rows[0])
     widths = [max(len(k), *(len(str(r[k])) for r in rows)) for k in keys]
-    print("  ".join(k.ljust(w) for k, w in zip(keys, widths)))
-    for r in rows:
-        print("  ".join(str(r[k]).ljust(w) for k, w in zip(keys, widths)))
+    lines = ["  ".join(k.ljust(w) for k, w in zip(keys, widths))]
+    lines += ["  ".join(str(r[k]).ljust(w) for k, w in zip(keys, widths)) for r in rows]
+    return "\n".join(lines)
 
 
-def run_demo(out: Path, seed: int = 0) -> dict:
-    """Run the demo, writing figures and ``summary.json`` into ``out``; returns the summary."""
+def run_demo(out: Path, seed: int = 0, *, sizes: DemoSizes = DEMO_SIZES, classifiers: dict | None = None,
+             recognition: bool = True, workers: int | None = None, progress: bool = True,
+             echo: Callable[[str], None] = print) -> dict:
+    """Run the demo, writing figures, ``report.md`` and ``summary.json`` into ``out``; returns the summary.
+
+    Args:
+        echo: where the tables and messages go (the CLI's stdout, or stderr under ``--json``).
+        classifiers: name -> factory of an unfitted classifier (default: the toolkit's, see ``sizes``).
+        recognition: run the recognition part (3. in the module docstring).
+    """
     from perception.shapes import catalogue_figure
 
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     summary: dict = {"seed": seed, "figures": []}
 
-    print("Built-in catalogue, one instance per class:")
+    echo("Built-in catalogue, one instance per class:")
     models, rows = _build_catalogue(seed)
-    _print_table(rows)
+    echo(format_table(rows))
     summary["catalogue"] = rows
     catalogue_figure(out / "catalogue.png", seed=seed, models=list(models.values()))
     summary["figures"].append("catalogue.png")
 
-    touched = _touch(models["mug"], out, seed)
+    touched = _touch(models["mug"], out, seed, echo)
     summary["figures"] += touched.pop("figures")
     summary.update(touched)
 
-    write_text(out / "summary.json", json.dumps(summary, indent=2))
-    print(f"\nWrote {', '.join(summary['figures'])} and summary.json to {out}/")
+    if recognition:
+        result = recognise(out, seed, sizes, classifiers, workers=workers, progress=progress,
+                           classes=list(models), echo=echo)
+        summary["figures"] += result.pop("figures")
+        summary["recognition"] = result
+    write_text(out / "summary.json", json.dumps(summary, indent=2, default=str))
+    write_text(out / "report.md", _report(summary))
+    echo(f"\nWrote report.md, summary.json and {len(summary['figures'])} figures to {out}/")
     return summary
 
 
-def _touch(model, out: Path, seed: int) -> dict:
+def _touch(model, out: Path, seed: int, echo: Callable[[str], None] = print) -> dict:
     """Saliency on one object, then blind and guided exploration with the FSR array."""
     from perception.saliency import plot_saliency, saliency
     from tactile import explore_object, make_contour
@@ -85,7 +141,7 @@ def _touch(model, out: Path, seed: int) -> dict:
     start = time.perf_counter()
     attention = saliency(model, method="multiview", seed=seed)
     result["saliency_seconds"] = round(time.perf_counter() - start, 3)
-    print(f"\nSaliency of {model.name} ({attention.method}): {result['saliency_seconds']} s, "
+    echo(f"\nSaliency of {model.name} ({attention.method}): {result['saliency_seconds']} s, "
           f"channels {', '.join(attention.channels_computed)}")
     plot_saliency(attention, out / "saliency.png", n_points=10)
     result["figures"].append("saliency.png")
@@ -95,10 +151,113 @@ def _touch(model, out: Path, seed: int) -> dict:
         sequences = explore_object(model, strategy=strategy, n_contours=4, seed=seed, saliency=attention)
         seconds = time.perf_counter() - start
         sides = np.concatenate([s.pad_sides_mm for s in sequences])
-        print(f"{strategy:>6}: {len(sequences)} contours x {len(sequences[0].frames)} probes in {seconds:.2f} s, "
+        echo(f"{strategy:>6}: {len(sequences)} contours x {len(sequences[0].frames)} probes in {seconds:.2f} s, "
               f"pad side {sides.min():.1f}-{sides.max():.1f} mm")
         first = sequences[0]
         plot_sequence(model, make_contour(model, first.plane, first.n_probes), first, out / f"contour_{strategy}.png")
         result["figures"].append(f"contour_{strategy}.png")
         result[f"{strategy}_seconds"] = round(seconds, 3)
     return result
+
+
+def _default_classifiers(sizes: DemoSizes, seed: int, progress: bool) -> dict:
+    from fusion.experiments.models import default_classifiers
+
+    every = default_classifiers(seed, sizes.epochs, progress=progress)
+    return {name: every[name] for name in sizes.classifiers}
+
+
+def recognise(out: Path, seed: int, sizes: DemoSizes, classifiers: dict | None, *, classes,
+              workers: int | None = None, progress: bool = True, echo: Callable[[str], None] = print) -> dict:
+    """The recognition part: data, training, tests by sequence and on unseen instances, K touches, figures."""
+    classifiers = classifiers or _default_classifiers(sizes, seed, progress)
+    start = time.perf_counter()
+    objects = catalogue_objects(classes, sizes.objects_per_class, first_seed=seed)
+    echo(f"\nRecognition: {len(objects)} objects ({sizes.objects_per_class} per class), {sizes.contours} contours "
+          "per object and strategy")
+    ds, record = ensure_store(objects, out / "stores", strategies=sizes.strategies, contours=sizes.contours,
+                      seed=seed, workers=workers, progress=progress)
+    data_seconds = time.perf_counter() - start
+    preds: dict[str, dict[str, dict[str, Predictions]]] = {"sequence": {}, "unseen": {}}
+    for strategy in sizes.strategies:
+        index = ds.indices(strategy)
+        seen, unseen = ds.split_by_object(1 / sizes.objects_per_class, seed=seed, index=index)
+        train, test = ds.split_by_sequence(0.2, seed=seed, index=seen)
+        batch = _loader(ds, train, test)
+        unseen_batch = _loader(ds, train, unseen)
+        folder = out / "models" if strategy == "guided" else out / "models" / strategy
+        train_record = {"part": "demo", "store": digest(record), "strategy": strategy, "train": digest(train)}
+        for name, factory in classifiers.items():
+            echo(f"  {strategy}: training {DISPLAY.get(name, name)} on {len(train)} sequences")
+            preds["sequence"].setdefault(strategy, {})[name] = train_and_predict(
+                name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"), folder, train_record,
+                {"tag": "sequence", "test": digest(test)})
+            preds["unseen"].setdefault(strategy, {})[name] = train_and_predict(
+                name, factory, lambda b=batch: b("train"), lambda b=unseen_batch: b("test"), folder, train_record,
+                {"tag": "unseen", "test": digest(unseen)})
+    table = _table(preds, seed)
+    echo("\nTest accuracy, 95 % bootstrap interval (by sequence: over sequences; unseen: over objects):")
+    echo(format_table(table))
+    touches = touches_rows(preds["unseen"], "unseen_instances", sizes.touches, seed)
+    figures = [plot_touches(touches, out / "accuracy_vs_k.png").name]
+    for strategy in sizes.strategies:
+        for name, pred in preds["unseen"][strategy].items():
+            file = out / f"confusion_unseen_{strategy}_{name}.png"
+            plot_confusion(confusion(pred.labels, pred.predicted, pred.classes), pred.classes, file,
+                           title=f"{DISPLAY.get(name, name)}, {strategy}, unseen instances")
+            figures.append(file.name)
+    k_best = max(sizes.touches)
+    k_rows = [r for r in touches if r["k"] == k_best and r["rule"] == "log"]
+    echo(f"\nUnseen instances, K = {k_best} touches per decision (sum of log probabilities):")
+    for r in k_rows:
+        echo(f"  {r['classifier']:<16} {r['strategy']:<7} {pct(r['accuracy'])}")
+    return {"sizes": {**asdict(sizes), "classes": list(classes)}, "objects": [f"{c}/{s}" for c, s in objects],
+            "table": table, "touches": touches, "figures": figures, "data_seconds": round(data_seconds, 1),
+            "seconds": round(time.perf_counter() - start, 1),
+            "models": sorted(str(p.relative_to(out)) for p in (out / "models").rglob("*.pkl"))}
+
+
+def _table(preds: dict, seed: int) -> list[dict]:
+    rows = []
+    strategies = list(preds["sequence"])
+    names = list(preds["sequence"][strategies[0]])
+    for name in names:
+        variants = [(DISPLAY.get(name, name), None)]
+        if name == "cnn":
+            variants += [(label, m) for m, label in MODALITY_DISPLAY.items()
+                         if m in preds["sequence"][strategies[0]][name].modalities]
+        for label, modality in variants:
+            row = {"classifier": label}
+            for split, by in (("sequence", "decision"), ("unseen", "object")):
+                for strategy in strategies:
+                    pred = preds[split][strategy][name]
+                    pred = pred.modality(modality) if modality else pred
+                    row[f"{split} {strategy}"] = pct(score(pred, by=by, seed=seed).to_dict())
+            paper = PAPER_TABLE1.get(name) if modality is None else None
+            row["paper guided / blind"] = f"{paper[0]:.2f} / {paper[1]:.2f} %" if paper else "-"
+            rows.append(row)
+    return rows
+
+
+def _report(summary: dict) -> str:
+    lines = ["# visuotactile demo", "", (f"Seed {summary['seed']}. Saliency of one mug: "
+             f"{summary['saliency_seconds']} s."), "", "![catalogue](catalogue.png)", "",
+             "![saliency](saliency.png)", "", "![guided contour](contour_guided.png)", "",
+             "![blind contour](contour_blind.png)", ""]
+    rec = summary.get("recognition")
+    if rec:
+        s = rec["sizes"]
+        lines += ["## Recognition", "",
+                  (f"{len(rec['objects'])} built-in objects ({s['objects_per_class']} per class, one per class "
+                   f"held out as unseen), {s['contours']} contours per object and strategy, CNN at most "
+                   f"{s['epochs']} epochs. By sequence: 80 % of the seen instances' sequences train, 20 % test "
+                   "(the paper's protocol; interval over sequences). Unseen: the held-out instances "
+                   "(interval over objects). 95 % percentile bootstrap, 1000 resamples."), "",
+                  markdown_table(rec["table"]), "", "![accuracy vs K](accuracy_vs_k.png)", ""]
+        lines += [f"![{f}]({f})" for f in rec["figures"] if f.startswith("confusion")]
+        lines += ["", f"Recognition took {rec['seconds']} s (data {rec['data_seconds']} s). Models: "
+                  + ", ".join(f"`{m}`" for m in rec["models"]), ""]
+    return "\n".join(lines)
+
+
+__all__ = ["DEMO_SIZES", "DemoSizes", "format_table", "recognise", "run_demo"]

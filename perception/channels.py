@@ -32,6 +32,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage, signal
 
+from perception.errors import InvalidArgumentError
+
 #: Channels computed for every mesh, in order.
 GEOMETRY_CHANNELS = ("intensity", "contrast", "orientation", "curvature", "edges", "entropy", "symmetry")
 #: Channels computed only when the mesh has vertex colours.
@@ -194,8 +196,11 @@ def compute_channels(
         color: (N, H, W, 3) RGB in [0, 1], or None.
 
     Raises:
-        ValueError: an unknown channel, or a colour channel without ``color``.
+        InvalidArgumentError: an unknown channel, or a colour channel without ``color``.
     """
+    unknown = [name for name in channels if name not in ALL_CHANNELS]
+    if unknown:
+        raise InvalidArgumentError(f"unknown channel(s) {unknown}; known: {', '.join(ALL_CHANNELS)}")
     intensity = intensity.astype(np.float64)
     normal = normal.astype(np.float64)
     depth = depth.astype(np.float64)
@@ -203,7 +208,7 @@ def compute_channels(
     raw = {}
     for name in channels:
         if name in COLOR_CHANNELS and color is None:
-            raise ValueError(f"channel {name!r} needs colours")
+            raise InvalidArgumentError(f"channel {name!r} needs colours")
         if name == "intensity":
             raw[name] = _center_surround(intensity, mask)
         elif name == "contrast":
@@ -224,5 +229,5 @@ def compute_channels(
         elif name == "dkl":
             raw[name] = _dkl(color.astype(np.float64), mask)
         else:
-            raise ValueError(f"unknown channel {name!r}; known: {', '.join(ALL_CHANNELS)}")
+            raise InvalidArgumentError(f"unknown channel {name!r}; known: {', '.join(ALL_CHANNELS)}")
     return {name: itti_normalize(value, mask) for name, value in raw.items()}

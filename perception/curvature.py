@@ -19,12 +19,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.errors import InvalidMeshError
+from perception.errors import InvalidArgumentError, InvalidMeshError
+from perception.isolate import IsolatedCallFailed, run_isolated
 
 log = logging.getLogger(__name__)
 
 #: Curvature estimators offered by :meth:`ObjectModel.compute_curvature`.
 CURVATURE_METHODS = ("quadric", "scale_quadric", "discrete")
+#: Time limit of an isolated pymeshlab curvature estimate: this many seconds, plus the next per vertex. Far
+#: above the normal run time (about 0.05 s per 1,000 vertices), so only a hang reaches it, even on a loaded
+#: machine; a falsely timed-out estimate would silently change results.
+CHILD_TIMEOUT_S = 30.0
+CHILD_TIMEOUT_PER_VERTEX_S = 2e-3
 
 
 @dataclass(frozen=True)
@@ -77,20 +83,65 @@ def _meshset(vertices: np.ndarray, triangles: np.ndarray):
     return ms
 
 
+def _corners(vertices: np.ndarray, triangles: np.ndarray):
+    """Per triangle corner k: the edge to corner k+1 and to corner k-1, (F, 3, 3) each, and the face cross
+    product (F, 3) (twice the area along the unit normal)."""
+    p = vertices[triangles]
+    to_next = np.roll(p, -1, axis=1) - p
+    to_prev = np.roll(p, 1, axis=1) - p
+    return to_next, to_prev, np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+
+
+def _corner_weighted_normals(vertices: np.ndarray, triangles: np.ndarray, method: str) -> np.ndarray:
+    """Sum over incident corners of the weighted face normal, (V, 3), not normalised.
+
+    The weightings of pymeshlab's ``compute_normal_per_vertex`` (VCG), re-written in numpy so that no native
+    code runs on user data here; ``tests/perception/test_curvature.py`` checks them against pymeshlab:
+    ``angle`` unit face normal x corner angle (Thuermer & Wuethrich), ``area`` face cross product (2 x area),
+    ``uniform`` unit face normal, ``max`` (e1 x e2) / (|e1|^2 |e2|^2) of the corner's two edges (Max 1999).
+    """
+    to_next, to_prev, cross = _corners(vertices, triangles)
+    if method == "max":
+        length2 = np.einsum("fkj,fkj->fk", to_next, to_next) * np.einsum("fkj,fkj->fk", to_prev, to_prev)
+        weighted = np.cross(to_next, to_prev) / np.maximum(length2, 1e-300)[:, :, None]
+    elif method == "area":
+        weighted = np.repeat(cross[:, None, :], 3, axis=1)
+    else:
+        unit = _unit(cross)
+        if method == "uniform":
+            weighted = np.repeat(unit[:, None, :], 3, axis=1)
+        else:  # angle
+            dot = np.einsum("fkj,fkj->fk", to_next, to_prev)
+            sine = np.linalg.norm(np.cross(to_next, to_prev), axis=2)
+            weighted = np.arctan2(sine, dot)[:, :, None] * unit[:, None, :]
+    return _scatter_add(triangles, weighted, len(vertices))
+
+
+def _scatter_add(triangles: np.ndarray, per_corner: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(V, 3) sums of (F, 3 corners, 3) corner vectors onto their vertices (bincount: ~10x ``np.add.at``)."""
+    index = triangles.ravel()
+    flat = per_corner.reshape(-1, 3)
+    return np.stack([np.bincount(index, flat[:, i], minlength=n_vertices) for i in range(3)], axis=1)
+
+
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray, method: str = "angle") -> np.ndarray:
     """(V, 3) unit vertex normals following the triangle winding.
 
     Args:
-        method: ``angle``/``area``/``max``/``uniform`` (pymeshlab face-normal weightings), ``open3d``
-            (Open3D ``compute_vertex_normals``) or ``open3d_pca`` (Open3D point-cloud PCA over 30
-            neighbours, oriented to agree with the angle-weighted normal).
+        method: ``angle``/``area``/``max``/``uniform`` (pymeshlab's face-normal weightings, computed here in
+            numpy, identical to pymeshlab's to 1e-15), ``open3d`` (Open3D ``compute_vertex_normals``) or
+            ``open3d_pca`` (Open3D point-cloud PCA over 30 neighbours, oriented to agree with the
+            angle-weighted normal).
 
     Vertices with no usable normal (isolated or only degenerate faces) get (0, 0, 1).
+
+    Raises:
+        InvalidArgumentError: unknown method.
     """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.int64)
     if method in _PYMESHLAB_NORMAL_MODES:
-        ms = _meshset(vertices, triangles)
-        ms.compute_normal_per_vertex(weightmode=_PYMESHLAB_NORMAL_MODES[method])
-        normals = np.asarray(ms.current_mesh().vertex_normal_matrix(), dtype=np.float64)
+        normals = _corner_weighted_normals(vertices, triangles, method)
     elif method == "open3d":
         import open3d as o3d
 
@@ -108,8 +159,49 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray, method: str = "a
         reference = vertex_normals(vertices, triangles, "angle")
         normals *= np.where(np.einsum("ij,ij->i", normals, reference) < 0, -1.0, 1.0)[:, None]
     else:
-        raise ValueError(f"unknown normal method {method!r}; choose from {NORMAL_METHODS}")
+        raise InvalidArgumentError(f"unknown normal method {method!r}; choose from {', '.join(NORMAL_METHODS)}")
     return _unit_or_default(normals)
+
+
+def discrete_curvature(
+    vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and Gaussian curvature (1/mm, 1/mm^2) per vertex by the discrete operators of Meyer et al. (2003).
+
+    Mean: half the length of the cotangent Laplacian over the mixed Voronoi area, signed positive where it
+    points along the outward ``normals`` (convex). Gaussian: angle deficit 2 pi - sum of corner angles over
+    the mixed area. pymeshlab's "discrete" estimator (VCG) computes the same (``tests`` check it to 1e-7);
+    this copy is numpy only, so it cannot crash the process and serves as the fallback of the pymeshlab
+    fits. Vertices with no area (unused, or only degenerate faces) get 0.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.int64)
+    n = len(vertices)
+    to_next, to_prev, _ = _corners(vertices, triangles)
+    dot = np.einsum("fkj,fkj->fk", to_next, to_prev)
+    twice_area = np.linalg.norm(np.cross(to_next, to_prev), axis=2)  # the same for the three corners
+    angle = np.arctan2(twice_area, dot)
+    cot = np.divide(dot, twice_area, out=np.zeros_like(dot), where=twice_area > 0)
+    # Mixed area of corner k: Voronoi (1/8)(|e_k,k+1|^2 cot(k+2) + |e_k,k-1|^2 cot(k+1)) on non-obtuse
+    # triangles; on obtuse ones area/2 at the obtuse corner and area/4 at the others.
+    next2 = np.einsum("fkj,fkj->fk", to_next, to_next)
+    voronoi = (next2 * np.roll(cot, -2, axis=1) + np.roll(next2, 1, axis=1) * np.roll(cot, -1, axis=1)) / 8.0
+    obtuse = dot < 0
+    area = twice_area / 2.0
+    mixed = np.where(obtuse.any(axis=1, keepdims=True), np.where(obtuse, area / 2, area / 4), voronoi)
+    mixed_area = np.bincount(triangles.ravel(), mixed.ravel(), minlength=n)
+    # Corner k gets (x_k - x_k+1) cot(k+2) + (x_k - x_k-1) cot(k+1): edge (k, k+1) is opposite corner k+2.
+    laplacian = _scatter_add(
+        triangles, -to_next * np.roll(cot, -2, axis=1)[:, :, None] - to_prev * np.roll(cot, -1, axis=1)[:, :, None], n
+    )
+    deficit = 2 * np.pi - np.bincount(triangles.ravel(), angle.ravel(), minlength=n)
+    ok = mixed_area > 1e-300
+    safe_area = np.where(ok, mixed_area, 1.0)
+    h_vector = laplacian / (4.0 * safe_area[:, None])
+    sign = np.where(np.einsum("ij,ij->i", h_vector, normals) < 0, -1.0, 1.0)
+    mean = np.where(ok, sign * np.linalg.norm(h_vector, axis=1), 0.0)
+    gaussian = np.where(ok, deficit / safe_area, 0.0)
+    return mean, gaussian
 
 
 def _unit(vectors: np.ndarray) -> np.ndarray:
@@ -145,13 +237,20 @@ def compute_curvature(model, method: str = "quadric"):
     fit radius 1 % of the bounding box), ``discrete`` (pymeshlab discrete Meyer et al. operator; its
     directions come from Taubin's approximation).
 
-    pymeshlab's quadric fits abort the process (a double free) on some open meshes, e.g. a one-triangle-wide
-    band whose vertices all lie on the boundary (``psb_open/Bottle_m489``). On meshes that are not watertight
-    the fit therefore runs in a forked child; if the child dies, the discrete estimator is used instead and a
-    warning says so.
+    Every pymeshlab estimate runs isolated (:func:`perception.isolate.run_isolated`, a forked child with a
+    time limit of ``CHILD_TIMEOUT_S`` + ``CHILD_TIMEOUT_PER_VERTEX_S`` per vertex): the fits abort, segfault
+    or hang on open meshes and on closed ones alike (a vertex shared by two solids, self-intersections,
+    unused vertices, a plain box, a tetrahedron). If the child crashes, runs out of time or pymeshlab refuses
+    the mesh, the numpy discrete estimator (:func:`discrete_curvature`, no principal directions) is used
+    instead and a warning says so.
+
+    Raises:
+        InvalidArgumentError: unknown method.
     """
     if method not in CURVATURE_METHODS:
-        raise ValueError(f"unknown curvature method {method!r}; choose from {', '.join(CURVATURE_METHODS)}")
+        raise InvalidArgumentError(
+            f"{model.name}: unknown curvature method {method!r}; choose from {', '.join(CURVATURE_METHODS)}"
+        )
     mean, gauss, dir1, dir2 = _estimate_safely(model, method)
     bad = ~(np.isfinite(mean) & np.isfinite(gauss))
     if bad.any():
@@ -198,61 +297,21 @@ def _order_directions(vertices, triangles, normals, dir1, dir2):
 
 
 def _estimate_safely(model, method: str):
-    """Run the estimator, isolating pymeshlab crashes, and fall back where pymeshlab refuses the mesh.
-
-    Fallbacks, each logged: on a refusal or crash, the discrete estimator on a manifold copy (non-manifold
-    edges and vertices split, values mapped back by position); if even that fails, zeros.
-    """
-    import concurrent.futures
-    import multiprocessing
-
+    """The pymeshlab estimate, run in a forked child; the numpy discrete estimate where that fails (logged)."""
     import pymeshlab
 
-    args = (model.vertices, model.triangles, method, model.name)
-    if model.is_watertight:
-        return _estimate(*args)
+    timeout = CHILD_TIMEOUT_S + CHILD_TIMEOUT_PER_VERTEX_S * model.n_vertices
+    what = f"{model.name}: pymeshlab {method} curvature"
     try:
-        # pymeshlab aborts the whole process on some open meshes: run it in a forked child.
-        with concurrent.futures.ProcessPoolExecutor(
-            1, mp_context=multiprocessing.get_context("fork"), initializer=_quiet_child
-        ) as pool:
-            return pool.submit(_estimate, *args).result()
-    except (concurrent.futures.process.BrokenProcessPool, pymeshlab.PyMeshLabException) as exc:
-        reason = "crashed" if isinstance(exc, concurrent.futures.process.BrokenProcessPool) else "refused"
-    log.warning("%s: pymeshlab %s curvature %s on this open mesh; using 'discrete'", model.name, method, reason)
-    try:
-        vertices, triangles, index = _manifold_copy(model.vertices, model.triangles)
-        mean, gauss, dir1, dir2 = _estimate(vertices, triangles, "discrete", model.name)
-        return mean[index], gauss[index], dir1[index], dir2[index]
-    except (pymeshlab.PyMeshLabException, InvalidMeshError):
-        log.warning("%s: no curvature estimator accepts this mesh; curvature set to 0", model.name)
-        n = model.n_vertices
-        return np.zeros(n), np.zeros(n), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
-
-
-def _quiet_child() -> None:
-    """In the forked curvature child: an expected abort should not print a stack or glibc's message."""
-    import faulthandler
-
-    faulthandler.disable()
-    os.environ["LIBC_FATAL_STDERR_"] = "1"  # glibc's fatal messages go to stderr, not the terminal
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 2)
-    os.close(devnull)
-
-
-def _manifold_copy(vertices: np.ndarray, triangles: np.ndarray):
-    """Split non-manifold edges and vertices; return the copy and, per original vertex, a copy index."""
-    from scipy.spatial import cKDTree
-
-    ms = _meshset(vertices, triangles)
-    ms.meshing_repair_non_manifold_edges(method="Remove Faces")
-    ms.meshing_repair_non_manifold_vertices()
-    ms.meshing_remove_unreferenced_vertices()
-    mesh = ms.current_mesh()
-    copy_vertices = np.asarray(mesh.vertex_matrix(), dtype=np.float64)
-    _, index = cKDTree(copy_vertices).query(vertices)
-    return copy_vertices, np.asarray(mesh.face_matrix(), dtype=np.int64), index
+        return run_isolated(_estimate, model.vertices, model.triangles, method, model.name, timeout_s=timeout, what=what)
+    except IsolatedCallFailed as exc:
+        reason = exc.reason
+    except (pymeshlab.PyMeshLabException, InvalidMeshError) as exc:
+        reason = f"refused the mesh ({exc})"
+    log.warning("%s: pymeshlab %s curvature %s; using the numpy discrete estimator", model.name, method, reason)
+    mean, gauss = discrete_curvature(model.vertices, model.triangles, model.vertex_normals)
+    n = model.n_vertices
+    return mean, gauss, np.full((n, 3), np.nan), np.full((n, 3), np.nan)
 
 
 def _estimate(vertices: np.ndarray, triangles: np.ndarray, method: str, name: str):

@@ -44,10 +44,16 @@ class DeviceNotFoundError(VisuotactileError):
     """No depth camera is connected (or it cannot be opened)."""
 
 
+class InvalidArgumentError(VisuotactileError, ValueError):
+    """An argument names an unknown method or channel, or is of the wrong type or out of range (a seed, a
+    count, an image size). Also a ``ValueError``, which these cases raised before."""
+
+
 __all__ = [
     "ContourError",
     "DatasetError",
     "DeviceNotFoundError",
+    "InvalidArgumentError",
     "InvalidMeshError",
     "MeshLoadError",
     "ModelMismatchError",

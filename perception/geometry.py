@@ -9,7 +9,7 @@ scene) are computed on first use and cached, so a scene pays only for what it as
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
 
@@ -19,11 +19,20 @@ import open3d as o3d
 from perception import meshio
 from perception.curvature import Curvature, compute_curvature, vertex_normals
 from perception.errors import DatasetError, InvalidMeshError
+from perception.orientation import orient_outward
 
 log = logging.getLogger(__name__)
 
 #: Default bounding-box diagonal of a loaded object, in millimetres.
 DEFAULT_SIZE_MM = 150.0
+#: An ObjectModel's coordinates stay within +-1e12 mm (products such as areas stay finite) and span at least
+#: 1e-9 mm (areas and curvature do not underflow); load_object rescales anything to size_mm first.
+MAX_COORDINATE_MM = 1e12
+MIN_EXTENT_MM = 1e-9
+#: Ray casting is float32: warn where its rounding at the mesh's distance from the origin exceeds this
+#: fraction of the bounding-box diagonal (1.5 um on a 150 mm object; the FSR gaps span about 2 mm).
+FLOAT32_TOLERANCE_FRACTION = 1e-5
+_GEOMETRY_FIELDS = ("vertices", "triangles", "vertex_colors", "transform")
 
 @dataclass(eq=False)
 class ObjectModel:
@@ -38,8 +47,13 @@ class ObjectModel:
         transform: 4 x 4 matrix mapping source coordinates to these (scale then translation).
         source: the file it came from, if any.
 
+    The model keeps its own copies of the arrays. Assigning ``vertices``, ``triangles``, ``vertex_colors`` or
+    ``transform`` re-validates and drops every cached value; editing the arrays in place is not supported
+    (the caches would go stale): assign a new array or use ``dataclasses.replace``.
+
     Raises:
-        InvalidMeshError: empty, non-finite or badly shaped arrays, or indices out of range.
+        InvalidMeshError: empty, non-finite or badly shaped arrays, indices out of range, or coordinates
+            beyond +-``MAX_COORDINATE_MM`` or spanning less than ``MIN_EXTENT_MM`` (rescale on load).
     """
 
     vertices: np.ndarray
@@ -51,16 +65,54 @@ class ObjectModel:
     source: str | None = None
 
     def __post_init__(self) -> None:
-        self.vertices, self.triangles = meshio.validate_arrays(self.vertices, self.triangles, self.name)
-        if self.vertex_colors is not None:
-            colors = np.asarray(self.vertex_colors, dtype=np.float64)
-            if colors.shape != self.vertices.shape or not np.isfinite(colors).all():
+        vertices, triangles, colors, transform = self._checked(
+            self.vertices, self.triangles, self.vertex_colors, self.transform
+        )
+        for key, value in (("vertices", vertices), ("triangles", triangles), ("vertex_colors", colors)):
+            object.__setattr__(self, key, value)
+        object.__setattr__(self, "transform", transform)
+        object.__setattr__(self, "_ready", True)
+
+    def _checked(self, vertices, triangles, colors, transform):
+        """Validated copies (the model never shares arrays with the caller, so later edits of the caller's
+        arrays cannot make the caches stale)."""
+        vertices, triangles = meshio.validate_arrays(vertices, triangles, self.name)
+        vertices, triangles = vertices.copy(), triangles.copy()
+        extent = float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
+        if float(np.abs(vertices).max()) > MAX_COORDINATE_MM or 0 < extent < MIN_EXTENT_MM:
+            raise InvalidMeshError(
+                f"{self.name}: coordinates must lie within +-{MAX_COORDINATE_MM:g} mm and span at least "
+                f"{MIN_EXTENT_MM:g} mm (got max |x| {float(np.abs(vertices).max()):.3g} mm, extent {extent:.3g} mm); "
+                "load_object(..., size_mm=...) rescales"
+            )
+        if colors is not None:
+            colors = np.asarray(colors, dtype=np.float64)
+            if colors.shape != vertices.shape or not np.isfinite(colors).all():
                 raise InvalidMeshError(
-                    f"{self.name}: vertex_colors must be a finite ({len(self.vertices)}, 3) array, "
+                    f"{self.name}: vertex_colors must be a finite ({len(vertices)}, 3) array, "
                     f"got shape {colors.shape}"
                 )
-            self.vertex_colors = np.clip(colors, 0.0, 1.0)
-        self.transform = np.asarray(self.transform, dtype=np.float64).reshape(4, 4)
+            colors = np.clip(colors, 0.0, 1.0)
+        transform = np.array(transform, dtype=np.float64)
+        if transform.size != 16 or not np.isfinite(transform).all():
+            raise InvalidMeshError(f"{self.name}: transform must be a finite 4 x 4 matrix, got shape {transform.shape}")
+        return vertices, triangles, colors, transform.reshape(4, 4)
+
+    def __setattr__(self, key: str, value) -> None:
+        """Assigning ``vertices``, ``triangles``, ``vertex_colors`` or ``transform`` re-validates and drops every
+        cached derived value (bounds, normals, curvature, scene). To change vertices and triangles together,
+        build a new model (``dataclasses.replace(model, vertices=..., triangles=...)``). Arrays must not be
+        edited in place: the caches would not know."""
+        if not self.__dict__.get("_ready") or key not in _GEOMETRY_FIELDS:
+            object.__setattr__(self, key, value)
+            return
+        current = {k: self.__dict__[k] for k in _GEOMETRY_FIELDS}
+        current[key] = value
+        checked = self._checked(current["vertices"], current["triangles"], current["vertex_colors"], current["transform"])
+        for k in [k for k in self.__dict__ if k not in _FIELD_NAMES and k != "_ready"]:
+            del self.__dict__[k]
+        for k, v in zip(("vertices", "triangles", "vertex_colors", "transform"), checked, strict=True):
+            object.__setattr__(self, k, v)
 
     # ----------------------------------------------------------------------------------------- basic
     @property
@@ -88,7 +140,7 @@ class ObjectModel:
     @cached_property
     def diagonal(self) -> float:
         """Bounding-box diagonal, mm."""
-        return float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
+        return _norm3(self.bounds[1] - self.bounds[0])
 
     @cached_property
     def triangle_areas(self) -> np.ndarray:
@@ -153,7 +205,7 @@ class ObjectModel:
             method: one of :data:`perception.curvature.CURVATURE_METHODS`.
 
         Raises:
-            ValueError: unknown method.
+            InvalidArgumentError: unknown method.
         """
         cache = self.__dict__.setdefault("_curvature_cache", {})
         if method not in cache:
@@ -161,8 +213,24 @@ class ObjectModel:
         return cache[method]
 
     @cached_property
+    def float32_resolution_mm(self) -> float:
+        """Spacing of float32 numbers at the coordinate furthest from the origin, mm: how finely ray casting
+        (float32) resolves positions on this mesh."""
+        return float(np.spacing(np.float32(np.abs(self.vertices).max())))
+
+    @cached_property
     def scene(self) -> o3d.t.geometry.RaycastingScene:
-        """An Open3D ``RaycastingScene`` holding this mesh (geometry id 0), float32, mm."""
+        """An Open3D ``RaycastingScene`` holding this mesh (geometry id 0), float32, mm.
+
+        Logs a warning where float32 loses precision: a mesh far from the origin relative to its size.
+        """
+        if self.float32_resolution_mm > FLOAT32_TOLERANCE_FRACTION * self.diagonal:
+            log.warning(
+                "%s: lies %.3g mm from the origin; float32 ray casting resolves only %.3g mm on this %.3g mm "
+                "object, so tactile frames and renders lose precision: re-centre it (load_object with size_mm, "
+                "or subtract its centre)",
+                self.name, float(np.abs(self.vertices).max()), self.float32_resolution_mm, self.diagonal,
+            )
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(
             o3d.core.Tensor(self.vertices.astype(np.float32)),
@@ -194,28 +262,44 @@ class ObjectModel:
         )
 
 
+_FIELD_NAMES = frozenset(f.name for f in fields(ObjectModel))
+
+
+def _norm3(vector: np.ndarray) -> float:
+    """Euclidean length of a 3-vector without overflow (hypot scales): finite for any finite input."""
+    return float(np.hypot(np.hypot(vector[0], vector[1]), vector[2]))
+
+
 def normalize(
     vertices: np.ndarray, size_mm: float = DEFAULT_SIZE_MM
 ) -> tuple[np.ndarray, np.ndarray]:
     """Centre on the bounding-box centre and scale to a bounding-box diagonal of ``size_mm``.
 
-    Returns the new vertices and the 4 x 4 transform from the old coordinates to the new.
+    Returns the new vertices and the 4 x 4 transform from the old coordinates to the new. Works for any
+    finite coordinates (halves are taken before differences, so +-1e308 does not overflow).
 
     Raises:
-        InvalidMeshError: all vertices coincide (zero diagonal) or ``size_mm`` is not positive.
+        InvalidMeshError: all vertices coincide (zero diagonal) or ``size_mm`` is not a positive number.
     """
-    if not np.isfinite(size_mm) or size_mm <= 0:
+    if isinstance(size_mm, bool) or not isinstance(size_mm, (int, float, np.floating, np.integer)):
         raise InvalidMeshError(f"size_mm must be a positive number of millimetres, got {size_mm!r}")
+    if not np.isfinite(size_mm) or not 0 < size_mm <= MAX_COORDINATE_MM:
+        raise InvalidMeshError(f"size_mm must be a positive number of millimetres up to {MAX_COORDINATE_MM:g}, got {size_mm!r}")
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    diagonal = float(np.linalg.norm(hi - lo))
-    if diagonal <= 0 or not np.isfinite(diagonal):
+    half_extent = 0.5 * hi - 0.5 * lo
+    half_diagonal = _norm3(half_extent)
+    if half_diagonal <= 0:
         raise InvalidMeshError("mesh has zero extent: all vertices coincide")
-    scale = size_mm / diagonal
-    center = 0.5 * (lo + hi)
+    center = 0.5 * lo + 0.5 * hi
+    # scale = size / diagonal; applied to half-differences so that nothing overflows on the way.
+    scale = 0.5 * float(size_mm) / half_diagonal
+    out = (0.5 * vertices - 0.5 * center) * (2.0 * scale)
     transform = np.eye(4)
     transform[:3, :3] *= scale
     transform[:3, 3] = -scale * center
-    return (vertices - center) * scale, transform
+    if not (np.isfinite(out).all() and np.isfinite(transform).all()):
+        raise InvalidMeshError(f"mesh extent {2 * half_diagonal:.3g} cannot be scaled to {size_mm} mm")
+    return out, transform
 
 
 def load_object(
@@ -225,19 +309,22 @@ def load_object(
     size_mm: float | None = DEFAULT_SIZE_MM,
     repair: bool = True,
     name: str | None = None,
+    orient: bool = True,
 ) -> ObjectModel:
     """Load a mesh file (OFF, OBJ, PLY, STL) or an Open3D mesh as a validated, repaired, scaled object.
 
     Polygon faces are fan-triangulated; texture colours (OBJ + MTL) become vertex colours. Repair
-    (pymeshlab) merges duplicate vertices and removes duplicate and zero-area faces and unreferenced
+    (numpy, the same as pymeshlab's clean-up filters) merges duplicate vertices and removes duplicate and zero-area faces and unreferenced
     vertices; indices stay consistent because the arrays are rebuilt together.
 
     Args:
         source: a path or an ``open3d.geometry.TriangleMesh``.
         label: the class name to attach.
         size_mm: bounding-box diagonal after scaling, mm; ``None`` keeps the source scale and position.
-        repair: run the pymeshlab clean-up (on by default).
+        repair: run the clean-up (on by default).
         name: defaults to the file stem.
+        orient: re-wind triangles consistently and outward (:func:`perception.orientation.orient_outward`:
+            signed volume for closed parts, what outside rays see for open ones); on by default.
 
     Raises:
         MeshLoadError: missing, unreadable, unknown type, or unparseable file.
@@ -265,6 +352,8 @@ def load_object(
             vertices, transform = normalize(vertices, size_mm)
         except InvalidMeshError as exc:
             raise InvalidMeshError(f"{where}: {exc}") from None
+    if orient:
+        triangles, _ = orient_outward(vertices, triangles, where)
     return ObjectModel(
         vertices, triangles, name=name, label=label, vertex_colors=colors, transform=transform, source=src
     )

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
+from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
+from perception.validate import check_count
 
 log = logging.getLogger(__name__)
 
@@ -98,10 +100,9 @@ def view_directions(n: int) -> np.ndarray:
     """(n, 3) unit vectors spread evenly over the sphere (Fibonacci lattice), deterministic.
 
     Raises:
-        ValueError: ``n < 1``.
+        InvalidArgumentError: ``n`` is not an integer >= 1.
     """
-    if n < 1:
-        raise ValueError(f"need at least one view direction, got n={n}")
+    n = check_count(n, "n", "view_directions")
     i = np.arange(n) + 0.5
     z = 1.0 - 2.0 * i / n
     r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
@@ -150,11 +151,17 @@ def render_views(
         directions: optional (K, 3) camera positions (unit vectors from the centre).
 
     Raises:
-        ValueError: non-positive image size or view count.
+        InvalidArgumentError: non-positive or fractional image size or view count, or directions that are not
+            finite non-zero 3-vectors (also a ``ValueError``).
     """
-    if width < 1 or height < 1:
-        raise ValueError(f"{model.name}: image size must be positive, got {width} x {height}")
-    dirs = view_directions(n_views) if directions is None else np.asarray(directions, dtype=np.float64)
+    width = check_count(width, "width", model.name)
+    height = check_count(height, "height", model.name)
+    if directions is None:
+        dirs = view_directions(check_count(n_views, "n_views", model.name))
+    else:
+        dirs = np.asarray(directions, dtype=np.float64)
+        if dirs.size == 0 or dirs.size % 3 or not np.isfinite(dirs).all() or (np.abs(dirs.reshape(-1, 3)).max(axis=1) == 0).any():
+            raise InvalidArgumentError(f"{model.name}: view directions must be finite non-zero 3-vectors, got shape {dirs.shape}")
     cameras = [make_camera(model, d, width, height) for d in dirs.reshape(-1, 3)]
     rays = np.concatenate([c.rays() for c in cameras])
     hits = model.scene.cast_rays(o3d.core.Tensor(rays))

@@ -41,6 +41,7 @@ from perception.render import (
     surface_points,
     view_directions,
 )
+from perception.validate import check_count, check_seed
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +50,8 @@ METHODS = ("multiview", "mesh", "iss")
 DEFAULT_SEPARATION_FRACTION = 0.1
 #: Marked points label vertices within this fraction of the diagonal as "salient" (3 mm at 150 mm).
 MARK_RADIUS_FRACTION = 0.02
+#: Upper bound on multiview rays (views x pixels): 64 Mi rays is about 1.5 GiB of float32 rays.
+MAX_PIXELS = 1 << 26
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,10 +168,13 @@ def multiview_maps(
     Raises:
         SaliencyError: bad weights or view settings.
     """
-    n_views = DEFAULT_N_VIEWS if n_views is None else int(n_views)
-    size_px = DEFAULT_SIZE_PX if size_px is None else int(size_px)
-    if n_views < 1 or size_px < 8:
-        raise SaliencyError(f"{model.name}: need n_views >= 1 and size_px >= 8, got {n_views}, {size_px}")
+    seed = check_seed(seed, model.name, SaliencyError, allow_none=False)
+    n_views = DEFAULT_N_VIEWS if n_views is None else check_count(n_views, "n_views", model.name, SaliencyError)
+    size_px = DEFAULT_SIZE_PX if size_px is None else check_count(size_px, "size_px", model.name, SaliencyError, minimum=8)
+    if n_views * size_px * size_px > MAX_PIXELS:
+        raise SaliencyError(
+            f"{model.name}: {n_views} views of {size_px} x {size_px} pixels exceed {MAX_PIXELS:,} rays in all"
+        )
     channels, _ = _channels_for(model)
     w = _check_weights(weights, channels, model.name)
     rotation = Rotation.random(random_state=np.random.default_rng(seed)).as_matrix()
@@ -238,8 +244,9 @@ def saliency(
         seed: turns the multiview view sphere; the 3D methods do not use it.
 
     Raises:
-        SaliencyError: unknown method, bad weights or view settings.
+        SaliencyError: unknown method, bad weights or view settings, a seed that is not a non-negative integer.
     """
+    seed = check_seed(seed, model.name, SaliencyError, allow_none=False)
     if method not in METHODS:
         raise SaliencyError(
             f"{model.name}: unknown saliency method {method!r}; choose one of {', '.join(METHODS)}"
@@ -353,20 +360,23 @@ def fit_channel_weights(
 
 
 # ---------------------------------------------------------------------------------------------- figures
-def plot_channels(model: ObjectModel, path: str | Path, *, n_rows: int = 3, seed: int = 0) -> Path:
+def plot_channels(
+    model: ObjectModel,
+    path: str | Path,
+    *,
+    n_rows: int = 3,
+    seed: int = 0,
+    n_views: int | None = None,
+    size_px: int | None = None,
+) -> Path:
     """PNG grid: for ``n_rows`` views (those showing the most object), the shading, every channel's
-    conspicuity map and the combined map with its non-maximum-suppressed peaks (red dots). Returns the path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    maps = multiview_maps(model, seed=seed)
+    conspicuity map and the combined map with its non-maximum-suppressed peaks (red dots). Returns the path.
+    ``n_views`` and ``size_px`` as in :func:`saliency`."""
+    maps = multiview_maps(model, seed=seed, n_views=n_views, size_px=size_px)
     rows = np.argsort([-v.mask.sum() for v in maps.views], kind="stable")[:n_rows]
     columns = ["shading", *maps.channels, "combined"]
-    fig, axes = plt.subplots(
-        len(rows), len(columns), figsize=(1.8 * len(columns), 1.9 * len(rows)), squeeze=False
-    )
+    fig = _figure(figsize=(1.8 * len(columns), 1.9 * len(rows)))
+    axes = fig.subplots(len(rows), len(columns), squeeze=False)
     for r, k in enumerate(rows):
         images = [maps.views[k].intensity, *(maps.channels[c][k] for c in maps.channels), maps.combined[k]]
         for c, (title, image) in enumerate(zip(columns, images, strict=True)):
@@ -383,17 +393,24 @@ def plot_channels(model: ObjectModel, path: str | Path, *, n_rows: int = 3, seed
     fig.tight_layout()
     path = Path(path)
     save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return path
+
+
+def _figure(figsize: tuple[float, float]):
+    """A ``matplotlib.figure.Figure`` on an Agg canvas: no pyplot, the user's backend is left alone."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig
 
 
 def plot_saliency(sal: Saliency, path: str | Path, *, n_points: int = 10, size_px: int = 256) -> Path:
     """PNG of the per-vertex scores on the mesh from two opposite views (shaded, colour = score) with the
     ``n_points`` interest points marked where visible. Returns the path."""
     import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.cm import ScalarMappable
 
     from perception.render import interpolate_values, visible
 
@@ -401,8 +418,9 @@ def plot_saliency(sal: Saliency, path: str | Path, *, n_points: int = 10, size_p
     points = sal.interest_points(n_points)
     directions = np.array([[1.0, -1.0, 0.8], [-1.0, 1.0, -0.8]])
     views = render_views(model, width=size_px, height=size_px, directions=directions)
-    fig, axes = plt.subplots(1, 2, figsize=(8, 4.3))
-    cmap = plt.get_cmap("inferno")
+    fig = _figure(figsize=(8, 4.3))
+    axes = fig.subplots(1, 2)
+    cmap = matplotlib.colormaps["inferno"]
     for ax, view in zip(axes, views, strict=True):
         colour = cmap(interpolate_values(model, view, sal.scores))[..., :3]
         image = colour * (0.35 + 0.65 * view.intensity[..., None])
@@ -415,8 +433,7 @@ def plot_saliency(sal: Saliency, path: str | Path, *, n_points: int = 10, size_p
         )
         ax.set_axis_off()
     fig.suptitle(f"{model.name}: {sal.method} saliency, {n_points} interest points (cyan)", fontsize=10)
-    fig.colorbar(plt.cm.ScalarMappable(cmap=cmap), ax=axes, shrink=0.8, label="score")
+    fig.colorbar(ScalarMappable(cmap=cmap), ax=axes, shrink=0.8, label="score")
     path = Path(path)
     save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return path

@@ -20,14 +20,20 @@ from perception.geometry import ObjectModel
 
 #: Vertices closer to the plane than this fraction of the object diagonal count as lying on it.
 ON_PLANE_TOLERANCE = 1e-9
+#: Plane points lie within this distance of the origin, mm (far beyond any object; squares stay finite).
+MAX_PLANE_POINT_MM = 1e150
 
 
 @dataclass(frozen=True, eq=False)
 class Plane:
     """A cutting plane: a ``point`` on it (3,) mm and a unit ``normal`` (3,).
 
+    The normal is scaled by its largest component before normalising, so any finite non-zero normal works
+    (1e308 or 1e-300 alike).
+
     Raises:
-        ContourError: non-finite or badly shaped arrays, or a zero normal.
+        ContourError: non-finite or badly shaped arrays, a zero normal, or a point further than
+            ``MAX_PLANE_POINT_MM`` from the origin (signed distances would overflow).
     """
 
     point: np.ndarray
@@ -40,11 +46,17 @@ class Plane:
             raise ContourError(f"plane point and normal must be 3-vectors, got {point.shape}, {normal.shape}")
         if not (np.isfinite(point).all() and np.isfinite(normal).all()):
             raise ContourError(f"plane has a non-finite point {point} or normal {normal}")
-        length = np.linalg.norm(normal)
-        if length < 1e-12:
+        if np.abs(point).max() > MAX_PLANE_POINT_MM:
+            raise ContourError(
+                f"plane point {point} lies further than {MAX_PLANE_POINT_MM:g} mm from the origin; "
+                "distances to it overflow"
+            )
+        largest = np.abs(normal).max()
+        if largest == 0:
             raise ContourError(f"plane normal {normal} has zero length")
+        scaled = normal / largest  # largest component +-1: the norm below neither overflows nor underflows
         object.__setattr__(self, "point", point)
-        object.__setattr__(self, "normal", normal / length)
+        object.__setattr__(self, "normal", scaled / np.linalg.norm(scaled))
 
     def basis(self) -> tuple[np.ndarray, np.ndarray]:
         """Two unit in-plane axes (u, v) with u x v = normal; u is fixed by the normal alone."""
@@ -68,12 +80,14 @@ def plane_through(center, p1, p2, *, min_sine: float = 1e-3) -> Plane:
     c, a, b = (np.asarray(x, dtype=np.float64) for x in (center, p1, p2))
     if not all(x.shape == (3,) and np.isfinite(x).all() for x in (c, a, b)):
         raise ContourError(f"plane_through needs three finite 3-vectors, got {center!r}, {p1!r}, {p2!r}")
-    da, db = a - c, b - c
-    la, lb = np.linalg.norm(da), np.linalg.norm(db)
-    if la < 1e-12 or lb < 1e-12:
+    # Halves first (a - c overflows for +-1e308), then unit directions, so the cross product stays finite.
+    da, db = 0.5 * a - 0.5 * c, 0.5 * b - 0.5 * c
+    if not (np.abs(da).max() > 0 and np.abs(db).max() > 0):
         raise ContourError(f"a point given to plane_through coincides with the centre {c}: no plane")
-    cross = np.cross(da, db)
-    sine = np.linalg.norm(cross) / (la * lb)
+    ua, ub = (x / np.abs(x).max() for x in (da, db))
+    ua, ub = ua / np.linalg.norm(ua), ub / np.linalg.norm(ub)
+    cross = np.cross(ua, ub)
+    sine = np.linalg.norm(cross)
     if not sine >= min_sine:
         raise ContourError(
             f"points {a}, {b} are near-collinear with the centre {c} (|sin| = {sine:.2e} < {min_sine}); "
@@ -341,6 +355,12 @@ def make_contour(model: ObjectModel, plane: Plane, n_probes: int = 25, *, start=
     n_probes = int(n_probes)
     chains = section_chains(model, plane)
     if not chains:
+        in_plane = int((_signed_distances(model, plane)[model.triangles] == 0).all(axis=1).sum())
+        if in_plane:
+            raise ContourError(
+                f"{model.name}: the plane with normal {plane.normal.round(4).tolist()} contains {in_plane} of "
+                "the object's triangles and crosses none (it lies in a flat face): no section to follow"
+            )
         raise ContourError(
             f"{model.name}: the plane through {plane.point.round(3).tolist()} with normal "
             f"{plane.normal.round(4).tolist()} misses the object (no section)"

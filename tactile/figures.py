@@ -1,15 +1,16 @@
-"""Figures of a contour exploration: the contour on the object and its tactile frames (matplotlib, Agg)."""
+"""Figures of a contour exploration: the contour on the object and its tactile frames.
+
+Drawn on ``matplotlib.figure.Figure`` objects and written through the Agg canvas directly: importing this
+module or drawing never touches pyplot or the user's matplotlib backend."""
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # after choosing the backend
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from perception.atomic import save_figure
 from perception.geometry import ObjectModel
@@ -28,7 +29,8 @@ def plot_sequence(model: ObjectModel, contour: Contour, sequence: TactileSequenc
     n = sequence.n_probes
     grid_cols = math.ceil(math.sqrt(n))
     grid_rows = math.ceil(n / grid_cols)
-    fig = plt.figure(figsize=(6 + 1.4 * grid_cols, max(5.0, 1.4 * grid_rows)))
+    fig = Figure(figsize=(6 + 1.4 * grid_cols, max(5.0, 1.4 * grid_rows)))
+    FigureCanvasAgg(fig)
     outer = fig.add_gridspec(1, 2, width_ratios=[6, 1.4 * grid_cols])
     ax = fig.add_subplot(outer[0], projection="3d")
     v = model.vertices
@@ -68,7 +70,6 @@ def plot_sequence(model: ObjectModel, contour: Contour, sequence: TactileSequenc
     if image is not None:
         fig.colorbar(image, ax=fig.axes[1:], shrink=0.6, label="gap mm" if frames.max() > 1.5 else "reading")
     save_figure(fig, path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
     return path
 
 

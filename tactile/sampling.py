@@ -20,6 +20,7 @@ from tqdm import tqdm
 from perception import saliency as attention
 from perception.errors import ContourError, SaliencyError
 from perception.geometry import ObjectModel
+from perception.validate import check_count, check_seed
 from tactile.contours import Plane, make_contour, plane_through
 from tactile.explore import TactileSequence, explore
 from tactile.sensor import FSRSensor
@@ -32,11 +33,27 @@ STRATEGIES: dict[str, str | None] = {"blind": None, "guided": "multiview", "mesh
 INTEREST_POOL = 10
 #: Draws per plane (near-collinear pairs) or per contour (planes that miss) before giving up.
 MAX_DRAWS = 100
+#: An object whose RMS distance from its best-fit plane is below this fraction of its diagonal is flat.
+FLAT_TOLERANCE = 1e-9
 
 
 def _check_strategy(strategy: str) -> None:
     if strategy not in STRATEGIES:
         raise ContourError(f"unknown sampling strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
+
+
+def _check_not_flat(model: ObjectModel) -> None:
+    """Refuse an object whose vertices all lie in one plane (a flat plate): every plane through its centre
+    and two of its points is the plate's own plane, which holds the surface instead of cutting it."""
+    centred = model.vertices - model.center
+    # Smallest singular value of the centred vertices = the RMS distance from the best-fit plane x sqrt(V).
+    thickness = np.linalg.svd(centred / max(model.diagonal, 1e-300), compute_uv=False)[-1]
+    if thickness <= FLAT_TOLERANCE * np.sqrt(model.n_vertices):
+        raise ContourError(
+            f"{model.name}: the object is flat (all {model.n_vertices} vertices lie in one plane), so every "
+            "plane through its centre and two of its points is its own plane and cuts no contour; "
+            "give it a thickness (e.g. extrude the plate into a solid)"
+        )
 
 
 def _candidates(model: ObjectModel, strategy: str, sal: attention.Saliency | None) -> np.ndarray:
@@ -80,12 +97,13 @@ def sample_planes(
         saliency: a precomputed :class:`~perception.saliency.Saliency` of the strategy's method, to reuse.
 
     Raises:
-        ContourError: unknown strategy, n < 1, or only near-collinear draws.
+        ContourError: unknown strategy, n not an integer >= 1, a seed that is not a non-negative integer or
+            Generator, or only near-collinear draws.
         SaliencyError: ``saliency`` is of another method or object.
     """
     _check_strategy(strategy)
-    if n < 1:
-        raise ContourError(f"{model.name}: need n >= 1 planes, got {n}")
+    n = check_count(n, "n", model.name, ContourError)
+    seed = check_seed(seed, model.name, ContourError)
     if len(model.vertices) < 2:
         raise ContourError(f"{model.name}: need at least two vertices to draw planes")
     rng = np.random.default_rng(seed)
@@ -111,15 +129,16 @@ def explore_object(
     its plane; same seed -> same sequences.
 
     Raises:
-        ContourError: unknown strategy, n_contours < 1, probes < 2, or no usable plane after ``MAX_DRAWS``
-            draws.
+        ContourError: unknown strategy, n_contours not an integer >= 1, probes not an integer >= 2, a seed
+            that is not a non-negative integer or Generator, a flat object, or no usable plane after
+            ``MAX_DRAWS`` draws.
         SaliencyError: ``saliency`` is of another method or object.
     """
     _check_strategy(strategy)
-    if n_contours < 1:
-        raise ContourError(f"{model.name}: need n_contours >= 1, got {n_contours}")
-    if int(probes) != probes or probes < 2:
-        raise ContourError(f"{model.name}: probes must be an integer >= 2, got {probes!r}")
+    n_contours = check_count(n_contours, "n_contours", model.name, ContourError)
+    probes = check_count(probes, "probes", model.name, ContourError, minimum=2)
+    seed = check_seed(seed, model.name, ContourError)
+    _check_not_flat(model)
     rng = np.random.default_rng(seed)
     points = _candidates(model, strategy, saliency)
     sequences = []

@@ -22,6 +22,7 @@ import open3d as o3d
 
 from perception.errors import SensorSpecError
 from perception.geometry import ObjectModel
+from perception.validate import check_seed
 from tactile.contours import orthonormal_tangents
 
 log = logging.getLogger(__name__)
@@ -30,6 +31,12 @@ log = logging.getLogger(__name__)
 MAX_RAYS_PER_CAST = 1 << 20
 
 MODES = ("gap", "contact")
+#: Lengths (mm) of a spec lie below MAX_LENGTH_MM: beyond 10 m float32 ray casting loses the micrometres the
+#: gaps need (a 1e39 mm range or stand-off is infinite in float32); the pad side lies above MIN_LENGTH_MM.
+MIN_LENGTH_MM, MAX_LENGTH_MM = 1e-6, 1e4
+#: Pressure-unit settings (stiffness, saturation, contact noise) lie within [1e-30, 1e30], where float32
+#: readings and the ADC step saturation / (2**bits - 1) are finite and non-zero.
+MIN_PRESSURE, MAX_PRESSURE = 1e-30, 1e30
 
 
 def unit_taxel_grid(rows: int, cols: int) -> np.ndarray:
@@ -122,6 +129,21 @@ class FSRSensor:
         for name in non_negative:
             if getattr(self, name) < 0:
                 raise SensorSpecError(f"FSRSensor.{name} must be >= 0, got {getattr(self, name)}")
+        lengths = ["side_mm", "min_side_mm", "range_mm", "standoff_mm", "indent_mm", "penetration_eps_mm"]
+        pressures = ["stiffness", "saturation"]
+        (lengths if self.mode == "gap" else pressures).append("noise_std")
+        for name in lengths:
+            value = getattr(self, name)
+            # Only the pad's own size has a floor: below it, float32 taxel offsets collapse to one point.
+            floor = MIN_LENGTH_MM if name in ("side_mm", "min_side_mm") else 0.0
+            if value > MAX_LENGTH_MM or value < floor:
+                raise SensorSpecError(f"FSRSensor.{name} must lie in [{floor:g}, {MAX_LENGTH_MM:g}] mm, got {value!r}")
+        for name in pressures:
+            value = getattr(self, name)
+            if value > MAX_PRESSURE or 0 < value < MIN_PRESSURE:
+                raise SensorSpecError(
+                    f"FSRSensor.{name} must lie in [{MIN_PRESSURE:g}, {MAX_PRESSURE:g}] pressure units, got {value!r}"
+                )
         if self.min_side_mm > self.side_mm:
             raise SensorSpecError(
                 f"FSRSensor.min_side_mm ({self.min_side_mm}) must not exceed side_mm ({self.side_mm})"
@@ -241,8 +263,10 @@ class FSRSensor:
             of each frame (N,) float64, mm.
 
         Raises:
-            SensorSpecError: an empty probe list, mismatched or non-finite arrays, a zero normal.
+            SensorSpecError: an empty probe list, mismatched or non-finite arrays, a zero normal, a seed that
+                is neither None, a non-negative integer nor a Generator.
         """
+        seed = check_seed(seed, f"{model.name}: press", SensorSpecError)
         positions, normals, tangents = self._check_poses(model, positions, normals, tangents)
         poses = (model, positions, normals, tangents)
         steps = np.zeros(len(positions), dtype=np.int64)
@@ -341,7 +365,8 @@ class FSRSensor:
             pressure = pressure + rng.normal(0.0, self.noise_std, pressure.shape)
         pressure = np.clip(pressure, 0.0, self.saturation)
         levels = 2**self.adc_bits - 1
-        pressure = np.round(pressure * (levels / self.saturation)) * (self.saturation / levels)
+        # Divide first: pressure / saturation is in [0, 1], so no product overflows.
+        pressure = np.round(pressure / self.saturation * levels) * (self.saturation / levels)
         if dead is not None:
             pressure[:, dead] = 0.0
         return pressure.astype(np.float32)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -191,18 +193,59 @@ def test_iss_keypoints_are_vertex_indices(cube):
     assert np.array_equal(index, iss_keypoints(cube))
 
 
-def test_fit_channel_weights_recovers_the_channel_that_made_the_marks():
-    models = [rounded_cube(subdivisions=3), primitives.torus(40.0, 15.0, 48, 24)]
-    settings = {"n_views": 6, "size_px": 64, "seed": 3}
-    for target in GEOMETRY_CHANNELS:
-        marks = []
-        for model in models:
-            maps = saliency(model, **settings).channel_maps
-            marks.append(model.vertices[np.argsort(-maps[target])[:15]])
-        weights = fit_channel_weights(models, marks, **settings)
-        assert set(weights) == set(GEOMETRY_CHANNELS)
-        assert sum(weights.values()) == pytest.approx(1.0)
-        assert max(weights, key=weights.get) == target, weights
+def test_fit_channel_weights_against_hand_computed_auc(monkeypatch):
+    """Channel maps made by hand, so each channel's ROC area is known: the weights are 2 AUC - 1 (clipped
+    at 0), averaged over the models, normalised to sum 1."""
+    import perception.saliency as saliency_module
+
+    models = [rounded_cube(subdivisions=2), primitives.torus(40.0, 15.0, 24, 12)]
+    marked = [np.arange(0, m.n_vertices, 10) for m in models]  # every tenth vertex is "marked"
+    rng = np.random.default_rng(0)
+    maps = []
+    for model, index in zip(models, marked, strict=True):
+        positive = np.zeros(model.n_vertices, bool)
+        positive[index] = True
+        negatives = np.flatnonzero(~positive)
+        below = rng.permutation(negatives)[: len(negatives) * 3 // 4]  # 3/4 of the negatives below the marks
+        curvature_map = np.full(model.n_vertices, 2.0)
+        curvature_map[positive], curvature_map[below] = 1.0, 0.0
+        maps.append(
+            {
+                "intensity": positive + 0.001 * rng.random(model.n_vertices),  # AUC 1
+                "contrast": np.ones(model.n_vertices),  # all ties: AUC 1/2
+                "orientation": (~positive).astype(float),  # AUC 0
+                "curvature": curvature_map,  # AUC = fraction of negatives below = len(below) / len(negatives)
+                "edges": rng.random(model.n_vertices),
+                "entropy": np.zeros(model.n_vertices),
+                "symmetry": np.zeros(model.n_vertices),
+            }
+        )
+        maps[-1]["auc_curvature"] = len(below) / len(negatives)
+        maps[-1]["positive"] = positive
+
+    calls = iter(maps)
+
+    def fake_saliency(model, method, **kwargs):
+        return types.SimpleNamespace(channel_maps={k: v for k, v in next(calls).items() if k in GEOMETRY_CHANNELS})
+
+    monkeypatch.setattr(saliency_module, "saliency", fake_saliency)
+    # radius 0: exactly the marked vertices are positive.
+    weights = fit_channel_weights(models, [m.vertices[i] for m, i in zip(models, marked, strict=True)], radius_mm=0.0)
+    d_curvature = 2 * np.mean([m["auc_curvature"] for m in maps]) - 1
+    # Random "edges": its AUC by the rank formula, computed here independently with pairwise comparisons.
+    auc_edges = np.mean(
+        [
+            np.mean(m["edges"][m["positive"]][:, None] > m["edges"][~m["positive"]][None, :])
+            for m in maps
+        ]
+    )
+    d_edges = max(2 * auc_edges - 1, 0.0)
+    total = 1.0 + d_curvature + d_edges
+    assert weights["intensity"] == pytest.approx(1.0 / total)
+    assert weights["curvature"] == pytest.approx(d_curvature / total)
+    assert weights["edges"] == pytest.approx(d_edges / total)
+    for name in ("contrast", "orientation", "entropy", "symmetry"):
+        assert weights[name] == 0.0
     with pytest.raises(SaliencyError):
         fit_channel_weights(models[:1], [])
 

@@ -1,0 +1,309 @@
+"""Dataset benchmark: generation throughput next to the raw ray-casting limit, storage, and a DataLoader epoch.
+
+One run measures, on the same objects and cores:
+
+(a) Generation: :func:`tactile.dataset.generate` wall time and sequences/s with ``--workers`` processes,
+    and the peak memory of the whole process tree (sum of PSS of this process and all its descendants,
+    sampled every 0.2 s).
+(b) The raw limit: the same probes' full-resolution rays (one 1,024-ray pad per probe at the side the
+    store recorded, i.e. the fewest rays that give those frames) cast with ``RaycastingScene.cast_rays``
+    and nothing else, one process per object, ``--workers`` at a time; rays are built before the clock
+    starts. Limit = sequences x workers / (sum of cast seconds). Ratio = generation rate / limit.
+(c) Storage: bytes per sequence on disk, and the frame encoding compared on stored sequences: quantised
+    uint16 (the store's) against float16, each with the store's Blosc codec: max |error| and bytes.
+(d) One full DataLoader epoch (shuffled, batch 64, ``--workers`` loader processes) over the store:
+    wall time, sequences/s, peak memory of the process tree.
+
+Modes: ``--quick`` (4 catalogue objects, 20 contours, both strategies), default (SHREC 2007: 8 classes x 1
+object, 100 contours), ``--paper`` (SHREC 2007: 8 classes x 3 objects, 950 contours, both strategies =
+45,600 sequences). Classes: all but Glasses and Octopus, whose thin frames and tentacles are narrower
+than the 20 mm pad, so touches there read mostly empty pads; objects: the first 3 files of each class.
+
+    .venv/bin/python -m benchmarks.dataset [--quick | --paper] [--workers N] [--out DIR] [--keep] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Self
+
+import numpy as np
+
+from benchmarks._common import DATA, machine
+
+PAPER_CLASSES = ("Airplane", "Bird", "Chair", "Cup", "Fish", "Hand", "Plier", "Teddy")
+RAYS_PER_CAST = 1 << 20
+
+
+# ------------------------------------------------------------------------------------ memory
+def _descendants(pid: int) -> list[int]:
+    """pid and all its descendants (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()
+            children.setdefault(int(fields[1]), []).append(int(entry))
+        except (OSError, IndexError, ValueError):
+            continue
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo.extend(children.get(p, []))
+    return out
+
+
+def _pss_bytes(pid: int) -> int:
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as f:
+            for line in f:
+                if line.startswith("Pss:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+class PeakMemory:
+    """Peak summed PSS (bytes) of this process tree while the block runs (PSS splits shared pages, so
+    forked workers are not counted twice)."""
+
+    def __init__(self, interval_s: float = 0.2):
+        self.interval_s, self.peak, self._stop = interval_s, 0, threading.Event()
+
+    def _sample(self) -> None:
+        while not self._stop.is_set():
+            self.peak = max(self.peak, sum(_pss_bytes(p) for p in _descendants(os.getpid())))
+            self._stop.wait(self.interval_s)
+
+    def __enter__(self) -> Self:
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+# ---------------------------------------------------------------------------------- raw limit
+def _raw_cast(job: tuple) -> tuple[int, float]:
+    """Cast the full-resolution rays of one object's stored probes; (rays, cast seconds)."""
+    import open3d as o3d
+
+    from tactile.dataset import ObjectSpec
+    from tactile.sensor import FSRSensor
+
+    spec_dict, sensor_spec, positions, normals, tangents, sides = job
+    source = {k: v for k, v in spec_dict.items() if k in ("path", "catalogue")}
+    if "catalogue" in source:
+        source["catalogue"] = tuple(source["catalogue"])
+    model = ObjectSpec(spec_dict["name"], spec_dict["label"], **source).load()
+    sensor = FSRSensor(**{k: v for k, v in sensor_spec.items() if k != "sensor"})
+    grid = np.concatenate([sensor._unit_grid, np.ones((len(sensor._unit_grid), 1))], axis=1).astype(np.float32)
+    per_cast = max(1, RAYS_PER_CAST // len(grid))
+    scene = model.scene
+    rays, seconds = 0, 0.0
+    for lo in range(0, len(positions), per_cast):
+        sl = slice(lo, lo + per_cast)
+        n, t, p = normals[sl].astype(np.float64), tangents[sl].astype(np.float64), positions[sl].astype(np.float64)
+        frames = np.zeros((len(n), 3, 6), dtype=np.float32)
+        frames[:, 0, :3] = t * sides[sl, None]
+        frames[:, 1, :3] = np.cross(n, t) * sides[sl, None]
+        frames[:, 2, :3] = p + sensor.standoff_mm * n
+        frames[:, 2, 3:] = -n
+        tensor = o3d.core.Tensor(np.matmul(grid, frames).reshape(-1, 6))
+        start = time.perf_counter()
+        scene.cast_rays(tensor)
+        seconds += time.perf_counter() - start
+        rays += tensor.shape[0]
+    return rays, seconds
+
+
+def raw_limit(store: Path, workers: int) -> dict:
+    import multiprocessing as mp
+
+    from tactile.dataset import open_dataset
+
+    ds = open_dataset(store)
+    specs = {o["name"]: o for o in ds.attrs["settings"]["objects"]}
+    jobs = []
+    for k, name in enumerate(ds.object_names):
+        batch = ds.load(np.flatnonzero(ds.object_ids == k))
+        n = len(batch) * ds.probes
+        jobs.append((specs[name], ds.sensor_spec, batch.positions.reshape(n, 3), batch.normals.reshape(n, 3),
+                     batch.tangents.reshape(n, 3), batch.pad_sides_mm.reshape(n)))
+    with mp.get_context("forkserver").Pool(workers) as pool:
+        results = pool.map(_raw_cast, jobs, chunksize=1)
+    rays = sum(r for r, _ in results)
+    cast_s = sum(s for _, s in results)
+    return {
+        "rays": rays,
+        "cast_seconds_sum": cast_s,
+        "mrays_per_s": rays / cast_s * workers / 1e6,
+        "sequences_per_s": len(ds) * workers / cast_s,
+    }
+
+
+# ----------------------------------------------------------------------------------- storage
+def storage(store: Path, n: int = 400) -> dict:
+    import numcodecs
+
+    from tactile.dataset import open_dataset
+    from tactile.dataset.store import COMPRESSOR
+
+    ds = open_dataset(store)
+    size = sum(p.stat().st_size for p in store.rglob("*") if p.is_file())
+    frame_bytes = sum(p.stat().st_size for p in (store / "frames").rglob("*") if p.is_file())
+    pick = np.sort(np.random.default_rng(0).choice(len(ds), min(n, len(ds)), replace=False))
+    frames = ds.frames(pick)
+    codes = np.rint(frames.astype(np.float64) / ds.attrs["settings"]["encoding"]["scale"]).astype(np.uint16)
+    codec = numcodecs.Blosc(COMPRESSOR["cname"], COMPRESSOR["clevel"], numcodecs.Blosc.SHUFFLE)
+    # The stored frames are the uint16 decode; compare against what float16 would have kept of them. The
+    # uint16 error bound is the encoding's (the pressed readings are not kept).
+    half = frames.astype(np.float16)
+    return {
+        "bytes_per_sequence": size / len(ds),
+        "frame_bytes_per_sequence": frame_bytes / len(ds),
+        "store_bytes": size,
+        "encodings": [
+            {"encoding": "uint16 (store)", "max_error": ds.max_frame_error,
+             "bytes_per_sequence": float(np.mean([len(codec.encode(c)) for c in codes]))},
+            {"encoding": "float16", "max_error": float(np.abs(half.astype(np.float32) - frames).max()),
+             "bytes_per_sequence": float(np.mean([len(codec.encode(np.ascontiguousarray(h))) for h in half]))},
+            {"encoding": "float32 raw", "max_error": 0.0, "bytes_per_sequence": float(frames[0].nbytes)},
+        ],
+    }
+
+
+# ---------------------------------------------------------------------------------- DataLoader
+def loader_epoch(store: Path, workers: int, batch_size: int = 64) -> dict:
+    import torch
+
+    from tactile.dataset import open_dataset
+
+    ds = open_dataset(store)
+    with PeakMemory() as mem:
+        start = time.perf_counter()
+        loader = torch.utils.data.DataLoader(
+            ds.torch_dataset(), batch_size=batch_size, shuffle=True, num_workers=workers,
+            generator=torch.Generator().manual_seed(0), multiprocessing_context="forkserver" if workers else None,
+        )
+        seen = 0
+        for frames, _probe, _labels in loader:
+            seen += len(frames)
+        seconds = time.perf_counter() - start
+    assert seen == len(ds)
+    return {"sequences": seen, "seconds": seconds, "sequences_per_s": seen / seconds, "peak_bytes": mem.peak,
+            "loader_workers": workers, "batch_size": batch_size}
+
+
+# ------------------------------------------------------------------------------------------ main
+def _objects(mode: str) -> tuple[list, dict]:
+    from perception.geometry import load_dataset
+
+    if mode == "quick":
+        return [("box", 0), ("mug", 0), ("can", 0), ("bottle", 0)], {"contours_per_object": 20}
+    per_class, contours = (3, 950) if mode == "paper" else (1, 100)
+    items = [item for item in load_dataset(DATA / "shrec07") if item[1] in PAPER_CLASSES]
+    objects = [item for c in PAPER_CLASSES for item in [i for i in items if i[1] == c][:per_class]]
+    return objects, {"contours_per_object": contours}
+
+
+def run(mode: str, workers: int, out: Path | None, keep: bool, repeats: int) -> dict:
+    from tactile.dataset import generate
+
+    objects, kwargs = _objects(mode)
+    folder = Path(out) if out else Path(tempfile.mkdtemp(prefix="bench-dataset-"))
+    result = {"machine": machine(), "mode": mode, "workers": workers,
+              "objects": [f"{o[1]}/{Path(o[0]).stem}" if mode != "quick" else f"{o[0]}/{o[1]}" for o in objects]}
+    gen_times, peaks = [], []
+    try:
+        for r in range(repeats):
+            store = folder / f"store-{r}"
+            shutil.rmtree(store, ignore_errors=True)
+            with PeakMemory() as mem:
+                report = generate(objects, store, strategies=("guided", "blind"), workers=workers,
+                                  progress=sys.stderr.isatty(), **kwargs)
+            if report.failed:
+                result["failed"] = report.failed
+            gen_times.append(report.seconds)
+            peaks.append(mem.peak)
+            if r:
+                shutil.rmtree(store)  # keep the first for the other measurements
+        store = folder / "store-0"
+        sequences = report.sequences
+        wall = statistics.median(gen_times)
+        result["generation"] = {"sequences": sequences, "seconds": wall, "seconds_all": gen_times,
+                                "sequences_per_s": sequences / wall, "peak_bytes": max(peaks)}
+        result["raw"] = raw_limit(store, workers)
+        result["ratio_to_raw"] = result["generation"]["sequences_per_s"] / result["raw"]["sequences_per_s"]
+        result["storage"] = storage(store)
+        result["loader"] = loader_epoch(store, workers)
+    finally:
+        if not keep:  # only what this run made: --out may hold other files
+            for r in range(repeats):
+                shutil.rmtree(folder / f"store-{r}", ignore_errors=True)
+            if out is None:
+                shutil.rmtree(folder, ignore_errors=True)
+    return result
+
+
+def _print(result: dict) -> None:
+    g, raw, s, ld = result["generation"], result["raw"], result["storage"], result["loader"]
+    print(f"\ndataset benchmark ({result['mode']}): {len(result['objects'])} objects, {g['sequences']} sequences, "
+          f"{result['workers']} workers")
+    print(f"  generation      {g['seconds']:8.1f} s  {g['sequences_per_s']:8.1f} seq/s   peak memory "
+          f"{g['peak_bytes'] / 2**30:.2f} GiB")
+    print(f"  raw cast_rays   {g['sequences'] / raw['sequences_per_s']:8.1f} s  {raw['sequences_per_s']:8.1f} seq/s "
+          f"  ({raw['mrays_per_s']:.2f} Mrays/s on {result['workers']} workers)")
+    print(f"  ratio to raw    {result['ratio_to_raw']:.2f}")
+    print(f"  store           {s['bytes_per_sequence']:8.0f} bytes/sequence ({s['frame_bytes_per_sequence']:.0f} "
+          f"of them frames), {s['store_bytes'] / 1e6:.1f} MB")
+    for e in s["encodings"]:
+        print(f"    {e['encoding']:16s} max error {e['max_error']:.2e}  {e['bytes_per_sequence']:8.0f} bytes/sequence")
+    print(f"  DataLoader epoch {ld['seconds']:7.1f} s  {ld['sequences_per_s']:8.1f} seq/s   peak memory "
+          f"{ld['peak_bytes'] / 2**30:.2f} GiB ({ld['loader_workers']} loader workers, batch {ld['batch_size']})")
+    if result.get("failed"):
+        print(f"  failed objects: {result['failed']}")
+    m = result["machine"]
+    print(f"machine: {m['platform']}, {m['cores_available']} of {m['cpu_count']} cores")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="benchmarks.dataset", description=__doc__.split("\n")[0])
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--quick", action="store_true", help="4 catalogue objects, 20 contours")
+    mode.add_argument("--paper", action="store_true", help="SHREC 8 classes x 3 objects x 950 contours x 2 strategies")
+    parser.add_argument("--workers", type=int, default=None, help="worker processes (default: usable cores)")
+    parser.add_argument("--repeats", type=int, default=1, help="generation repeats (median wall time)")
+    parser.add_argument("--out", type=Path, default=None, help="folder for the stores (default: a temporary one)")
+    parser.add_argument("--keep", action="store_true", help="keep the store(s)")
+    parser.add_argument("--json", action="store_true", help="print a JSON result after the table")
+    args = parser.parse_args(argv)
+    name = "quick" if args.quick else "paper" if args.paper else "default"
+    if name != "quick" and not (DATA / "shrec07").is_dir():
+        print(f"{DATA / 'shrec07'} is absent: use --quick (catalogue objects)")
+        return 2
+    workers = args.workers or len(os.sched_getaffinity(0))
+    result = run(name, workers, args.out, args.keep, max(1, args.repeats))
+    _print(result)
+    if args.json:
+        print(json.dumps(result, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,235 @@
+"""Reconstruction benchmark: surface error against run time for RGB-D captures and point-cloud files.
+
+(a) Virtual OAK-D (400p, stereo noise, seeded) around built-in objects on a table, reconstructed with
+    :func:`perception.reconstruct.reconstruct_frames`: surface error (distance from 20k points drawn on the
+    reconstruction to the true mesh, mm: mean and 95th percentile) against the number of views (at 500 mm,
+    Poisson depth 7), the camera distance (4 views) and the Poisson depth (4 views at 500 mm), plus the
+    same capture without ICP refinement. Completeness ("cover p95"): the 95th percentile distance from
+    the true surface to the reconstruction (the unseen bottom counts). Times: capture (ray casting +
+    stereo model) and reconstruction, median over the objects.
+(b) Point-cloud files: 15k points sampled on each object, written as PCD / XYZ / PLY (no faces) / NPZ,
+    loaded back with :func:`perception.reconstruct.load_points` (estimated normals, Poisson depth 7):
+    error and completeness as in (a).
+(c) The real GraspNet RealSense frame (shared data): table plane, object clusters (smooth segmentation),
+    cluster centres matched one-to-one (Hungarian) to the 9 annotated object poses; ``--figure`` writes
+    a figure of it.
+
+    .venv/bin/python -m benchmarks.reconstruction [--quick] [--json] [--objects K] [--figure PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks._common import DATA, machine
+from perception.camera import VirtualOakCamera, read_recording
+from perception.reconstruct import (
+    frames_to_points,
+    load_points,
+    reconstruct_frames,
+    segment_table,
+    surface_error,
+    write_points,
+)
+from perception.shapes import CLASSES, make_object
+
+VIEWS = (1, 2, 4, 8)
+DISTANCES_MM = (400.0, 500.0, 700.0, 1000.0)
+DEPTHS = (6, 7, 8)
+FORMATS = (".pcd", ".xyz", ".ply", ".npz")
+
+
+def _settings(quick: bool) -> list[dict]:
+    views = (1, 4) if quick else VIEWS
+    distances = (500.0,) if quick else DISTANCES_MM
+    depths = (6, 7) if quick else DEPTHS
+    rows = [{"sweep": "views", "views": v, "distance_mm": 500.0, "depth": 7, "icp": True} for v in views]
+    rows += [{"sweep": "distance", "views": 4, "distance_mm": d, "depth": 7, "icp": True} for d in distances]
+    rows += [{"sweep": "depth", "views": 4, "distance_mm": 500.0, "depth": d, "icp": True} for d in depths]
+    rows.append({"sweep": "no icp", "views": 4, "distance_mm": 500.0, "depth": 7, "icp": False})
+    return rows
+
+
+def views_sweep(classes: list[str], quick: bool, seed: int) -> list[dict]:
+    rows = []
+    for setting in _settings(quick):
+        per_object = []
+        for name in classes:
+            camera = VirtualOakCamera(make_object(name, 0), seed=seed)
+            start = time.perf_counter()
+            frames = camera.capture_views(setting["views"], setting["distance_mm"])
+            t_capture = time.perf_counter() - start
+            start = time.perf_counter()
+            rec = reconstruct_frames(frames, target=camera.target, poisson_depth=setting["depth"], icp=setting["icp"],
+                                     seed=seed)
+            t_rec = time.perf_counter() - start
+            err = surface_error(rec.model, camera.truth)
+            per_object.append({"object": name, **err, "capture_s": t_capture, "reconstruct_s": t_rec,
+                               "points": len(rec.points), "triangles": rec.model.n_triangles})
+        rows.append({
+            **setting,
+            "mean_mm": statistics.fmean(r["mean_mm"] for r in per_object),
+            "p95_mm": statistics.fmean(r["p95_mm"] for r in per_object),
+            "worst_p95_mm": max(r["p95_mm"] for r in per_object),
+            "coverage_p95_mm": statistics.fmean(r["coverage_p95_mm"] for r in per_object),
+            "capture_s": statistics.median(r["capture_s"] for r in per_object),
+            "reconstruct_s": statistics.median(r["reconstruct_s"] for r in per_object),
+            "points": int(statistics.median(r["points"] for r in per_object)),
+            "objects": per_object,
+        })
+    return rows
+
+
+def _sample(model, n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    tri = rng.choice(model.n_triangles, n, p=model.triangle_areas / model.triangle_areas.sum())
+    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
+    a, b, c = (model.vertices[model.triangles[tri, i]] for i in range(3))
+    return (1 - r1)[:, None] * a + (r1 * (1 - r2))[:, None] * b + (r1 * r2)[:, None] * c
+
+
+def files_sweep(classes: list[str], seed: int) -> list[dict]:
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in classes:
+            truth = make_object(name, 0)
+            points = _sample(truth, 15000, seed)
+            for suffix in FORMATS:
+                path = write_points(Path(tmp) / f"{name}{suffix}", points)
+                start = time.perf_counter()
+                model = load_points(path, size_mm=None, poisson_depth=7)
+                seconds = time.perf_counter() - start
+                rows.append({"object": name, "format": suffix[1:], **surface_error(model, truth), "load_s": seconds})
+    return rows
+
+
+def real_frame(figure: str | None) -> dict | None:
+    from scipy.io import loadmat
+    from scipy.optimize import linear_sum_assignment
+    from scipy.spatial.distance import cdist
+
+    folder = DATA / "rgbd" / "graspnet_tabletop"
+    if not folder.is_dir():
+        return None
+    (frame,) = read_recording(folder)
+    start = time.perf_counter()
+    points, colors, views = frames_to_points([frame])
+    scene = segment_table(points, colors, views, method="smooth")
+    seconds = time.perf_counter() - start
+    meta = loadmat(folder / "meta.mat")
+    origins = meta["poses"][:, 3, :].T * 1000.0
+    ids = (meta["cls_indexes"][0] - 1).tolist()
+    distance = cdist(origins, np.array([c.center for c in scene.clusters]))
+    rows, cols = linear_sum_assignment(distance)
+    matches = [{"graspnet_id": int(ids[r]), "cluster": int(c), "distance_mm": float(distance[r, c])}
+               for r, c in zip(rows, cols)]
+    result = {
+        "plane": scene.plane.tolist(),
+        "table_points": scene.n_table_points,
+        "clusters": len(scene.clusters),
+        "matched_within_30mm": int(sum(m["distance_mm"] <= 30.0 for m in matches)),
+        "matches": matches,
+        "segment_s": seconds,
+    }
+    if figure:
+        result["figure"] = str(_real_figure(frame, scene, origins, ids, Path(figure)))
+    return result
+
+
+def _real_figure(frame, scene, origins, ids, path: Path) -> Path:
+    from matplotlib.figure import Figure
+
+    from perception.atomic import save_figure
+
+    k = frame.intrinsics
+    project = lambda p: (k.fx * p[:, 0] / p[:, 2] + k.cx, k.fy * p[:, 1] / p[:, 2] + k.cy)
+    fig = Figure(figsize=(12, 3.8))
+    ax0, ax1 = fig.subplots(1, 2)
+    ax0.imshow(frame.color)
+    ax0.set_title("GraspNet RealSense frame")
+    labels = scene.labels
+    for mask, color in ((labels == -2, "0.8"), (labels == -1, "0.93")):
+        ax1.scatter(*project(scene.points[mask]), s=0.1, c=color, rasterized=True)
+    objects = labels >= 0
+    ax1.scatter(*project(scene.points[objects]), s=0.2, c=labels[objects] % 20, cmap="tab20", vmin=0, vmax=19,
+                rasterized=True)
+    ax1.plot(*project(np.array([c.center for c in scene.clusters])), "k+", ms=9, label="cluster centre")
+    ax1.plot(*project(origins), "rx", ms=7, label="annotated pose")
+    for (u, v), i in zip(np.stack(project(origins), axis=1), ids):
+        ax1.annotate(str(i), (u, v), color="r", fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax1.set_xlim(0, k.width)
+    ax1.set_ylim(k.height, 0)
+    ax1.set_aspect("equal")
+    ax1.legend(loc="lower left", fontsize=7)
+    ax1.set_title(f"table plane + {len(scene.clusters)} clusters")
+    for ax in (ax0, ax1):
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=110)
+
+
+def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -> None:
+    print(f"\n{title}")
+    widths = [max(len(head), 9) for head, _ in columns]
+    print("  ".join(head.rjust(w) for (head, _), w in zip(columns, widths)))
+    for row in rows:
+        cells = []
+        for (head, key), w in zip(columns, widths):
+            value = row.get(key, "")
+            cells.append((f"{value:.4g}" if isinstance(value, float) else str(value)).rjust(w))
+        print("  ".join(cells))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="benchmarks.reconstruction", description=__doc__.split("\n")[0])
+    parser.add_argument("--json", action="store_true", help="print a JSON result after the tables")
+    parser.add_argument("--quick", action="store_true", help="one object, fewer settings")
+    parser.add_argument("--objects", type=int, default=None, help="built-in classes to use (default 3, quick 1)")
+    parser.add_argument("--figure", default=None, help="write the real-frame segmentation figure here (PNG)")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    n = args.objects or (1 if args.quick else 3)
+    preferred = ["bottle", "mug", "box", "can", "bowl", "wineglass", "hammer", "funnel", "spoon", "ring"]
+    classes = [c for c in preferred if c in CLASSES][:n]
+
+    result = {"machine": machine(), "classes": classes, "views": views_sweep(classes, args.quick, args.seed)}
+    _print_table(
+        f"(a) virtual OAK-D 400p -> reconstruction, surface error to the true mesh (mean over {', '.join(classes)})",
+        result["views"],
+        [("sweep", "sweep"), ("views", "views"), ("dist mm", "distance_mm"), ("depth", "depth"), ("icp", "icp"),
+         ("mean mm", "mean_mm"), ("p95 mm", "p95_mm"), ("worst p95", "worst_p95_mm"), ("cover p95", "coverage_p95_mm"), ("points", "points"),
+         ("capture s", "capture_s"), ("recon s", "reconstruct_s")],
+    )
+    result["files"] = files_sweep(classes, args.seed)
+    _print_table(
+        "(b) point-cloud files (15k samples) -> load_points, error to the true mesh",
+        result["files"],
+        [("object", "object"), ("format", "format"), ("mean mm", "mean_mm"), ("p95 mm", "p95_mm"),
+         ("max mm", "max_mm"), ("cover p95", "coverage_p95_mm"), ("load s", "load_s")],
+    )
+    real = real_frame(args.figure)
+    if real is not None:
+        result["real_frame"] = real
+        _print_table(
+            f"(c) GraspNet frame: {real['clusters']} clusters, {real['matched_within_30mm']} of 9 annotated objects "
+            f"within 30 mm ({real['segment_s']:.2f} s)",
+            real["matches"],
+            [("graspnet id", "graspnet_id"), ("cluster", "cluster"), ("dist mm", "distance_mm")],
+        )
+    if args.json:
+        json.dump(result, sys.stdout, indent=2, default=str)
+        sys.stdout.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,403 @@
+"""The paper's CNN pair: a 3D CNN on the tactile video, a 2D CNN on the kinesthetic cue, fused by summing
+their class probabilities (Rouhafzay & Cretu 2019).
+
+Architecture (``CutaneousNet``, input (B, 1, P, R, C) standardised gaps):
+
+- the frames are first average-pooled to at most ``frame_size`` x ``frame_size`` taxels (16 by default;
+  the paper convolves the full 32 x 32): a 4x cheaper first layer, and the data kept in memory
+  (float16) is 4x smaller, so the paper-scale store trains on 2 CPU cores;
+- two 3D convolutions (3 x 3 x 3, widths 8 and 16, spatial stride 2, batch norm, ReLU), circular padding
+  over the probe axis (a contour is a closed loop: its first and last probes are neighbours), zero
+  padding over the taxels;
+- two fully connected layers (flattened features -> 64 -> classes, dropout 0.2 between).
+
+``KinestheticNet`` (input (B, 1, P, k) standardised cues): two 2D convolutions (3 x 3, widths 16 and 32,
+batch norm, ReLU; circular over probes, zero over cue channels, as the paper's 2D kernels over 25 x 3) and
+two fully connected layers (-> 64 -> classes).
+
+Training (:class:`CNNClassifier`): Adam, cross-entropy, a seeded stratified validation split, early
+stopping on validation accuracy (ties broken by validation loss) with the best epoch's weights restored;
+each net is trained on its own. Input statistics (frames: one mean and std; cues: per channel) come from
+the training part and are stored in the model. Standardised inputs are clipped to +-``INPUT_CLIP`` so that
+huge readings cannot overflow to Inf / NaN. Optional augmentation (``augment=True``) draws a random cyclic
+shift and direction per training sequence: a contour's start probe and direction are arbitrary.
+Reversing the direction flips the pad's x axis (tangent) and hence y = normal x tangent, i.e. rotates each
+frame by 180 degrees; for the pose-invariant cue it negates the two direction-dependent channels.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import logging
+import os
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+from tqdm import tqdm
+
+from fusion.base import TactileClassifier
+from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
+from perception.errors import DatasetError
+from tactile.explore import SequenceBatch
+
+log = logging.getLogger(__name__)
+
+MODALITIES = ("fusion", "cutaneous", "kinesthetic")
+#: Standardised inputs are clipped to this many standard deviations (no overflow on absurd readings).
+INPUT_CLIP = 20.0
+#: Invariant cue channels whose sign flips with the contour's direction (standardised without centring).
+SIGNED_INVARIANT = tuple(INVARIANT_NAMES.index(n) for n in ("normal_out_of_plane", "tangent_radial"))
+#: Sequences per forward pass at prediction time.
+PREDICT_CHUNK = 512
+
+
+def _circular_probes(x: torch.Tensor, pad: int = 1) -> torch.Tensor:
+    """Pad axis 2 (the probes) circularly by ``pad``: the last probe neighbours the first."""
+    return torch.cat([x[:, :, -pad:], x, x[:, :, :pad]], dim=2)
+
+
+class CutaneousNet(nn.Module):
+    """3D CNN on a (B, 1, P, R, C) tactile video -> (B, n_classes) logits. Any P >= 1, R, C >= 1."""
+
+    def __init__(self, n_probes: int, grid: tuple[int, int], n_classes: int, widths=(8, 16), hidden: int = 64,
+                 dropout: float = 0.2):
+        super().__init__()
+        self.conv1 = nn.Conv3d(1, widths[0], 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False)
+        self.bn1 = nn.BatchNorm3d(widths[0])
+        self.conv2 = nn.Conv3d(widths[0], widths[1], 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False)
+        self.bn2 = nn.BatchNorm3d(widths[1])
+        rows, cols = grid
+        for _ in range(2):  # each stride-2 convolution with padding 1: n -> ceil(n / 2)
+            rows, cols = (rows + 1) // 2, (cols + 1) // 2
+        self.fc1 = nn.Linear(widths[1] * n_probes * rows * cols, hidden)
+        self.drop = nn.Dropout(dropout)
+        self.fc2 = nn.Linear(hidden, n_classes)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = F.relu(self.bn1(self.conv1(_circular_probes(x))))
+        x = F.relu(self.bn2(self.conv2(_circular_probes(x))))
+        return self.fc2(self.drop(F.relu(self.fc1(x.flatten(1)))))
+
+
+class KinestheticNet(nn.Module):
+    """2D CNN on a (B, 1, P, k) kinesthetic cue -> (B, n_classes) logits. Any P >= 1, k >= 1."""
+
+    def __init__(self, n_probes: int, width: int, n_classes: int, widths=(16, 32), hidden: int = 64,
+                 dropout: float = 0.2):
+        super().__init__()
+        self.conv1 = nn.Conv2d(1, widths[0], 3, padding=(0, 1), bias=False)
+        self.bn1 = nn.BatchNorm2d(widths[0])
+        self.conv2 = nn.Conv2d(widths[0], widths[1], 3, padding=(0, 1), bias=False)
+        self.bn2 = nn.BatchNorm2d(widths[1])
+        self.fc1 = nn.Linear(widths[1] * n_probes * width, hidden)
+        self.drop = nn.Dropout(dropout)
+        self.fc2 = nn.Linear(hidden, n_classes)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = F.relu(self.bn1(self.conv1(_circular_probes(x))))
+        x = F.relu(self.bn2(self.conv2(_circular_probes(x))))
+        return self.fc2(self.drop(F.relu(self.fc1(x.flatten(1)))))
+
+
+# ----------------------------------------------------------------------------------------- preprocessing
+def pool_frames(frames: np.ndarray, frame_size: int, chunk: int = 256) -> torch.Tensor:
+    """(S, P, R, C) frames average-pooled to at most ``frame_size`` per side: (S, P, r, c) float32 tensor."""
+    s, p, rows, cols = frames.shape
+    size = (min(rows, frame_size), min(cols, frame_size))
+    if size == (rows, cols):
+        return torch.tensor(np.asarray(frames), dtype=torch.float32)  # a copy: callers modify it in place
+    out = torch.empty((s, p) + size, dtype=torch.float32)
+    for start in range(0, s, chunk):  # chunks: never a float32 copy of a whole paper-scale store
+        block = torch.from_numpy(np.asarray(frames[start:start + chunk], dtype=np.float32))
+        out[start:start + chunk] = F.adaptive_avg_pool2d(block.flatten(0, 1), size).view(len(block), p, *size)
+    return out
+
+
+@contextlib.contextmanager
+def _torch_settings(threads: int | None, deterministic: bool) -> Iterator[None]:
+    """Fixed thread count and deterministic kernels for the block; the caller's settings come back after."""
+    old_threads, old_det = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
+    old_cudnn = torch.backends.cudnn.benchmark
+    try:
+        if threads:
+            torch.set_num_threads(int(threads))
+        if deterministic:
+            torch.use_deterministic_algorithms(True, warn_only=True)
+            torch.backends.cudnn.benchmark = False
+        yield
+    finally:
+        torch.set_num_threads(old_threads)
+        torch.use_deterministic_algorithms(old_det)
+        torch.backends.cudnn.benchmark = old_cudnn
+
+
+def default_threads() -> int:
+    """The CPU cores this process may use (the affinity mask where the platform has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+class CNNClassifier(TactileClassifier):
+    """The CNN pair with probability fusion, scikit-learn style (see the module docstring).
+
+    Args:
+        cue: kinesthetic cue, ``"normals"`` (the paper's) or ``"invariant"`` (:mod:`fusion.cues`).
+        epochs: most training epochs per net (the paper: 50).
+        batch_size: sequences per step.
+        lr: Adam learning rate.
+        patience: epochs without a better validation score before stopping.
+        val_fraction: part of the training data held out for early stopping (0: none, train all epochs).
+        seed: seeds the split, the initial weights, the batch order and the augmentation.
+        device: ``"auto"`` (CUDA when present), ``"cpu"`` or ``"cuda"``.
+        threads: CPU threads during fit and predict (None: the cores this process may use).
+        progress: tqdm bar over the epochs.
+        modality: what ``predict_proba`` returns: ``"fusion"`` (sum of both), ``"cutaneous"`` or
+            ``"kinesthetic"``; a single modality trains only its own net.
+        frame_size: frames are average-pooled to at most this many taxels per side.
+        augment: random cyclic shifts and reversals of the training sequences.
+
+    Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
+    ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
+    """
+
+    def __init__(self, cue: str = "normals", epochs: int = 50, batch_size: int = 64, lr: float = 1e-3,
+                 patience: int = 6, val_fraction: float = 0.1, seed: int = 0, device: str = "auto",
+                 threads: int | None = None, progress: bool = True, modality: str = "fusion",
+                 frame_size: int = 16, augment: bool = False):
+        self.cue = cue
+        self.epochs = epochs
+        self.batch_size = batch_size
+        self.lr = lr
+        self.patience = patience
+        self.val_fraction = val_fraction
+        self.seed = seed
+        self.device = device
+        self.threads = threads
+        self.progress = progress
+        self.modality = modality
+        self.frame_size = frame_size
+        self.augment = augment
+
+    # ------------------------------------------------------------------------------------ checks
+    def _check_params(self) -> None:
+        check_cue(self.cue)
+        if self.modality not in MODALITIES:
+            raise DatasetError(f"CNNClassifier: unknown modality {self.modality!r}; choose one of {MODALITIES}")
+        for name in ("epochs", "batch_size", "frame_size", "patience"):
+            value = getattr(self, name)
+            if int(value) != value or value < 1:
+                raise DatasetError(f"CNNClassifier: {name} must be a positive integer, got {value!r}")
+        if not 0 <= self.val_fraction < 1:
+            raise DatasetError(f"CNNClassifier: val_fraction must be in [0, 1), got {self.val_fraction!r}")
+        if not (self.lr > 0 and np.isfinite(self.lr)):
+            raise DatasetError(f"CNNClassifier: lr must be a positive number, got {self.lr!r}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise DatasetError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
+        if self.device == "cuda" and not torch.cuda.is_available():
+            raise DatasetError("CNNClassifier: device='cuda' but PyTorch sees no CUDA device")
+
+    def _device(self) -> torch.device:
+        if self.device == "auto":
+            return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+        return torch.device(self.device)
+
+    def _uses(self, modality: str) -> bool:
+        return self.modality in ("fusion", modality)
+
+    # ------------------------------------------------------------------------------ preprocessing
+    def _frames(self, batch: SequenceBatch, pooled: torch.Tensor | None = None) -> torch.Tensor:
+        """Pooled, standardised, clipped frames (S, 1, P, r, c) float16 (float32 work, half the memory)."""
+        x = pool_frames(batch.frames, self.frame_size) if pooled is None else pooled
+        x.sub_(self.frame_mean_).div_(self.frame_std_).clamp_(-INPUT_CLIP, INPUT_CLIP)
+        return x.to(torch.float16).unsqueeze(1)
+
+    def _cues(self, batch: SequenceBatch) -> torch.Tensor:
+        """Standardised, clipped kinesthetic cues (S, 1, P, k) float32."""
+        cues = (kinesthetic_cues(batch, self.cue) - self.cue_mean_) / self.cue_std_
+        return torch.from_numpy(np.clip(cues, -INPUT_CLIP, INPUT_CLIP).astype(np.float32)).unsqueeze(1)
+
+    def _fit_statistics(self, batch: SequenceBatch, pooled: torch.Tensor) -> None:
+        # Two passes of float64 sums in blocks: exact enough, and no float64 copy of a whole store.
+        blocks = pooled.split(1024)
+        self.frame_mean_ = sum(float(b.double().sum()) for b in blocks) / pooled.numel()
+        std = np.sqrt(sum(float(((b.double() - self.frame_mean_) ** 2).sum()) for b in blocks) / pooled.numel())
+        self.frame_std_ = float(std) if std > 1e-6 else 1.0  # a constant video: centre only, never divide by 0
+        cues = kinesthetic_cues(batch, self.cue).astype(np.float64).reshape(-1, cue_width(self.cue))
+        mean, std = cues.mean(axis=0), cues.std(axis=0)
+        if self.cue == "invariant":  # these signs are arbitrary: keep 0 at 0 so a flip stays a flip
+            mean[list(SIGNED_INVARIANT)] = 0.0
+            std[list(SIGNED_INVARIANT)] = np.sqrt((cues[:, list(SIGNED_INVARIANT)] ** 2).mean(axis=0))
+        self.cue_mean_ = mean.astype(np.float32)
+        self.cue_std_ = np.where(std > 1e-6, std, 1.0).astype(np.float32)
+
+    # ---------------------------------------------------------------------------------- training
+    def _split(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Seeded stratified train / validation indices (each class keeps at least one training sequence)."""
+        rng = np.random.default_rng(self.seed)
+        train, val = [], []
+        if self.val_fraction > 0:
+            for c in np.unique(y):
+                members = rng.permutation(np.flatnonzero(y == c))
+                n_val = min(round(self.val_fraction * len(members)), len(members) - 1)
+                val.append(members[:n_val])
+                train.append(members[n_val:])
+            train_idx, val_idx = np.sort(np.concatenate(train)), np.sort(np.concatenate(val))
+        else:
+            train_idx, val_idx = np.arange(len(y)), np.array([], dtype=np.int64)
+        if len(val_idx) == 0 and self.val_fraction > 0:
+            log.warning("CNNClassifier: too few sequences for a validation split; training all %d epochs",
+                        self.epochs)
+        return train_idx, val_idx
+
+    def _augment(self, x: torch.Tensor, kind: str, gen: torch.Generator) -> torch.Tensor:
+        """Random cyclic shift of the probes and random reversal of the direction, per sequence."""
+        n, p = x.shape[0], x.shape[2]
+        shift = torch.randint(0, p, (n,), generator=gen)
+        flip = torch.rand(n, generator=gen) < 0.5
+        order = (torch.arange(p)[None, :] + shift[:, None]) % p  # (n, P)
+        order = torch.where(flip[:, None], order.flip(1), order)
+        index = order.view(n, 1, p, *([1] * (x.dim() - 3))).expand(-1, x.shape[1], -1, *x.shape[3:])
+        x = torch.gather(x, 2, index.to(x.device))
+        if kind == "cutaneous":
+            rotated = x.flip(-1, -2)  # reversed tangent: the pad turns by 180 degrees
+            return torch.where(flip.view(n, 1, 1, 1, 1).to(x.device), rotated, x)
+        if self.cue == "invariant":
+            sign = torch.ones(x.shape[-1])
+            sign[list(SIGNED_INVARIANT)] = -1.0
+            step = INVARIANT_NAMES.index("step_mm")
+            flipped = x * sign.to(x.device)
+            # step_mm is the distance to the *next* probe: reversed, it belongs to the previous one
+            flipped[..., step] = torch.roll(x[..., step], -1, dims=2)
+            return torch.where(flip.view(n, 1, 1, 1).to(x.device), flipped, x)
+        return x
+
+    def _train_net(self, net: nn.Module, x: torch.Tensor, y: np.ndarray, kind: str,
+                   split: tuple[np.ndarray, np.ndarray], device: torch.device) -> dict:
+        """Adam with early stopping; ``net`` ends on the CPU holding its best validation weights."""
+        gen = torch.Generator().manual_seed(self.seed + (0 if kind == "cutaneous" else 1))
+        train_idx, val_idx = split
+        net.to(device)
+        opt = torch.optim.Adam(net.parameters(), lr=self.lr)
+        y_t = torch.from_numpy(y.astype(np.int64))
+        best, best_state, best_epoch, since = (-1.0, np.inf), None, 0, 0
+        epoch_times = []
+        epochs = tqdm(range(self.epochs), desc=f"train {kind}", disable=not self.progress, leave=False)
+        for epoch in epochs:
+            net.train()
+            started = time.perf_counter()
+            perm = torch.from_numpy(train_idx)[torch.randperm(len(train_idx), generator=gen)]
+            total = 0.0
+            for start in range(0, len(perm), self.batch_size):
+                idx = perm[start:start + self.batch_size]
+                if len(idx) < 2 and len(perm) > 1:  # batch norm needs two samples; the rest comes next epoch
+                    continue
+                xb = x[idx].to(device, torch.float32)
+                if self.augment:
+                    xb = self._augment(xb, kind, gen)
+                loss = F.cross_entropy(net(xb), y_t[idx].to(device))
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                total += float(loss.detach()) * len(idx)
+            epoch_times.append(time.perf_counter() - started)
+            if len(val_idx) == 0:
+                best_epoch = epoch
+                epochs.set_postfix(loss=f"{total / len(perm):.3f}")
+                continue
+            logits = self._logits(net, x[torch.from_numpy(val_idx)], device)
+            val_loss = float(F.cross_entropy(logits, y_t[val_idx]))
+            val_acc = float((logits.argmax(1) == y_t[val_idx]).double().mean())
+            epochs.set_postfix(loss=f"{total / len(perm):.3f}", val_acc=f"{val_acc:.3f}")
+            if (val_acc, -val_loss) > (best[0], -best[1]):
+                best, best_epoch, since = (val_acc, val_loss), epoch, 0
+                best_state = copy.deepcopy(net.state_dict())
+            else:
+                since += 1
+                if since >= self.patience:
+                    break
+        if best_state is not None:
+            net.load_state_dict(best_state)
+        net.to("cpu").eval()
+        log.info("%s net: %d epochs, best %d, validation accuracy %.4f", kind, epoch + 1, best_epoch + 1,
+                 best[0])
+        return {"epochs": epoch + 1, "best_epoch": best_epoch + 1,
+                "val_accuracy": None if len(val_idx) == 0 else best[0],
+                "epoch_seconds": float(np.median(epoch_times)) if epoch_times else 0.0}
+
+    @staticmethod
+    def _logits(net: nn.Module, x: torch.Tensor, device: torch.device) -> torch.Tensor:
+        """(S, C) float64 CPU logits of ``x`` in eval mode, in chunks."""
+        net.eval()
+        out = []
+        with torch.no_grad():
+            for start in range(0, len(x), PREDICT_CHUNK):
+                out.append(net(x[start:start + PREDICT_CHUNK].to(device, torch.float32)).double().cpu())
+        return torch.cat(out) if out else torch.empty((0, 0), dtype=torch.float64)
+
+    def _fit(self, batch: SequenceBatch, y_index: np.ndarray) -> None:
+        self._check_params()
+        device = self._device()
+        pooled = pool_frames(batch.frames, self.frame_size)
+        self._fit_statistics(batch, pooled)
+        split = self._split(y_index)
+        n_classes = len(self.classes_)
+        self.cutaneous_net_ = self.kinesthetic_net_ = None
+        self.history_ = {}
+        # fork_rng: seeding here must not change the caller's global random stream
+        with _torch_settings(self.threads or default_threads(), deterministic=True), torch.random.fork_rng([]):
+            if self._uses("cutaneous"):
+                x = self._frames(batch, pooled)
+                torch.manual_seed(self.seed)
+                self.cutaneous_net_ = CutaneousNet(batch.n_probes, tuple(x.shape[-2:]), n_classes)
+                self.history_["cutaneous"] = self._train_net(self.cutaneous_net_, x, y_index, "cutaneous",
+                                                             split, device)
+                del x
+            del pooled  # the float32 copy of the frames: free it before the next net
+            if self._uses("kinesthetic"):
+                torch.manual_seed(self.seed + 1)
+                self.kinesthetic_net_ = KinestheticNet(batch.n_probes, cue_width(self.cue), n_classes)
+                self.history_["kinesthetic"] = self._train_net(self.kinesthetic_net_, self._cues(batch),
+                                                               y_index, "kinesthetic", split, device)
+
+    # -------------------------------------------------------------------------------- prediction
+    def _modality_proba(self, batch: SequenceBatch) -> dict[str, np.ndarray]:
+        """Softmax probabilities (S, C) float64 of every trained net, and their fusion."""
+        out = {}
+        device = self._device()
+        with _torch_settings(self.threads or default_threads(), deterministic=False):
+            if self.cutaneous_net_ is not None:
+                net = self.cutaneous_net_.to(device)
+                out["cutaneous"] = torch.softmax(self._logits(net, self._frames(batch), device), 1).numpy()
+                net.to("cpu")
+            if self.kinesthetic_net_ is not None:
+                net = self.kinesthetic_net_.to(device)
+                out["kinesthetic"] = torch.softmax(self._logits(net, self._cues(batch), device), 1).numpy()
+                net.to("cpu")
+        if len(out) == 2:  # the paper's rule: sum the probability vectors (halved: still a distribution)
+            out["fusion"] = (out["cutaneous"] + out["kinesthetic"]) / 2.0
+        else:
+            out["fusion"] = next(iter(out.values()))
+        return out
+
+    def _predict_proba(self, batch: SequenceBatch) -> np.ndarray:
+        return self._modality_proba(batch)["fusion"]
+
+    def predict_proba_modalities(self, X) -> dict[str, np.ndarray]:
+        """``{"cutaneous", "kinesthetic", "fusion"}`` -> (S, C) probabilities (columns in ``classes_`` order);
+        a model trained on one modality gives that one and ``"fusion"`` equal to it.
+
+        Raises:
+            DatasetError: bad input. ModelMismatchError: data from another sensor, probe count or grid.
+        """
+        from fusion.base import as_batch
+
+        batch = as_batch(X)
+        self.check_compatible(batch)
+        return self._modality_proba(batch)
+
+
+__all__ = ["MODALITIES", "CNNClassifier", "CutaneousNet", "KinestheticNet", "pool_frames"]

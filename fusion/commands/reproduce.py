@@ -1,0 +1,57 @@
+"""``visuotactile reproduce --data FOLDER``: the paper's Table 1 and the experiments beyond it, as a report."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def run(args: argparse.Namespace, rest: list[str]) -> int:
+    from fusion.commands import print_json
+    from fusion.evaluate import markdown_table
+    from fusion.experiments import reproduce
+    from fusion.experiments.report import table1
+
+    out = args.out or ("out/reproduce-quick" if args.quick else "out/reproduce")
+    results = reproduce(args.data, out, classes=args.classes, objects_per_class=args.objects_per_class,
+                        quick=args.quick, seed=args.seed, parts=args.parts, workers=args.workers,
+                        progress=not args.no_progress, command=" ".join(["visuotactile", *sys.argv[1:]]))
+    if args.json:
+        print_json(results)
+        return 0
+    if "paper" in results:
+        print("Paper protocol (Table 1), test accuracy with 95 % interval:")
+        print(markdown_table(table1(results["paper"]["rows"])))
+    if "unseen" in results:
+        print("\nUnseen objects (one touch):")
+        print(markdown_table(table1(results["unseen"]["rows"])))
+    if "runtime" in results:
+        points = results["runtime"]["points"]
+        for name, i in results["runtime"]["named"].items():
+            print(f"operating point {name}: {points[i]['label']}, error {100 * points[i]['error']:.1f} %, "
+                  f"{points[i]['seconds']:.4f} s per decision")
+    print(f"\nReport: {out}/report.md")
+    return 0
+
+
+def register(sub) -> None:
+    from fusion.experiments.reproduce import PARTS
+
+    parser = sub.add_parser(
+        "reproduce", help="reproduce the paper's Table 1 on a mesh set and go beyond it (report folder)",
+        description="Paper protocol (80/20 by sequence, guided and blind, CNN fusion and each modality, SVM, "
+                    "kNN) next to the paper's Table 1; unseen objects, K touches, noise, attention models and "
+                    "error vs run time. Stores and models are cached in the report folder: re-running resumes.")
+    parser.add_argument("--data", required=True, help="class-per-folder mesh set (<root>/<Class>/<mesh>)")
+    parser.add_argument("--classes", nargs="+", help="classes to use (default: the first 8 for the paper "
+                                                      "protocol, all for unseen objects)")
+    parser.add_argument("--objects-per-class", type=int, default=None,
+                        help="instances per class of the paper protocol (default 3)")
+    parser.add_argument("--quick", action="store_true", help="small sizes (about 10 minutes on 2 cores)")
+    parser.add_argument("--out", help="report folder (default out/reproduce, or out/reproduce-quick)")
+    parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS), help="parts to run (default all)")
+    parser.add_argument("--workers", type=int, default=None, help="data generation workers (default: the cores)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")
+    parser.add_argument("--json", action="store_true", help="print results.json on stdout")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.set_defaults(func=run)

@@ -1,0 +1,96 @@
+"""Scoring cached predictions: accuracies with intervals, K-touch curves, the Pareto front of error vs time.
+
+Intervals are the percentile bootstrap of :func:`fusion.evaluate.accuracy` (1000 resamples, seeded):
+``by="decision"`` resamples test decisions (sequences or touch groups), ``by="object"`` resamples whole
+objects (a cluster bootstrap: the honest interval when decisions about one object are correlated, as for
+unseen objects and for several touch groups of one object).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fusion.decide import fuse_touches, touch_groups
+from fusion.evaluate import Accuracy, accuracy
+from fusion.experiments.models import Predictions
+from perception.errors import InvalidArgumentError
+
+BOOTSTRAP = 1000
+
+
+def score(pred: Predictions, *, by: str = "decision", seed: int = 0) -> Accuracy:
+    """Accuracy of single-sequence decisions with a 95 % interval (``by``: "decision" or "object")."""
+    _check_by(by)
+    return accuracy(pred.labels, pred.predicted, groups=pred.object_ids if by == "object" else None,
+                    n_boot=BOOTSTRAP, seed=seed)
+
+
+def touches_score(pred: Predictions, k: int, rule: str = "log", *, by: str = "object", seed: int = 0) -> Accuracy:
+    """Accuracy of decisions that fuse ``k`` sequences of the same object (disjoint groups, seeded).
+
+    Raises:
+        DatasetError: no object has ``k`` test sequences.
+    """
+    _check_by(by)
+    groups = touch_groups(pred.object_ids, k, seed=seed)
+    fused = fuse_touches(pred.proba[groups], rule=rule)
+    predicted = np.asarray(pred.classes, dtype=object)[np.argmax(fused, axis=1)]
+    first = groups[:, 0]
+    return accuracy(pred.labels[first], predicted, groups=pred.object_ids[first] if by == "object" else None,
+                    n_boot=BOOTSTRAP, seed=seed)
+
+
+def touch_curve(pred: Predictions, ks, rules=("log", "sum"), *, by: str = "object", seed: int = 0) -> list[dict]:
+    """Rows {k, rule, accuracy} for every K in ``ks`` and fusion rule (K = 1 is the same for both rules)."""
+    rows = []
+    for rule in rules:
+        for k in ks:
+            rows.append({"k": int(k), "rule": rule, "accuracy": touches_score(pred, k, rule, by=by, seed=seed)})
+    return rows
+
+
+def _check_by(by: str) -> None:
+    if by not in ("decision", "object"):
+        raise InvalidArgumentError(f"bootstrap unit must be 'decision' or 'object', got {by!r}")
+
+
+def pareto_front(times, errors) -> np.ndarray:
+    """Indices of the points no other point beats in both time and error (lower is better), by time.
+
+    A point is dominated when another is at least as fast and at least as accurate and strictly better in
+    one; ties keep the first.
+    """
+    times, errors = np.asarray(times, dtype=np.float64), np.asarray(errors, dtype=np.float64)
+    if times.shape != errors.shape or times.ndim != 1:
+        raise InvalidArgumentError(f"pareto_front: need equal 1-D arrays, got {times.shape} and {errors.shape}")
+    order = np.lexsort((errors, times))
+    front, best = [], np.inf
+    for i in order:
+        if errors[i] < best:
+            front.append(int(i))
+            best = errors[i]
+    return np.asarray(front, dtype=np.int64)
+
+
+def name_operating_points(times, errors, front) -> dict[str, int]:
+    """Named points of the front (indices into the points): ``fastest``, ``most accurate`` and ``knee``: the
+    interior front point that removes the most error for its time, i.e. furthest from the straight line
+    joining the two ends, with log10 time and error each scaled to [0, 1] between the ends."""
+    front = np.asarray(front)
+    if len(front) == 0:
+        return {}
+    t = np.log10(np.maximum(np.asarray(times, dtype=np.float64)[front], 1e-9))
+    e = np.asarray(errors, dtype=np.float64)[front]
+    names = {"fastest": int(front[0]), "most accurate": int(front[-1])}
+    if len(front) > 2:
+        span_t, span_e = t[-1] - t[0], e[-1] - e[0]
+        norm_t = (t - t[0]) / span_t if span_t > 0 else np.zeros_like(t)
+        norm_e = (e - e[0]) / span_e if span_e != 0 else np.zeros_like(e)
+        # Most error removed for the time spent: furthest above the chord from (0, 0) to (1, 1).
+        gain = norm_e - norm_t
+        knee = int(np.argmax(gain[1:-1])) + 1
+        names["knee"] = int(front[knee])
+    return names
+
+
+__all__ = ["BOOTSTRAP", "name_operating_points", "pareto_front", "score", "touch_curve", "touches_score"]

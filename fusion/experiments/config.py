@@ -1,0 +1,121 @@
+"""Sizes of the experiments: the full run, ``--quick`` and the demo, in one place (and in every report).
+
+Contour counts are per object and per strategy. The paper protocol uses the paper's 950 contours per object;
+the parts beyond the paper use fewer, chosen so the full run fits in 60 minutes and ``--quick`` in 10 on
+two CPU cores (see the report's "Sizes" section for what a run used).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+
+from perception.errors import InvalidArgumentError
+
+#: Noise kinds of the robustness part and what their level means.
+NOISE_KINDS = {
+    "taxel_noise": "Gaussian taxel noise, std in mm of gap",
+    "dead_taxels": "fraction of dead taxels (read the sensing range)",
+    "pose_jitter": "probe position jitter std in mm (tilt std: 2.5 degrees per mm)",
+}
+#: Pose jitter: normal tilt std (degrees) per mm of position jitter std.
+TILT_DEG_PER_MM = 2.5
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """How big each part of :func:`fusion.experiments.reproduce` is.
+
+    Attributes:
+        strategies: the sampling strategies compared in every part but ``attention`` (the paper: guided and
+            blind).
+        paper_classes: classes of the paper protocol when none are named (the first ones, sorted; the paper
+            used 8).
+        objects_per_class: instances per class of the paper protocol (the first ones, sorted by file name).
+        paper_contours: contours per object and strategy of the paper protocol (the paper: 950).
+        test_fraction: the paper protocol's held-out share of sequences (the paper: 0.2).
+        unseen_contours, unseen_folds: contours per object of the unseen-objects part (all instances of
+            every class) and its grouped k-fold by object.
+        touches: K, the contours per decision.
+        noise_contours: held-out contours per object for each noise level (same seed at every level).
+        noise_levels: kind -> levels (see :data:`NOISE_KINDS`); level 0 (clean) is always added.
+        attention_contours, attention_folds: per object, and the grouped k-fold by object, of the attention
+            comparison (paper objects).
+        runtime_contours: contours per object of each (probes, grid) store of the error-vs-run-time part.
+        runtime_probes, runtime_grids: probes per contour and taxel grids (n x n) compared there.
+        epochs: CNN epochs (None: the classifier's default).
+        paper_classifiers, unseen_classifiers: which classifiers (see ``fusion.experiments.models``) each
+            part trains; the noise, K and run-time parts reuse the paper ones, attention the first of them.
+    """
+
+    strategies: tuple[str, ...] = ("guided", "blind")
+    paper_classes: int = 8
+    objects_per_class: int = 3
+    paper_contours: int = 950
+    test_fraction: float = 0.2
+    unseen_contours: int = 100
+    unseen_folds: int = 5
+    touches: tuple[int, ...] = (1, 2, 4, 8)
+    noise_contours: int = 10
+    noise_levels: dict = field(
+        default_factory=lambda: {
+            "taxel_noise": (0.1, 0.3, 1.0),
+            "dead_taxels": (0.05, 0.2, 0.5),
+            "pose_jitter": (0.5, 1.0, 2.0),
+        }
+    )
+    attention_contours: int = 100
+    attention_folds: int = 3
+    runtime_contours: int = 60
+    runtime_probes: tuple[int, ...] = (5, 10, 25, 50)
+    runtime_grids: tuple[int, ...] = (8, 16, 32)
+    epochs: int | None = None
+    paper_classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
+    unseen_classifiers: tuple[str, ...] = ("cnn", "cnn-invariant", "svm", "knn")
+
+    def __post_init__(self) -> None:
+        for name in ("paper_classes", "objects_per_class", "paper_contours", "unseen_contours", "noise_contours",
+                     "attention_contours", "runtime_contours"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise InvalidArgumentError(f"Sizes.{name} must be a positive integer, got {value!r}")
+        for name in ("unseen_folds", "attention_folds"):
+            if getattr(self, name) < 2:
+                raise InvalidArgumentError(f"Sizes.{name} must be at least 2, got {getattr(self, name)!r}")
+        if not 0 < self.test_fraction < 1:
+            raise InvalidArgumentError(f"Sizes.test_fraction must be in (0, 1), got {self.test_fraction!r}")
+        if not self.touches or min(self.touches) < 1:
+            raise InvalidArgumentError(f"Sizes.touches must be positive integers, got {self.touches!r}")
+        from tactile.sampling import STRATEGIES
+
+        if not self.strategies or set(self.strategies) - set(STRATEGIES):
+            raise InvalidArgumentError(f"Sizes.strategies must be among {list(STRATEGIES)}, got {self.strategies!r}")
+        unknown = set(self.noise_levels) - set(NOISE_KINDS)
+        if unknown:
+            raise InvalidArgumentError(f"Sizes.noise_levels: unknown kinds {sorted(unknown)}; use {list(NOISE_KINDS)}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["noise_levels"] = {k: list(v) for k, v in self.noise_levels.items()}
+        return d
+
+    def with_(self, **changes) -> Sizes:
+        return replace(self, **changes)
+
+
+#: The full run (target: within 60 minutes on 2 cores).
+FULL = Sizes()
+
+#: ``--quick`` (target: within 10 minutes on 2 cores).
+QUICK = Sizes(
+    paper_contours=60,
+    unseen_contours=16,
+    unseen_folds=3,
+    noise_contours=3,
+    noise_levels={"taxel_noise": (0.3, 1.0), "dead_taxels": (0.2, 0.5), "pose_jitter": (1.0, 2.0)},
+    attention_contours=16,
+    runtime_contours=16,
+    runtime_probes=(10, 25),
+    runtime_grids=(16, 32),
+    epochs=5,
+    unseen_classifiers=("cnn", "svm", "knn"),
+)

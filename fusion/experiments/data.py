@@ -1,0 +1,94 @@
+"""Which objects each experiment uses, and the dataset stores it reads (generated once, cached, resumed).
+
+Stores live in ``<report>/stores/<name>.zarr`` and are made by :func:`tactile.dataset.generate`, which
+resumes an interrupted generation and refuses a store made with other settings.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from perception.errors import DatasetError
+from tactile.sensor import FSRSensor
+
+log = logging.getLogger(__name__)
+
+
+def folder_objects(folder: str | Path, classes=None, per_class: int | None = None,
+                   max_classes: int | None = None) -> list[tuple[Path, str]]:
+    """(path, class) pairs of a class-per-folder mesh set: the named ``classes`` (default: all, or the first
+    ``max_classes`` in sorted order), each with its first ``per_class`` files in sorted order (default all).
+
+    Raises:
+        DatasetError: a bad folder (see :func:`perception.geometry.load_dataset`), an unknown class, or a
+            class with fewer than ``per_class`` files.
+    """
+    from perception.geometry import load_dataset
+
+    items = load_dataset(folder)
+    available = sorted({label for _, label in items})
+    if classes:
+        unknown = [c for c in classes if c not in available]
+        if unknown:
+            raise DatasetError(f"{folder}: no class folders {unknown}; the classes are {', '.join(available)}")
+        chosen = list(dict.fromkeys(classes))
+    else:
+        chosen = available[:max_classes] if max_classes else available
+    out = []
+    for label in chosen:
+        files = [path for path, lab in items if lab == label]
+        if per_class is not None and len(files) < per_class:
+            raise DatasetError(f"{folder}/{label}: {len(files)} meshes, fewer than the {per_class} asked for")
+        out += [(path, label) for path in files[:per_class]]
+    return out
+
+
+def catalogue_objects(classes, per_class: int, first_seed: int = 0) -> list[tuple[str, int]]:
+    """(class, seed) pairs of the built-in catalogue: seeds ``first_seed .. first_seed + per_class - 1``."""
+    return [(c, first_seed + i) for c in classes for i in range(per_class)]
+
+
+def store_record(objects, contours: int, seed: int, strategies=("guided", "blind"), sensor: FSRSensor | None = None,
+                 probes: int = 25) -> dict:
+    """What identifies a store's content (its name and the cache records of models trained on it use it)."""
+    return {"objects": [[str(a), b] for a, b in objects], "contours": contours, "seed": seed,
+            "strategies": list(strategies), "sensor": (sensor or FSRSensor()).spec(), "probes": probes}
+
+
+def ensure_store(objects, folder: Path, *, strategies, contours: int, seed: int, sensor: FSRSensor | None = None,
+                 probes: int = 25, workers: int | None = None, progress: bool = True) -> tuple:
+    """Generate (or resume, or reuse) the store of these settings in ``folder`` and open it.
+
+    The store is named after its settings (``<objects>obj-<contours>c-<hash>.zarr``), so parts that need
+    the same data share one store and changed sizes make a new one. Objects that fail to generate are logged
+    and left out (``generate`` records them); re-running tries them again.
+
+    Returns:
+        (the opened dataset, its :func:`store_record`).
+
+    Raises:
+        DatasetError: every object failed.
+    """
+    from fusion.experiments.models import digest
+    from tactile.dataset import generate, open_dataset
+
+    record = store_record(objects, contours, seed, strategies, sensor, probes)
+    path = Path(folder) / f"{len(record['objects'])}obj-{contours}c-{digest(record)[:10]}.zarr"
+    report = generate(objects, path, strategies=tuple(strategies), contours_per_object=contours,
+                      sensor=sensor or FSRSensor(), probes=probes, seed=seed, workers=workers, progress=progress)
+    for name, reason in report.failed:
+        log.warning("%s: object %s failed and is left out: %s", path.name, name, reason)
+    if report.failed and len(report.failed) == report.objects:
+        raise DatasetError(f"{path}: every object failed to generate (first: {report.failed[0]})")
+    return open_dataset(path), record
+
+
+def load_models(objects) -> list:
+    """The :class:`~perception.geometry.ObjectModel` of each object spec (same names and labels as the stores)."""
+    from tactile.dataset import object_specs
+
+    return [spec.load() for spec in object_specs(objects)]
+
+
+__all__ = ["catalogue_objects", "ensure_store", "folder_objects", "load_models", "store_record"]

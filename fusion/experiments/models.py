@@ -1,0 +1,226 @@
+"""Which classifiers the experiments train, and training / predicting with a cache in the report folder.
+
+A trained model is saved next to a small JSON record of what it was trained on (classifier parameters, data,
+training indices); a re-run with the same record loads it instead of training again, so an interrupted run
+resumes and a finished one is cheap to re-report. Predictions are cached the same way (``.npz``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fusion.base import TactileClassifier, load_model
+from perception.atomic import atomic_path, write_text
+from perception.errors import DatasetError, InvalidArgumentError
+from tactile.explore import SequenceBatch
+
+log = logging.getLogger(__name__)
+
+Factory = Callable[[], TactileClassifier]
+
+#: Display names of the classifiers and of the CNN's single modalities.
+DISPLAY = {"cnn": "CNN fusion", "cnn-invariant": "CNN fusion (invariant cues)", "svm": "SVM", "knn": "kNN"}
+MODALITY_DISPLAY = {"cutaneous": "CNN cutaneous", "kinesthetic": "CNN kinesthetic"}
+
+
+def _conventional(kind: str, seed: int) -> TactileClassifier:
+    import inspect
+
+    from fusion.conventional import ConventionalClassifier
+
+    # The seed argument is ``random_state`` (scikit-learn's name) in some versions, ``seed`` in others.
+    params = inspect.signature(ConventionalClassifier).parameters
+    key = "seed" if "seed" in params else "random_state"
+    return ConventionalClassifier(kind=kind, cue="normals", **{key: seed})
+
+
+def default_classifiers(seed: int = 0, epochs: int | None = None, progress: bool = False) -> dict[str, Factory]:
+    """Factories of the toolkit's classifiers by name: ``cnn`` (the paper's normals as kinesthetic cue),
+    ``cnn-invariant`` (pose-invariant cues), ``svm``, ``knn`` (contourlet + wavelet features)."""
+    from fusion.classifiers import make_classifier
+
+    cnn = {"epochs": epochs} if epochs else {}
+    return {
+        "cnn": lambda: make_classifier("cnn", cue="normals", seed=seed, progress=progress, **cnn),
+        "cnn-invariant": lambda: make_classifier("cnn", cue="invariant", seed=seed, progress=progress, **cnn),
+        "svm": lambda: _conventional("svm", seed),
+        "knn": lambda: _conventional("knn", seed),
+    }
+
+
+def pick(classifiers: dict[str, Factory], names) -> dict[str, Factory]:
+    """The factories named in ``names`` (in that order).
+
+    Raises:
+        InvalidArgumentError: a name that is not available.
+    """
+    missing = [n for n in names if n not in classifiers]
+    if missing:
+        raise InvalidArgumentError(f"unknown classifiers {missing}; available: {', '.join(classifiers)}")
+    return {n: classifiers[n] for n in names}
+
+
+def digest(*parts) -> str:
+    """A short stable hash of JSON-able parts (arrays by their bytes)."""
+    h = hashlib.sha256()
+    for part in parts:
+        if isinstance(part, np.ndarray):
+            h.update(np.ascontiguousarray(part).tobytes())
+        else:
+            h.update(json.dumps(part, sort_keys=True, default=str).encode())
+    return h.hexdigest()[:16]
+
+
+def describe(estimator: TactileClassifier) -> str:
+    """The estimator's class and parameters (part of the cache record)."""
+    params = {k: v for k, v in estimator.get_params(deep=False).items() if k != "progress"}
+    return f"{type(estimator).__name__}({json.dumps(params, sort_keys=True, default=str)})"
+
+
+def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[TactileClassifier, float]:
+    """Train ``factory()`` on ``train`` (a batch, or a callable returning one, called only when training is
+    needed), or load the model saved at ``path`` if it was trained with the same ``record``. ``record`` must
+    identify the training data (store and indices); the estimator's parameters are added here.
+
+    Returns the model and its training time in seconds (as measured when it was trained).
+    """
+    estimator = factory()
+    record = json.loads(json.dumps({**record, "estimator": describe(estimator)}, default=str))
+    meta_path = path.with_suffix(".json")
+    if path.is_file() and meta_path.is_file():
+        try:
+            meta = json.loads(meta_path.read_text())
+            if meta.get("record") == record:
+                return load_model(path), float(meta["fit_seconds"])
+        except (DatasetError, OSError, ValueError, KeyError) as exc:
+            log.warning("cached model %s unusable (%s); training again", path, exc)
+    batch = train() if callable(train) else train
+    start = time.perf_counter()
+    estimator.fit(batch)
+    seconds = time.perf_counter() - start
+    estimator.save(path)
+    write_text(meta_path, json.dumps({"record": record, "fit_seconds": seconds}, indent=2, default=str))
+    return estimator, seconds
+
+
+@dataclass
+class Predictions:
+    """Class probabilities of one model on one test set, with what is needed to score them.
+
+    Attributes:
+        proba: (S, C) probabilities, columns in ``classes`` order.
+        labels: (S,) true class names.
+        object_ids: (S,) object of each sequence (an index into ``object_names``).
+        classes, object_names: name lists.
+        modalities: single-modality (S, C) probabilities (CNN: cutaneous, kinesthetic).
+        fit_seconds: training time; predict_seconds: inference time per sequence (batch inference).
+    """
+
+    proba: np.ndarray
+    labels: np.ndarray
+    object_ids: np.ndarray
+    classes: list[str]
+    object_names: list[str]
+    modalities: dict[str, np.ndarray] = field(default_factory=dict)
+    fit_seconds: float = 0.0
+    predict_seconds: float = 0.0
+
+    @property
+    def predicted(self) -> np.ndarray:
+        return np.asarray(self.classes, dtype=object)[np.argmax(self.proba, axis=1)]
+
+    def modality(self, name: str) -> Predictions:
+        """The same predictions with ``proba`` of one modality."""
+        return Predictions(self.modalities[name], self.labels, self.object_ids, self.classes, self.object_names,
+                           {}, self.fit_seconds, self.predict_seconds)
+
+    @staticmethod
+    def concatenate(parts: list[Predictions]) -> Predictions:
+        """Stack predictions of several folds (same classes and object list)."""
+        if not parts:
+            raise DatasetError("no predictions to concatenate")
+        first = parts[0]
+        keys = set.intersection(*(set(p.modalities) for p in parts))
+        return Predictions(
+            np.concatenate([p.proba for p in parts]), np.concatenate([p.labels for p in parts]),
+            np.concatenate([p.object_ids for p in parts]), first.classes, first.object_names,
+            {k: np.concatenate([p.modalities[k] for p in parts]) for k in sorted(keys)},
+            float(sum(p.fit_seconds for p in parts) / len(parts)),
+            float(np.mean([p.predict_seconds for p in parts])),
+        )
+
+    def save(self, path: Path, record: dict) -> None:
+        meta = {"classes": self.classes, "object_names": self.object_names, "fit_seconds": self.fit_seconds,
+                "predict_seconds": self.predict_seconds, "record": record}
+        arrays = {"proba": self.proba, "labels": self.labels.astype(str), "object_ids": self.object_ids}
+        arrays |= {f"modality_{k}": v for k, v in self.modalities.items()}
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, meta=np.array(json.dumps(meta, default=str)), **arrays)
+
+    @classmethod
+    def load(cls, path: Path, record: dict) -> Predictions | None:
+        if not path.is_file():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(str(data["meta"]))
+                if meta["record"] != json.loads(json.dumps(record, default=str)):
+                    return None
+                modalities = {k[len("modality_"):]: data[k] for k in data.files if k.startswith("modality_")}
+                return cls(data["proba"], data["labels"].astype(object), data["object_ids"], meta["classes"],
+                           meta["object_names"], modalities, meta["fit_seconds"], meta["predict_seconds"])
+        except (OSError, ValueError, KeyError) as exc:
+            log.warning("cached predictions %s unreadable (%s); recomputing", path, exc)
+            return None
+
+
+def predict(model: TactileClassifier, test: SequenceBatch, fit_seconds: float = 0.0) -> Predictions:
+    """Predict ``test`` with ``model`` (timed), keeping the CNN's single-modality outputs when it has them."""
+    start = time.perf_counter()
+    modalities = {}
+    if hasattr(model, "predict_proba_modalities"):
+        outputs = model.predict_proba_modalities(test)
+        proba = np.asarray(outputs["fusion"], dtype=np.float64)
+        modalities = {k: np.asarray(v, dtype=np.float64) for k, v in outputs.items() if k != "fusion"}
+    else:
+        proba = model.predict_proba(test)
+    seconds = (time.perf_counter() - start) / max(len(test), 1)
+    if not all(np.isfinite(p).all() for p in (proba, *modalities.values())):
+        raise FloatingPointError(f"{type(model).__name__} produced non-finite probabilities")
+    labels = np.asarray(test.class_names, dtype=object)[test.labels]
+    return Predictions(proba, labels, np.asarray(test.object_ids), [str(c) for c in model.classes_],
+                       list(test.object_names), modalities, fit_seconds, seconds)
+
+
+def train_and_predict(name: str, factory: Factory, train, test, folder: Path, record: dict,
+                      test_record: dict | None = None) -> Predictions:
+    """Train (or load) classifier ``name`` and predict ``test`` (or load the cached predictions); the model
+    goes to ``folder/name.pkl``, the predictions to ``folder/name[-tag].npz``.
+
+    Args:
+        train, test: batches, or callables returning them (called only when needed).
+        record: identifies the training data (see :func:`fit_cached`).
+        test_record: identifies the test data; its ``"tag"`` (default "test") names the predictions file.
+    """
+    test_record = test_record or {"tag": "test"}
+    pred_path = folder / f"{name}-{test_record.get('tag', 'test')}.npz"
+    estimator_record = {**record, "estimator": describe(factory()), "test": test_record}
+    cached = Predictions.load(pred_path, json.loads(json.dumps(estimator_record, default=str)))
+    if cached is not None and (folder / f"{name}.pkl").is_file():
+        return cached
+    model, fit_seconds = fit_cached(factory, train, folder / f"{name}.pkl", record)
+    result = predict(model, test() if callable(test) else test, fit_seconds)
+    result.save(pred_path, json.loads(json.dumps(estimator_record, default=str)))
+    return result
+
+
+__all__ = ["DISPLAY", "MODALITY_DISPLAY", "Predictions", "default_classifiers", "digest", "fit_cached", "pick",
+           "predict", "train_and_predict"]

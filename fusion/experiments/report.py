@@ -1,0 +1,145 @@
+"""The report folder's text: ``report.md`` (tables, figures inline) from the ``results.json`` content."""
+
+from __future__ import annotations
+
+from fusion.evaluate import PAPER_TABLE1, Accuracy, markdown_table
+
+#: Display name -> key of the paper's Table 1.
+PAPER_KEYS = {"CNN fusion": "cnn", "SVM": "svm", "kNN": "knn"}
+
+
+def pct(acc: dict | None) -> str:
+    """'98.3 % [97.9, 98.7]' from an accuracy dict (or '-')."""
+    return Accuracy(**acc).percent() if acc else "-"
+
+
+def table1(rows: list[dict]) -> list[dict]:
+    """Table-1 rows: classifier, our guided / blind accuracy (95 % interval), the paper's."""
+    out = []
+    for clf in dict.fromkeys(r["classifier"] for r in rows):
+        by = {r["strategy"]: r for r in rows if r["classifier"] == clf}
+        paper = PAPER_TABLE1.get(PAPER_KEYS.get(clf, ""))
+        out.append({"classifier": clf,
+                    "guided": pct(by.get("guided", {}).get("accuracy")),
+                    "blind": pct(by.get("blind", {}).get("accuracy")),
+                    "paper guided": f"{paper[0]:.2f} %" if paper else "-",
+                    "paper blind": f"{paper[1]:.2f} %" if paper else "-",
+                    "train s (guided)": by.get("guided", {}).get("fit_seconds", "-"),
+                    "inference ms/seq": by.get("guided", {}).get("predict_ms_per_sequence", "-")})
+    return out
+
+
+def touches_table(rows: list[dict], setting: str) -> list[dict]:
+    """K columns per (classifier, strategy, rule) of one setting."""
+    sel = [r for r in rows if r["setting"] == setting]
+    ks = sorted({r["k"] for r in sel})
+    out = []
+    for key in dict.fromkeys((r["classifier"], r["strategy"], r["rule"]) for r in sel):
+        row = {"classifier": key[0], "strategy": key[1], "rule": "sum of log" if key[2] == "log" else "sum"}
+        for k in ks:
+            hit = [r for r in sel if (r["classifier"], r["strategy"], r["rule"]) == key and r["k"] == k]
+            row[f"K={k}"] = pct(hit[0]["accuracy"]) if hit else "-"
+        out.append(row)
+    return out
+
+
+def noise_table(rows: list[dict], kind: str) -> list[dict]:
+    """Accuracy per level (columns) of one noise kind, a row per (classifier, strategy)."""
+    sel = [r for r in rows if r["kind"] == kind]
+    levels = sorted({r["level"] for r in sel})
+    out = []
+    for key in dict.fromkeys((r["classifier"], r["strategy"]) for r in sel):
+        row = {"classifier": key[0], "strategy": key[1]}
+        for level in levels:
+            hit = [r for r in sel if (r["classifier"], r["strategy"]) == key and r["level"] == level]
+            row[f"{level:g}"] = pct(hit[0]["accuracy"]) if hit else "-"
+        out.append(row)
+    return out
+
+
+def _image(name: str, caption: str) -> str:
+    return f"![{caption}]({name})"
+
+
+def render(results: dict) -> str:
+    """The whole ``report.md``."""
+    lines = [f"# {results.get('title', 'visuotactile reproduce')}", ""]
+    lines += [f"Command: `{results['command']}`  ", f"Data: `{results['data']}`  ",
+              (f"Date: {results['date']}; machine: {results['machine']}; seed {results['seed']}"
+              f"{' (quick)' if results.get('quick') else ''}."), "",
+              "Accuracies are percentages with a 95 % percentile-bootstrap interval (1000 resamples, seeded): "
+              + results["bootstrap"], ""]
+    paper = results.get("paper")
+    if paper:
+        lines += ["## Paper protocol (Table 1)", "",
+                  (f"{len(paper['objects'])} objects of {len(paper['classes'])} classes "
+                  f"({', '.join(paper['classes'])}), {paper['contours']} contours per object and strategy, "
+                  f"{paper['test_fraction']:.0%} of each strategy's sequences held out at random (by sequence, "
+                  "as in the paper: the same objects are in training and test). Interval: bootstrap over test "
+                  "sequences."), "", markdown_table(table1(paper["rows"])), ""]
+        lines += [_image(f, f) for f in paper.get("figures", [])] + [""]
+    unseen = results.get("unseen")
+    if unseen:
+        lines += ["## Unseen objects", "",
+                  (f"{unseen['n_objects']} objects of {len(unseen['classes'])} classes, {unseen['contours']} "
+                  f"contours per object and strategy; grouped {unseen['folds']}-fold by object (a test object is "
+                  "never in training), out-of-fold predictions of every sequence. One touch per decision; "
+                  "interval: bootstrap over objects."), "", markdown_table(table1(unseen["rows"])), ""]
+        lines += [_image(f, f) for f in unseen.get("figures", [])] + [""]
+    touches = results.get("touches")
+    if touches:
+        lines += ["## K touches per decision", "",
+                  ("K distinct contours of the same test object are classified and their probabilities fused "
+                  "(sum of log probabilities, or the paper's sum); disjoint groups per object. Interval: "
+                  "bootstrap over objects."), ""]
+        for setting in dict.fromkeys(r["setting"] for r in touches["rows"]):
+            lines += [f"### {setting.replace('_', ' ')}", "", markdown_table(touches_table(touches["rows"], setting)),
+                      ""]
+        lines += [_image(touches["figure"], "accuracy vs K"), ""]
+    noise = results.get("noise")
+    if noise:
+        lines += ["## Noise", "",
+                  "The paper-protocol models (trained on clean data) on held-out contours of the same objects "
+                  f"({noise['contours']} per object and strategy, the same contours at every level) read with: "
+                  + "; ".join(f"{k}: {v}" for k, v in noise["kinds"].items())
+                  + ". Interval: bootstrap over test sequences.", ""]
+        for kind in dict.fromkeys(r["kind"] for r in noise["rows"]):
+            lines += [f"### {kind.replace('_', ' ')} ({noise['kinds'].get(kind, '')})", "",
+                      markdown_table(noise_table(noise["rows"], kind)), ""]
+        lines += [_image(noise["figure"], "accuracy vs noise"), ""]
+    attention = results.get("attention")
+    if attention:
+        rows = [{"strategy": r["strategy"], "attention": r["attention"], "classifier": r["classifier"],
+                 "K=1": pct(r["accuracy_k1"]), f"K={r['k']}": pct(r["accuracy_k"]),
+                 "saliency s/object": r["saliency_seconds_per_object"] if r["saliency_seconds_per_object"]
+                 is not None else "-", "note": r.get("note", "")} for r in attention["rows"]]
+        lines += ["## Attention models compared", "",
+                  (f"Paper objects, {attention['contours']} contours per object per strategy, grouped "
+                  f"{attention['folds']}-fold by object (unseen objects); interval: bootstrap over objects. "
+                  "Saliency time: median over the first object of each class."), "", markdown_table(rows), ""]
+    runtime = results.get("runtime")
+    if runtime:
+        pts = runtime["points"]
+        table = [{"configuration": p["label"], "error": f"{100 * p['error']:.1f} %", "accuracy": pct(p["accuracy"]),
+                  "s / decision": f"{p['seconds']:.4f}", "touch s / contour": f"{p['touch_seconds_per_contour']:.4f}",
+                  "inference s / seq": f"{p['inference_seconds_per_sequence']:.5f}",
+                  "saliency s / object": f"{p['saliency_seconds_per_object']:.2f}",
+                  "front": "yes" if p["on_front"] else ""} for p in sorted(pts, key=lambda p: p["seconds"])]
+        named = [f"- **{name}**: {pts[i]['label']}: error {100 * pts[i]['error']:.1f} %, "
+                 f"{pts[i]['seconds']:.4f} s per decision" for name, i in runtime["named"].items()]
+        lines += ["## Recognition error against run time per decision", "",
+                  (f"Paper objects, {runtime['contours']} contours per object and strategy per (probes, grid); "
+                  f"split: {runtime['split']}. Time per decision = K x (touching one contour + inference on one "
+                  "sequence), measured on this machine; guided contours also need the object's saliency once "
+                  "(stated separately, not included). Fusion rule: sum of log probabilities."), "",
+                  "Operating points on the Pareto front:", "", *named, "",
+                  _image(runtime["figure"], "Pareto front"), "", markdown_table(table), ""]
+        for f in runtime.get("failures", []):
+            lines.append(f"- not measured: {f['classifier']} {f['strategy']} P{f['probes']} G{f['grid']}: {f['error']}")
+    lines += ["## Sizes", "", "```", *(f"{k}: {v}" for k, v in results["sizes"].items()), "```", "",
+              "Wall time of each part in the run that wrote this report (s; a resumed part reuses its cache): "
+              + ", ".join(f"{k} {v:.0f}" for k, v in results.get("seconds", {}).items()), ""]
+    return "\n".join(lines)
+
+
+__all__ = ["noise_table", "pct", "render", "table1", "touches_table"]

@@ -1,0 +1,187 @@
+"""``reproduce``: the paper's protocol on a class-per-folder mesh set and the parts beyond it, as a report folder.
+
+Parts (each can be chosen with ``parts``): ``paper`` (Table 1), ``unseen`` (grouped k-fold by object over all
+instances), ``touches`` (K per decision, on the paper and unseen predictions), ``noise``, ``attention`` and
+``runtime`` (error vs time, Pareto front). ``touches`` and ``noise`` need ``paper`` (they reuse its models and
+predictions). Everything expensive is cached under the report folder (stores, models, predictions, part
+results), so an interrupted run resumes and the same seed gives the same numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import platform
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+from fusion.experiments import figures
+from fusion.experiments.config import FULL, NOISE_KINDS, QUICK, Sizes
+from fusion.experiments.context import Context
+from fusion.experiments.data import folder_objects, load_models
+from fusion.experiments.models import default_classifiers
+from fusion.experiments.protocol import (
+    accuracy_rows,
+    confusion_figures,
+    paper_protocol,
+    touches_rows,
+    unseen_objects,
+)
+from fusion.experiments.report import render
+from perception.atomic import write_text
+from perception.errors import InvalidArgumentError
+
+log = logging.getLogger(__name__)
+
+PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime")
+BOOTSTRAP_NOTE = ("over test sequences for the paper protocol and noise; over objects (whole objects resampled) "
+                  "for unseen objects, K touches, attention and the run-time part.")
+
+
+def machine() -> str:
+    """A one-line description of this machine."""
+    return f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} logical CPUs, " \
+           f"{len(os.sched_getaffinity(0))} usable, Python {platform.python_version()}".replace("  ", " ")
+
+
+def reproduce(
+    data: str | Path,
+    out: str | Path,
+    *,
+    classes=None,
+    objects_per_class: int | None = None,
+    quick: bool = False,
+    seed: int = 0,
+    parts=PARTS,
+    sizes: Sizes | None = None,
+    classifiers: dict | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+    command: str | None = None,
+) -> dict:
+    """Run the experiments on the mesh set ``data`` and write the report folder ``out``; returns the results.
+
+    Args:
+        classes: classes to use (default: the first ``sizes.paper_classes`` for the paper-protocol parts, all
+            for the unseen-objects part).
+        objects_per_class: paper-protocol instances per class (default ``sizes.objects_per_class``).
+        quick: the :data:`QUICK` sizes instead of :data:`FULL` (ignored when ``sizes`` is given).
+        parts: which parts to run (see the module docstring).
+        classifiers: name -> factory (default :func:`default_classifiers`).
+
+    Raises:
+        DatasetError: a bad data folder, unknown class, or too few instances.
+        InvalidArgumentError: an unknown part, or ``touches`` / ``noise`` without ``paper``.
+    """
+    parts = tuple(parts)
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown:
+        raise InvalidArgumentError(f"unknown parts {unknown}; choose from {', '.join(PARTS)}")
+    if {"touches", "noise"} & set(parts) and "paper" not in parts:
+        raise InvalidArgumentError("the touches and noise parts reuse the paper part: add 'paper' to parts")
+    sizes = sizes or (QUICK if quick else FULL)
+    if objects_per_class is not None:
+        sizes = sizes.with_(objects_per_class=int(objects_per_class))
+    out = Path(out)
+    ctx = Context(out, int(seed), sizes,
+                  classifiers or default_classifiers(seed, sizes.epochs, progress=progress),
+                  progress=progress, workers=workers)
+    paper_objects = folder_objects(data, classes, sizes.objects_per_class, max_classes=sizes.paper_classes)
+    results: dict = {
+        "title": "visuotactile reproduce", "command": command or " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        "data": str(data), "seed": ctx.seed, "quick": quick, "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": machine(), "bootstrap": BOOTSTRAP_NOTE, "sizes": sizes.to_dict(), "seconds": ctx.timings,
+    }
+
+    def timed(name, fn):
+        start = time.perf_counter()
+        value = fn()
+        ctx.timings[name] = round(time.perf_counter() - start, 1)
+        _write(out, results)  # a partial report after every part
+        return value
+
+    paper_preds = unseen_preds = None
+    if "paper" in parts:
+        paper_preds = timed("paper", lambda: paper_protocol(ctx, paper_objects))
+        results["paper"] = {
+            "objects": [f"{label}/{Path(p).stem}" for p, label in paper_objects],
+            "classes": list(dict.fromkeys(label for _, label in paper_objects)),
+            "contours": sizes.paper_contours, "test_fraction": sizes.test_fraction,
+            "rows": accuracy_rows(paper_preds, "decision", ctx.seed),
+            "figures": confusion_figures(ctx, paper_preds, "paper"),
+        }
+    if "unseen" in parts:
+        unseen_list = folder_objects(data, classes)
+        unseen_preds = timed("unseen", lambda: unseen_objects(ctx, unseen_list))
+        results["unseen"] = {
+            "n_objects": len(unseen_list), "classes": list(dict.fromkeys(label for _, label in unseen_list)),
+            "contours": sizes.unseen_contours, "folds": sizes.unseen_folds,
+            "rows": accuracy_rows(unseen_preds, "object", ctx.seed),
+            "figures": confusion_figures(ctx, unseen_preds, "unseen"),
+        }
+    if "touches" in parts:
+        rows = touches_rows(paper_preds, "paper_protocol", sizes.touches, ctx.seed)
+        if unseen_preds:
+            rows += touches_rows(unseen_preds, "unseen_objects", sizes.touches, ctx.seed)
+        figures.plot_touches(rows, out / "accuracy_vs_k.png")
+        results["touches"] = {"rows": rows, "figure": "accuracy_vs_k.png"}
+    if "noise" in parts:
+        from fusion.experiments.robustness import noise_rows
+
+        record = {"objects": [str(p) for p, _ in paper_objects], "sizes": sizes.to_dict(), "seed": ctx.seed,
+                  "models": _model_records(out, sizes)}
+        rows = timed("noise", lambda: ctx.cached_part("noise", record, lambda: {"rows": noise_rows(
+            ctx, load_models(paper_objects), results["paper"]["classes"])}))["rows"]
+        figures.plot_noise(rows, NOISE_KINDS, out / "accuracy_vs_noise.png")
+        results["noise"] = {"rows": rows, "contours": sizes.noise_contours, "kinds": NOISE_KINDS,
+                            "figure": "accuracy_vs_noise.png"}
+    if "attention" in parts:
+        from fusion.experiments.attention import attention_rows
+
+        record = {"objects": [str(p) for p, _ in paper_objects], "sizes": sizes.to_dict(), "seed": ctx.seed,
+                  "classifier": _describe_first(ctx, sizes)}
+        rows = timed("attention", lambda: ctx.cached_part("attention", record, lambda: {
+            "rows": attention_rows(ctx, paper_objects)}))["rows"]
+        results["attention"] = {"rows": rows, "contours": sizes.attention_contours, "folds": sizes.attention_folds}
+    if "runtime" in parts:
+        from fusion.experiments.runtime import runtime_rows
+
+        record = {"objects": [str(p) for p, _ in paper_objects], "sizes": sizes.to_dict(), "seed": ctx.seed,
+                  "classifiers": [_describe(ctx, n) for n in sizes.paper_classifiers]}
+        result = timed("runtime", lambda: ctx.cached_part("runtime", record, lambda: runtime_rows(ctx, paper_objects)))
+        figures.plot_pareto(result, out / "pareto.png")
+        results["runtime"] = {**result, "contours": sizes.runtime_contours, "figure": "pareto.png"}
+    _write(out, results)
+    return results
+
+
+def _describe(ctx: Context, name: str) -> str:
+    from fusion.experiments.models import describe
+
+    return describe(ctx.classifiers[name]())
+
+
+def _describe_first(ctx: Context, sizes: Sizes) -> str:
+    return _describe(ctx, sizes.paper_classifiers[0])
+
+
+def _model_records(out: Path, sizes: Sizes) -> dict:
+    """The cache records of the paper models (the noise part is redone when they change)."""
+    records = {}
+    for path in sorted((out / "models" / "paper").glob("*/*.json")):
+        try:
+            records[str(path.relative_to(out))] = json.loads(path.read_text())["record"]
+        except (OSError, ValueError, KeyError):
+            continue
+    return records
+
+
+def _write(out: Path, results: dict) -> None:
+    write_text(out / "results.json", json.dumps(results, indent=2, default=str))
+    write_text(out / "report.md", render(results))
+
+
+__all__ = ["PARTS", "reproduce"]

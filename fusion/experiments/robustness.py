@@ -1,0 +1,69 @@
+"""Noise: models trained on clean data (the paper protocol's), tested on held-out contours of the same objects
+read with taxel noise, dead taxels or jittered probe poses, at growing levels.
+
+Every level touches the same contours (planes and seeds from the run seed + ``TEST_SEED_OFFSET``, the object
+and the strategy, :func:`fusion.experiments.touch.touch_object`), so only the perturbation differs between
+levels; level 0 is the clean reading. Intervals: bootstrap over test sequences.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from fusion.base import load_model
+from fusion.experiments.analysis import score
+from fusion.experiments.context import Context
+from fusion.experiments.models import DISPLAY, predict
+from fusion.experiments.touch import load_batch, save_batch, touch_objects
+from tactile.sampling import STRATEGIES as METHODS
+from tactile.sensor import FSRSensor
+
+log = logging.getLogger(__name__)
+
+#: Test contours use seed + this, so they are drawn independently of the training store's.
+TEST_SEED_OFFSET = 7919
+
+
+def _sensor_and_jitter(kind: str, level: float) -> tuple[FSRSensor, float]:
+    if kind == "taxel_noise":
+        return FSRSensor(noise_std=float(level)), 0.0
+    if kind == "dead_taxels":
+        return FSRSensor(dead_taxel_rate=float(level)), 0.0
+    return FSRSensor(), float(level)
+
+
+def noise_rows(ctx: Context, models: list, class_names: list[str]) -> list[dict]:
+    """Accuracy rows {kind, level, strategy, classifier, accuracy} for every noise kind and level (0 included)."""
+    sizes = ctx.sizes
+    levels = [("clean", 0.0)] + [(k, float(v)) for k, vs in sizes.noise_levels.items() for v in vs]
+    attention: dict[str, dict] = {}
+    rows = []
+    for strategy in sizes.strategies:
+        estimators = {name: load_model(ctx.path("models", "paper", strategy, f"{name}.pkl"))
+                      for name in sizes.paper_classifiers}
+        for kind, level in levels:
+            sensor, jitter = _sensor_and_jitter(kind, level)
+            key = {"objects": [m.name for m in models], "strategy": strategy, "kind": kind, "level": level,
+                   "contours": sizes.noise_contours, "seed": ctx.seed + TEST_SEED_OFFSET, "sensor": sensor.spec()}
+            path = ctx.path("noise", f"{strategy}-{kind}-{level:g}.npz")
+            batch = load_batch(path, key)
+            if batch is None:
+                method = METHODS[strategy]
+                if method and strategy not in attention:
+                    from perception.saliency import saliency
+
+                    attention[strategy] = {m.name: saliency(m, method, seed=ctx.seed) for m in models}
+                batch = touch_objects(models, class_names, strategy, sizes.noise_contours, sensor=sensor,
+                                      seed=ctx.seed + TEST_SEED_OFFSET, jitter_mm=jitter,
+                                      attention=attention.get(strategy), progress=ctx.progress)
+                save_batch(batch, path, key)
+            for name, estimator in estimators.items():
+                acc = score(predict(estimator, batch), by="decision", seed=ctx.seed)
+                kinds = list(sizes.noise_levels) if kind == "clean" else [kind]
+                for k in kinds:  # the clean reading is level 0 of every kind
+                    rows.append({"kind": k, "level": level, "strategy": strategy, "classifier": DISPLAY.get(name, name),
+                                 "name": name, "accuracy": acc.to_dict()})
+    return rows
+
+
+__all__ = ["TEST_SEED_OFFSET", "noise_rows"]

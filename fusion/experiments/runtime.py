@@ -1,0 +1,113 @@
+"""Recognition error against run time per decision: probes per contour, taxel grid, K touches, classifier.
+
+For every (probes P, grid G) a store of the paper objects is generated with that sensor; each paper
+classifier is trained on some objects and tested on held-out ones (one instance per class when every class
+has at least two, else 20 % of the sequences). A decision touches K contours and classifies each:
+
+    time per decision = K x (touching one contour + inference on one sequence)
+
+touching = cutting the contour and pressing the pad at its P probes (ray casting, measured in this process on
+``TIMING_OBJECTS`` objects x ``TIMING_CONTOURS`` contours, median), inference = batch inference time per
+sequence. Guided decisions also need the object's saliency once; that time is stated separately, not added.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from fusion.experiments.analysis import name_operating_points, pareto_front, touches_score
+from fusion.experiments.context import Context
+from fusion.experiments.data import ensure_store, load_models
+from fusion.experiments.models import DISPLAY, digest, pick, train_and_predict
+from fusion.experiments.protocol import STRATEGIES, _loader
+from fusion.experiments.touch import TouchTiming, touch_object
+from perception.errors import VisuotactileError
+from tactile.sampling import STRATEGIES as METHODS
+from tactile.sensor import FSRSensor
+
+log = logging.getLogger(__name__)
+
+TIMING_OBJECTS = 2
+TIMING_CONTOURS = 5
+
+
+def touch_seconds(models: list, probes: int, grid: int, seed: int, strategies=STRATEGIES) -> dict[str, dict]:
+    """Median seconds per contour (and per object for saliency) of each strategy with a P-probe, G x G sensor."""
+    from perception.saliency import saliency
+
+    sensor = FSRSensor(rows=grid, cols=grid)
+    out = {}
+    for strategy in strategies:
+        timing = TouchTiming()
+        for model in models:
+            attention = None
+            if METHODS[strategy]:
+                import time
+
+                start = time.perf_counter()
+                attention = saliency(model, METHODS[strategy], seed=seed)
+                timing.saliency_seconds.append(time.perf_counter() - start)
+            touch_object(model, strategy, TIMING_CONTOURS, sensor=sensor, probes=probes, seed=seed,
+                         attention=attention, timing=timing)
+        out[strategy] = {"contour_seconds": timing.median_contour(), "saliency_seconds": timing.median_saliency()}
+    return out
+
+
+def runtime_rows(ctx: Context, objects) -> dict:
+    """Points {classifier, strategy, probes, grid, k, error, seconds, ...}, the Pareto front and its named
+    operating points."""
+    sizes = ctx.sizes
+    by_object = min(np.unique([label for _, label in objects], return_counts=True)[1]) >= 2
+    timing_models = load_models(objects[:: max(1, len(objects) // TIMING_OBJECTS)][:TIMING_OBJECTS])
+    points, failures = [], []
+    for probes in sizes.runtime_probes:
+        for grid in sizes.runtime_grids:
+            sensor = FSRSensor(rows=grid, cols=grid)
+            ds, record = ensure_store(objects, ctx.path("stores"), strategies=sizes.strategies,
+                              contours=sizes.runtime_contours, seed=ctx.seed, sensor=sensor, probes=probes,
+                              workers=ctx.workers, progress=ctx.progress)
+            seconds = touch_seconds(timing_models, probes, grid, ctx.seed, sizes.strategies)
+            for strategy in sizes.strategies:
+                index = ds.indices(strategy)
+                split = ds.split_by_object if by_object else ds.split_by_sequence
+                train, test = split(1 / 3 if by_object else 0.2, seed=ctx.seed, index=index)
+                batch = _loader(ds, train, test)
+                for name, factory in pick(ctx.classifiers, sizes.paper_classifiers).items():
+                    try:
+                        pred = train_and_predict(
+                            name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
+                            ctx.path("models", "runtime", f"p{probes}-g{grid}", strategy),
+                            {"part": "runtime", "store": digest(record), "strategy": strategy,
+                             "train": digest(train)}, {"tag": "test", "test": digest(test)})
+                    except (VisuotactileError, ValueError, RuntimeError) as exc:
+                        log.warning("runtime P%d G%d %s %s failed: %s", probes, grid, strategy, name, exc)
+                        failures.append({"classifier": name, "strategy": strategy, "probes": probes, "grid": grid,
+                                         "error": f"{type(exc).__name__}: {exc}"})
+                        continue
+                    per_touch = seconds[strategy]["contour_seconds"] + pred.predict_seconds
+                    for k in sizes.touches:
+                        try:
+                            acc = touches_score(pred, k, "log", by="object" if by_object else "decision",
+                                                seed=ctx.seed)
+                        except VisuotactileError:
+                            continue  # fewer than k test contours per object
+                        points.append({
+                            "classifier": DISPLAY.get(name, name), "name": name, "strategy": strategy,
+                            "probes": probes, "grid": grid, "k": k, "accuracy": acc.to_dict(),
+                            "error": round(1 - acc.value, 4), "seconds": k * per_touch,
+                            "touch_seconds_per_contour": seconds[strategy]["contour_seconds"],
+                            "inference_seconds_per_sequence": pred.predict_seconds,
+                            "saliency_seconds_per_object": seconds[strategy]["saliency_seconds"],
+                            "fit_seconds": pred.fit_seconds})
+    front = pareto_front([p["seconds"] for p in points], [p["error"] for p in points]) if points else []
+    named = name_operating_points([p["seconds"] for p in points], [p["error"] for p in points], front)
+    for i, p in enumerate(points):
+        p["label"] = f"{p['name']} {p['strategy']} P{p['probes']} G{p['grid']} K{p['k']}"
+        p["on_front"] = bool(i in {int(j) for j in front})
+    return {"points": points, "front": [int(i) for i in front], "named": named, "failures": failures,
+            "split": "by object (one held-out instance per class)" if by_object else "80/20 by sequence"}
+
+
+__all__ = ["TIMING_CONTOURS", "TIMING_OBJECTS", "runtime_rows", "touch_seconds"]

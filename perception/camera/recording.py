@@ -1,0 +1,180 @@
+"""Recording folders: RGB-D frames as plain files that replay without a device.
+
+Layout written by :func:`write_recording` (format ``visuotactile-rgbd/1``)::
+
+    <folder>/recording.json            {"format", "frames": [names], "depth_scale", "source"}
+    <folder>/<name>.color.png          8-bit RGB
+    <folder>/<name>.depth.png          16-bit depth, value = depth_m * depth_scale (1000: millimetres)
+    <folder>/<name>.json               intrinsics (fx, fy, cx, cy, width, height), pose (4 x 4, mm), timestamp
+
+:func:`read_recording` also reads single captures from other RGB-D cameras laid out as ``color.png``
+(or ``rgb.png``) + ``depth.png`` + ``camera.json`` with ``fx, fy, cx, cy[, depth_scale]`` (Open3D's
+convention, depth_m = png / depth_scale), e.g. the GraspNet RealSense capture in the shared data.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from perception.atomic import atomic_path, write_text
+from perception.camera.frame import Intrinsics, RGBDFrame
+from perception.errors import DatasetError, InvalidArgumentError
+
+log = logging.getLogger(__name__)
+
+FORMAT = "visuotactile-rgbd/1"
+INDEX = "recording.json"
+_MAX_DEPTH_UNITS = 65535
+
+
+def _read_png(path: Path, what: str) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    if not path.is_file():
+        raise DatasetError(f"{path}: {what} image is missing")
+    try:
+        with Image.open(path) as image:
+            if what == "depth":
+                if image.mode not in ("I;16", "I;16B", "I;16L", "I", "L"):
+                    raise DatasetError(f"{path}: depth must be a 16-bit single-channel PNG, got mode {image.mode}")
+                return np.asarray(image).astype(np.float64)
+            return np.asarray(image.convert("RGB"), dtype=np.uint8)
+    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+        raise DatasetError(f"{path}: cannot read {what} image ({exc})") from None
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot read JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: expected a JSON object")
+    return data
+
+
+def _intrinsics(data: dict, where: Path, width: int, height: int) -> Intrinsics:
+    try:
+        return Intrinsics(
+            fx=float(data["fx"]), fy=float(data["fy"]), cx=float(data["cx"]), cy=float(data["cy"]),
+            width=int(data.get("width", width)), height=int(data.get("height", height)),
+        )
+    except KeyError as exc:
+        raise DatasetError(f"{where}: intrinsics lack {exc.args[0]!r} (need fx, fy, cx, cy)") from None
+    except (TypeError, ValueError) as exc:
+        raise DatasetError(f"{where}: bad intrinsics ({exc})") from None
+
+
+def _frame(color_path: Path, depth_path: Path, meta: dict, meta_path: Path, depth_scale: float, name: str):
+    color = _read_png(color_path, "colour")
+    raw = _read_png(depth_path, "depth")
+    if color.shape[:2] != raw.shape:
+        raise DatasetError(f"{color_path}: colour {color.shape[:2]} and depth {raw.shape} sizes differ")
+    height, width = raw.shape
+    intrinsics = _intrinsics(meta, meta_path, width, height)
+    if (intrinsics.width, intrinsics.height) != (width, height):
+        raise DatasetError(
+            f"{meta_path}: intrinsics are for {intrinsics.width} x {intrinsics.height}, images are {width} x {height}"
+        )
+    if not np.isfinite(depth_scale) or depth_scale <= 0:
+        raise DatasetError(f"{meta_path}: depth_scale must be positive (units per metre), got {depth_scale}")
+    depth_mm = (raw * (1000.0 / depth_scale)).astype(np.float32)
+    pose = np.asarray(meta.get("pose", np.eye(4)), dtype=np.float64)
+    if pose.shape != (4, 4):
+        raise DatasetError(f"{meta_path}: pose must be 4 x 4, got shape {pose.shape}")
+    try:
+        return RGBDFrame(color, depth_mm, intrinsics, pose, float(meta.get("timestamp_s", 0.0)), name=name)
+    except InvalidArgumentError as exc:  # the frame checks: report the file
+        raise DatasetError(f"{meta_path}: {exc}") from None
+
+
+def is_recording(folder: str | Path) -> bool:
+    """True when ``folder`` looks like a recording this module reads (ours or a single generic capture)."""
+    folder = Path(folder)
+    return (folder / INDEX).is_file() or (folder / "camera.json").is_file()
+
+
+def read_recording(folder: str | Path) -> list[RGBDFrame]:
+    """Read all frames of a recording folder (ours, or a generic ``color.png`` + ``depth.png`` + ``camera.json``).
+
+    Raises:
+        DatasetError: the folder is missing, of no known layout, or a file is missing or malformed.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: no such recording folder")
+    index_path = folder / INDEX
+    if index_path.is_file():
+        index = _read_json(index_path)
+        if index.get("format") != FORMAT:
+            raise DatasetError(f"{index_path}: unknown format {index.get('format')!r} (expected {FORMAT!r})")
+        names = index.get("frames")
+        if not isinstance(names, list) or not names:
+            raise DatasetError(f"{index_path}: the recording lists no frames")
+        scale = float(index.get("depth_scale", 1000.0))
+        frames = []
+        for name in names:
+            meta_path = folder / f"{name}.json"
+            if not meta_path.is_file():
+                raise DatasetError(f"{meta_path}: frame metadata is missing")
+            meta = _read_json(meta_path)
+            frames.append(
+                _frame(folder / f"{name}.color.png", folder / f"{name}.depth.png", meta, meta_path, scale,
+                       f"{folder.name}/{name}")
+            )
+        return frames
+    camera_path = folder / "camera.json"
+    if camera_path.is_file():
+        meta = _read_json(camera_path)
+        color_path = next((folder / n for n in ("color.png", "rgb.png") if (folder / n).is_file()), folder / "color.png")
+        return [_frame(color_path, folder / "depth.png", meta, camera_path, float(meta.get("depth_scale", 1000.0)),
+                       folder.name)]
+    raise DatasetError(
+        f"{folder}: not a recording (expected {INDEX} written by visuotactile, or color.png + depth.png + camera.json)"
+    )
+
+
+def write_recording(
+    folder: str | Path, frames: list[RGBDFrame], *, depth_scale: float = 1000.0, source: str = ""
+) -> Path:
+    """Write ``frames`` as a recording folder; every file is written atomically, the index last.
+
+    Depth is stored as ``round(depth_m * depth_scale)`` in a 16-bit PNG: with the default 1000 (mm) a
+    frame whose depth is whole millimetres (what an OAK gives) replays bit-identical; finer depth is
+    rounded to 1 / ``depth_scale`` m.
+
+    Raises:
+        DatasetError: no frames, a bad ``depth_scale``, or depth beyond the 16-bit range at that scale.
+    """
+    from PIL import Image
+
+    folder = Path(folder)
+    if not frames:
+        raise DatasetError(f"{folder}: no frames to record")
+    if not np.isfinite(depth_scale) or depth_scale <= 0:
+        raise DatasetError(f"{folder}: depth_scale must be positive (units per metre), got {depth_scale}")
+    names = []
+    for i, frame in enumerate(frames):
+        name = f"frame_{i:06d}"
+        units = np.rint(frame.depth_mm.astype(np.float64) * (depth_scale / 1000.0))
+        if units.max(initial=0) > _MAX_DEPTH_UNITS:
+            raise DatasetError(
+                f"{folder}: frame {i} has depth {frame.depth_mm.max():.0f} mm, beyond 16 bits at depth_scale "
+                f"{depth_scale}; use a smaller depth_scale"
+            )
+        with atomic_path(folder / f"{name}.color.png") as tmp:
+            Image.fromarray(np.ascontiguousarray(frame.color), mode="RGB").save(tmp, format="PNG")
+        with atomic_path(folder / f"{name}.depth.png") as tmp:
+            Image.fromarray(units.astype(np.uint16)).save(tmp, format="PNG")
+        meta = {**frame.intrinsics.to_dict(), "pose": frame.pose.tolist(), "timestamp_s": frame.timestamp_s,
+                "name": frame.name}
+        write_text(folder / f"{name}.json", json.dumps(meta, indent=1))
+        names.append(name)
+    index = {"format": FORMAT, "frames": names, "depth_scale": depth_scale, "source": source}
+    write_text(folder / INDEX, json.dumps(index, indent=1))
+    log.info("%s: wrote %d frames", folder, len(frames))
+    return folder

@@ -1,0 +1,159 @@
+"""Run a native call that may abort, segfault or hang in a forked child, with a time limit.
+
+pymeshlab's curvature fits take the whole process down (``double free``, SIGSEGV) or never return on some
+meshes, open and closed alike (self-intersections, a vertex shared by two solids, unused vertices, a plain
+box, a tetrahedron), and no cheap test tells a safe mesh from an unsafe one. So such calls run in a child
+made with a bare ``os.fork()``: copy-on-write, so the mesh is not copied and nothing is re-imported (about
+10 ms), and it works from any process, also from a daemonic ``multiprocessing`` worker or a Ray worker,
+where ``multiprocessing.Process`` refuses to start children. The result comes back pickled through a pipe;
+the parent waits at most ``timeout_s`` and kills the child after that.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import pickle
+import select
+import signal
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+
+class IsolatedCallFailed(RuntimeError):
+    """The isolated call crashed (killed by a signal / exited without a result) or ran out of time.
+
+    Attributes:
+        reason: ``"crashed"`` or ``"timed out"``.
+    """
+
+    def __init__(self, what: str, reason: str) -> None:
+        super().__init__(f"{what}: {reason}")
+        self.reason = reason
+
+
+def _quiet_child() -> None:
+    """In the child: an expected abort should print no stack (faulthandler) and no glibc message, and
+    native chatter on stdout/stderr should not reach the caller's terminal."""
+    import faulthandler
+
+    faulthandler.disable()
+    os.environ["LIBC_FATAL_STDERR_"] = "1"  # glibc's fatal messages go to stderr (silenced below), not the tty
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.dup2(devnull, 2)
+    os.close(devnull)
+    # The parent's handlers (pytest, a user's Ctrl-C handler) must not run here; the parent kills us.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def run_isolated(func: Callable[..., Any], *args: Any, timeout_s: float, what: str = "isolated call") -> Any:
+    """``func(*args)`` evaluated in a forked child; its return value, or the exception it raised, re-raised here.
+
+    Args:
+        func: a function whose arguments and result pickle (numpy arrays do).
+        timeout_s: wall-clock limit, seconds; the child is killed (SIGKILL) after it.
+        what: names the call in messages.
+
+    Raises:
+        IsolatedCallFailed: the child died without a result (abort, segfault, ``os._exit``) or timed out.
+        Exception: whatever ``func`` raised in the child (if it pickles; else IsolatedCallFailed).
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    read_fd, write_fd = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # ------------------------------------------------------------------ child
+        code = 0
+        try:
+            os.close(read_fd)
+            _quiet_child()
+            try:
+                payload = (True, func(*args))
+            except BaseException as exc:  # noqa: BLE001 - everything goes back to the parent
+                payload = (False, exc)
+            try:
+                data = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception:  # noqa: BLE001 - an unpicklable exception: send its text
+                data = pickle.dumps((False, RuntimeError(repr(payload[1]))))
+            view = memoryview(data)
+            while view:
+                view = view[os.write(write_fd, view) :]
+            os.close(write_fd)  # EOF now: the parent goes on while this process is torn down
+        except BaseException:  # noqa: BLE001
+            code = 1
+        finally:
+            os._exit(code)  # never run the parent's atexit handlers or return into its stack
+    # ------------------------------------------------------------------------------- parent
+    os.close(write_fd)
+    _reap_finished()
+    chunks: list[bytes] = []
+    deadline = time.monotonic() + timeout_s
+    done = False
+    try:
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise IsolatedCallFailed(what, "timed out")
+            ready, _, _ = select.select([read_fd], [], [], remaining)
+            if not ready:
+                continue
+            chunk = os.read(read_fd, 1 << 20)
+            if not chunk:
+                break
+            chunks.append(chunk)
+        done = True
+    finally:
+        os.close(read_fd)
+        if not done:
+            _kill(pid)
+    data = b"".join(chunks)
+    try:
+        ok, value = pickle.loads(data) if data else (None, None)
+    except Exception:  # noqa: BLE001 - truncated: the child died while writing
+        ok = None
+    if ok is None:
+        _, status = os.waitpid(pid, 0)
+        how = f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status) else f"exit {os.WEXITSTATUS(status)}"
+        raise IsolatedCallFailed(what, f"crashed ({how})")
+    # The child is exiting (its teardown takes tens of ms for a large process): reap it later, not now.
+    _UNREAPED.append(pid)
+    _reap_finished()
+    if ok:
+        return value
+    raise value
+
+
+#: Children that delivered their result but may still be exiting; reaped without blocking on later calls.
+_UNREAPED: list[int] = []
+
+
+def _reap_finished() -> None:
+    """Reap the children of earlier calls that have exited (no zombies pile up)."""
+    for pid in list(_UNREAPED):
+        try:
+            finished, _ = os.waitpid(pid, os.WNOHANG)
+        except ChildProcessError:
+            finished = pid
+        if finished:
+            _UNREAPED.remove(pid)
+
+
+def _kill(pid: int) -> None:
+    """Kill and reap the child ``pid`` (it may already be gone)."""
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    try:
+        os.waitpid(pid, 0)
+    except ChildProcessError:
+        pass
+
+
+__all__ = ["IsolatedCallFailed", "run_isolated"]

@@ -1,0 +1,44 @@
+"""Small argument checks shared by the public functions, each raising a project exception that names the
+object and the problem (numpy's own errors, e.g. for a negative seed, name neither)."""
+
+from __future__ import annotations
+
+from numbers import Integral
+
+import numpy as np
+
+from perception.errors import InvalidArgumentError, VisuotactileError
+
+
+def check_seed(
+    seed, where: str, error: type[VisuotactileError] = InvalidArgumentError, *, allow_none: bool = True
+) -> int | np.random.Generator | None:
+    """``seed`` if it is a non-negative integer, a ``numpy.random.Generator`` or (if allowed) None.
+
+    Raises:
+        error: anything else (negative, float, bool, string), naming ``where``.
+    """
+    if isinstance(seed, np.random.Generator) or (seed is None and allow_none):
+        return seed
+    if isinstance(seed, Integral) and not isinstance(seed, bool) and int(seed) >= 0:
+        return int(seed)
+    raise error(f"{where}: seed must be a non-negative integer or a numpy Generator, got {seed!r}")
+
+
+def check_count(
+    value, name: str, where: str, error: type[VisuotactileError] = InvalidArgumentError, *, minimum: int = 1
+) -> int:
+    """``value`` as an int if it is an integer (or an integral float) >= ``minimum``.
+
+    Raises:
+        error: a fraction (2.5), a bool, a non-number, or a value below ``minimum``, naming ``where``.
+    """
+    ok = isinstance(value, Integral) and not isinstance(value, bool)
+    if not ok and isinstance(value, float) and np.isfinite(value) and value == int(value):
+        ok = True
+    if not ok or int(value) < minimum:
+        raise error(f"{where}: {name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+__all__ = ["check_count", "check_seed"]

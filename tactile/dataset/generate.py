@@ -1,0 +1,418 @@
+"""Generating a tactile dataset store: deterministic, resumable, on local worker processes or Ray.
+
+Every object is explored in a worker of its own (a fresh process forked from a forkserver, or a Ray
+task) that loads it, computes its saliency at most once per method, explores every strategy, writes its
+rows and then its completion record. A worker that raises, hangs past ``object_timeout_s`` or dies
+(e.g. a native abort in a mesh library) is recorded as failed with the reason; the others go on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shlex
+import signal
+import sys
+import time
+import uuid
+from collections import deque
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+from tqdm import tqdm
+
+from perception.errors import DatasetError
+from tactile import sampling
+from tactile.dataset.objects import ObjectSpec, object_specs
+from tactile.dataset.store import (
+    create_store,
+    frame_encoding,
+    layout_of,
+    read_attrs,
+    read_records,
+    settings_difference,
+    write_record,
+)
+from tactile.sensor import FSRSensor
+
+log = logging.getLogger(__name__)
+
+EXECUTORS = ("local", "ray")
+
+
+@dataclass
+class GenerationReport:
+    """What a :func:`generate` call did.
+
+    Attributes:
+        path: the store.
+        objects: objects in the store.
+        skipped: objects already complete before this call (resumed).
+        completed: objects completed by this call.
+        failed: (object name, reason) of the objects that failed in this call.
+        sequences: sequences written by this call.
+        seconds: wall time of this call, s.
+    """
+
+    path: Path
+    objects: int
+    skipped: int = 0
+    completed: int = 0
+    failed: list[tuple[str, str]] = field(default_factory=list)
+    sequences: int = 0
+    seconds: float = 0.0
+
+    @property
+    def sequences_per_s(self) -> float:
+        return self.sequences / self.seconds if self.seconds > 0 else 0.0
+
+    def to_dict(self) -> dict:
+        return {
+            "path": str(self.path), "objects": self.objects, "skipped": self.skipped,
+            "completed": self.completed, "failed": [list(f) for f in self.failed], "sequences": self.sequences,
+            "seconds": round(self.seconds, 3), "sequences_per_s": round(self.sequences_per_s, 2),
+        }
+
+
+def _package_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("visuotactile")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _check(strategies, contours_per_object, sensor, probes, seed, workers, executor) -> tuple[str, ...]:
+    strategies = (strategies,) if isinstance(strategies, str) else tuple(strategies)
+    if not strategies or len(set(strategies)) != len(strategies):
+        raise DatasetError(f"strategies must be a non-empty list without repeats, got {list(strategies)}")
+    unknown = [s for s in strategies if s not in sampling.STRATEGIES]
+    if unknown:
+        raise DatasetError(f"unknown strategies {unknown}; choose from {', '.join(sampling.STRATEGIES)}")
+    for name, value, low in (("contours_per_object", contours_per_object, 1), ("probes", probes, 2), ("seed", seed, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise DatasetError(f"{name} must be an integer >= {low}, got {value!r}")
+    if not isinstance(sensor, FSRSensor):
+        raise DatasetError(f"sensor must be an FSRSensor, got {type(sensor).__name__}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise DatasetError(f"workers must be a positive integer or None, got {workers!r}")
+    if executor not in EXECUTORS:
+        raise DatasetError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+    return strategies
+
+
+def _open_or_create(out: Path, settings: dict, command: str | None) -> None:
+    """Create the store, or check that the existing one was made with the same settings."""
+    if out.exists() and not (out.is_dir() and not any(out.iterdir())):
+        if not out.is_dir():
+            raise DatasetError(f"{out}: exists and is not a folder; choose another output path")
+        attrs = read_attrs(out)
+        diffs = settings_difference(attrs["settings"], settings)
+        if diffs:
+            raise DatasetError(
+                f"{out}: the store was generated with other settings ({'; '.join(diffs)}); "
+                "re-run with the same settings to resume, or choose another output path"
+            )
+        if attrs.get("package_version") != _package_version():
+            log.warning("%s: made by visuotactile %s, resuming with %s", out, attrs.get("package_version"),
+                        _package_version())
+        return
+    meta = {
+        "package_version": _package_version(),
+        "command": command if command is not None else shlex.join(sys.argv),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "store_id": uuid.uuid4().hex,  # tells two stores of the same settings apart (models record it)
+    }
+    create_store(out, settings, meta)
+
+
+def generate(
+    objects,
+    out: str | Path,
+    *,
+    strategies=("guided", "blind"),
+    contours_per_object: int,
+    sensor: FSRSensor | None = None,
+    probes: int = 25,
+    seed: int = 0,
+    workers: int | None = None,
+    executor: str = "local",
+    strict: bool = False,
+    progress: bool = True,
+    object_timeout_s: float | None = None,
+    ray_address: str | None = None,
+    command: str | None = None,
+) -> GenerationReport:
+    """Explore every object along ``contours_per_object`` contours per strategy into the zarr store ``out``.
+
+    Args:
+        objects: a class-per-folder mesh collection, (path, label) pairs, catalogue (class, seed) pairs
+            or :class:`ObjectSpec` (see :func:`object_specs`).
+        out: the store folder. If it exists with the same settings, complete objects are skipped
+            (resume); failed and unfinished ones are explored again.
+        strategies: sampling strategies (:data:`tactile.sampling.STRATEGIES`); saliency is computed once
+            per object and method, never for blind-only runs.
+        sensor: the FSR sensor (default ``FSRSensor()``); probes: probes per contour.
+        seed: contour k of strategy s of object o uses seeds from (seed, o's name, s, k) only, so the
+            store's bytes do not depend on ``workers``, the executor or the order objects finish in.
+        workers: parallel workers (default: the usable cores; Ray: CPUs of a local instance it starts).
+        executor: "local" (a process per object, ``workers`` at a time) or "ray" (one task per object; an
+            existing ``ray.init`` is used, else ``ray_address`` / ``RAY_ADDRESS``, else a local instance).
+            Ray workers write to ``out`` themselves: on a cluster it must be on a shared file system.
+        strict: stop at the first failed object (finished objects are kept) and raise.
+        progress: show a tqdm bar (sequences, objects, rate, ETA).
+        object_timeout_s: a worker still running after this long is stopped and its object recorded as
+            failed (local executor); None waits.
+        command: the creation command to record (default: this process's command line).
+
+    Returns:
+        a :class:`GenerationReport`.
+
+    Raises:
+        DatasetError: bad arguments, ``out`` holds something else or a store with other settings, or
+            (strict) an object failed.
+    """
+    start = time.perf_counter()
+    sensor = FSRSensor() if sensor is None else sensor
+    strategies = _check(strategies, contours_per_object, sensor, probes, seed, workers, executor)
+    specs = object_specs(objects)
+    sensor_spec = sensor.spec()
+    settings = {
+        "objects": [s.to_dict() for s in specs],
+        "class_names": sorted({s.label for s in specs}),
+        "strategies": list(strategies),
+        "contours_per_object": contours_per_object,
+        "probes": probes,
+        "sensor": sensor_spec,
+        "seed": seed,
+        "encoding": frame_encoding(sensor_spec),
+    }
+    out = Path(out).resolve()
+    _open_or_create(out, settings, command)
+    layout = layout_of(settings)
+    records = read_records(out, len(specs))
+    todo = [i for i in range(len(specs)) if records.get(i, {}).get("status") != "complete"]
+    report = GenerationReport(out, len(specs), skipped=len(specs) - len(todo))
+    if not todo:
+        log.info("%s: all %d objects are complete", out, len(specs))
+        report.seconds = time.perf_counter() - start
+        return report
+    n_workers = min(workers or _usable_cores(), len(todo))
+    bar = tqdm(total=len(todo) * layout.block, desc="generate", unit="seq", disable=not progress, smoothing=0.1)
+    bar.set_postfix_str(f"objects {report.skipped}/{len(specs)}")
+
+    def finished(index: int, ok: bool, detail) -> None:
+        if ok:
+            report.completed += 1
+            report.sequences += layout.block
+        else:
+            reason = str(detail)
+            write_record(out, index, {"index": index, "name": specs[index].name, "label": specs[index].label,
+                                      "status": "failed", "reason": reason})
+            report.failed.append((specs[index].name, reason))
+            log.warning("%s: failed: %s", specs[index].name, reason)
+        bar.set_postfix_str(
+            f"objects {report.skipped + report.completed}/{len(specs)}"
+            + (f", failed {len(report.failed)}" if report.failed else "")
+        )
+        if not ok and strict:
+            raise DatasetError(
+                f"{specs[index].name}: {detail} (strict: stopped at the first failure; finished objects are "
+                f"kept in {out}, re-run to resume)"
+            )
+
+    args = (str(out), specs, settings, sensor, todo, n_workers, finished, bar)
+    try:
+        if executor == "local":
+            _run_local(*args, object_timeout_s)
+        else:
+            _run_ray(*args, ray_address)
+    finally:
+        bar.close()
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _usable_cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+# ------------------------------------------------------------------------------------ local executor
+def _reason_for_exit(code: int | None) -> str:
+    if code is not None and code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        return f"worker process died with {name} (a native crash, e.g. in a mesh library, or killed)"
+    return (
+        f"worker process exited with code {code} before reporting (an ObjectSpec loader defined in the main "
+        "script cannot be loaded by workers: define it in an importable module)"
+    )
+
+
+def _child(conn, store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor) -> None:
+    """Worker process body: explore one object, report progress and the outcome through ``conn``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt stops
+    _die_with_parent()
+    from tactile.dataset.worker import explore_into_store
+
+    try:
+        explore_into_store(store, index, spec, settings, sensor, progress=lambda n: conn.send(("progress", n)))
+        conn.send(("done", None))
+    except Exception as exc:  # noqa: BLE001 -- any failure of one object is recorded, never raised
+        conn.send(("failed", f"{type(exc).__name__}: {exc}"))
+    finally:
+        conn.close()
+
+
+def _die_with_parent() -> None:
+    """Linux: get SIGKILL when the parent (the forkserver, which exits with generate's process) dies, so an
+    interrupted run leaves no orphan still writing into the store."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+@contextlib.contextmanager
+def _without_main_module():
+    """Start children that do not re-import the caller's main module.
+
+    forkserver (like spawn) runs the parent's ``__main__`` again in each child so that objects defined
+    there can be unpickled; a script without an ``if __name__ == "__main__":`` guard would then run its
+    generate() call again in every worker. Our workers need nothing from ``__main__`` (their target and
+    arguments live in importable modules), so the preparation data leaves it out.
+    """
+    from multiprocessing import spawn
+
+    original = spawn.get_preparation_data
+
+    def without_main(name):
+        data = original(name)
+        data.pop("init_main_from_path", None)
+        data.pop("init_main_from_name", None)
+        return data
+
+    spawn.get_preparation_data = without_main
+    try:
+        yield
+    finally:
+        spawn.get_preparation_data = original
+
+
+def _context():
+    import multiprocessing as mp
+
+    # forkserver: children fork from a clean server with the libraries imported once (fast start, and no
+    # fork of a parent whose Open3D/BLAS thread pools are running).
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(["tactile.dataset.worker"])
+    return ctx
+
+
+def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, timeout_s) -> None:
+    from multiprocessing.connection import wait
+
+    ctx = _context()
+    pending = deque(todo)
+    running: dict = {}  # connection -> [process, index, started, outcome]
+    try:
+        while pending or running:
+            while pending and len(running) < n_workers:
+                index = pending.popleft()
+                reader, writer = ctx.Pipe(duplex=False)
+                proc = ctx.Process(
+                    target=_child, args=(writer, store, index, specs[index], settings, sensor),
+                    name=f"generate-{index}", daemon=True,
+                )
+                with _without_main_module():
+                    proc.start()
+                writer.close()  # the child holds the only writer: EOF here means it has exited
+                running[reader] = [proc, index, time.monotonic(), None]
+            for conn in wait(list(running), timeout=1.0):
+                entry = running[conn]
+                try:
+                    kind, value = conn.recv()
+                except (EOFError, OSError):
+                    kind, value = "eof", None
+                if kind == "progress":
+                    bar.update(value)
+                    continue
+                if kind in ("done", "failed"):
+                    entry[3] = (kind == "done", value)
+                    continue
+                del running[conn]
+                conn.close()
+                proc, index = entry[0], entry[1]
+                proc.join()
+                outcome = entry[3] or (False, _reason_for_exit(proc.exitcode))
+                finished(index, *outcome)
+            if timeout_s is not None:
+                now = time.monotonic()
+                for conn, (proc, index, started, outcome) in list(running.items()):
+                    if outcome is None and now - started > timeout_s:
+                        proc.kill()
+                        proc.join()
+                        del running[conn]
+                        conn.close()
+                        finished(index, False, f"timed out after {timeout_s:g} s")
+    finally:
+        for conn, (proc, *_) in running.items():  # interrupted or strict: stop what is in flight
+            proc.kill()
+            proc.join()
+            conn.close()
+
+
+# -------------------------------------------------------------------------------------- Ray executor
+def _ray_task(store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor) -> tuple:
+    from tactile.dataset.worker import explore_into_store
+
+    try:
+        explore_into_store(store, index, spec, settings, sensor)
+        return True, None
+    except Exception as exc:  # noqa: BLE001 -- any failure of one object is recorded, never raised
+        return False, f"{type(exc).__name__}: {exc}"
+
+
+def _run_ray(store, specs, settings, sensor, todo, n_workers, finished, bar, address) -> None:
+    try:
+        import ray
+    except ImportError as exc:
+        raise DatasetError(
+            "executor='ray' needs Ray: pip install 'visuotactile[dist]' (or pip install 'ray>=2.40')"
+        ) from exc
+    started_here = not ray.is_initialized()
+    if started_here:
+        address = address or os.environ.get("RAY_ADDRESS")
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=n_workers, include_dashboard=False, log_to_driver=False)
+    task = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
+    layout = layout_of(settings)
+    refs = {task.remote(store, i, specs[i], settings, sensor): i for i in todo}
+    try:
+        while refs:
+            ready, _ = ray.wait(list(refs), num_returns=1)
+            index = refs.pop(ready[0])
+            try:
+                ok, reason = ray.get(ready[0])
+            except ray.exceptions.RayError as exc:  # the worker died (abort, OOM kill, node lost)
+                ok, reason = False, f"Ray worker failed: {type(exc).__name__}: {str(exc).splitlines()[0]}"
+            if ok:
+                bar.update(layout.block)
+            finished(index, ok, reason)
+    finally:
+        for ref in refs:
+            ray.cancel(ref, force=True)
+        if started_here:
+            ray.shutdown()
+
+
+__all__ = ["EXECUTORS", "GenerationReport", "generate"]

@@ -1,0 +1,133 @@
+"""What a dataset is generated from: object specifications that a worker process can load by itself."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from perception.errors import DatasetError
+from perception.geometry import ObjectModel
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One object to explore, small and picklable: the worker loads it, the parent never does.
+
+    Exactly one source: ``path`` (a mesh file, loaded with :func:`perception.geometry.load_object`),
+    ``catalogue`` ((class, seed) of :func:`perception.shapes.make_object`) or ``loader`` (a picklable
+    zero-argument callable returning an :class:`ObjectModel`, e.g. a module-level function or a
+    ``functools.partial`` of one).
+
+    Attributes:
+        name: unique within a dataset; seeds derive from it (with the dataset seed, strategy, contour).
+        label: the class name.
+        path: made absolute, since workers (Ray ones included) may run in another folder.
+
+    Raises:
+        DatasetError: an empty name or label, or not exactly one source.
+    """
+
+    name: str
+    label: str
+    path: str | None = None
+    catalogue: tuple[str, int] | None = None
+    loader: Callable[[], ObjectModel] | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise DatasetError(f"object spec needs a non-empty name, got {self.name!r}")
+        if not isinstance(self.label, str) or not self.label:
+            raise DatasetError(f"object {self.name!r}: needs a class label (non-empty string), got {self.label!r}")
+        sources = [s for s in (self.path, self.catalogue, self.loader) if s is not None]
+        if len(sources) != 1:
+            raise DatasetError(f"object {self.name!r}: give exactly one of path, catalogue or loader")
+        if self.path is not None:
+            object.__setattr__(self, "path", str(Path(self.path).resolve()))
+
+    def load(self) -> ObjectModel:
+        """Load the object (in the worker). Raises what the loader raises (MeshLoadError, ...)."""
+        if self.path is not None:
+            from perception.geometry import load_object
+
+            model = load_object(self.path, label=self.label, name=self.name)
+        elif self.catalogue is not None:
+            from perception.shapes import make_object
+
+            model = make_object(self.catalogue[0], int(self.catalogue[1]))
+        else:
+            model = self.loader()
+            if not isinstance(model, ObjectModel):
+                raise DatasetError(f"object {self.name!r}: loader returned {type(model).__name__}, not ObjectModel")
+        model.name, model.label = self.name, self.label
+        return model
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able identity (stored in the dataset settings; resuming compares it)."""
+        out: dict[str, Any] = {"name": self.name, "label": self.label}
+        if self.path is not None:
+            out["path"] = str(self.path)
+        elif self.catalogue is not None:
+            out["catalogue"] = [self.catalogue[0], int(self.catalogue[1])]
+        else:
+            fn = getattr(self.loader, "func", self.loader)  # functools.partial -> its function
+            out["loader"] = f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}"
+            if hasattr(self.loader, "args"):
+                out["loader_args"] = repr((self.loader.args, self.loader.keywords))
+        return out
+
+
+def object_specs(objects) -> list[ObjectSpec]:
+    """Normalise what :func:`generate` accepts into specs.
+
+    ``objects`` is a class-per-folder mesh collection (a path, see :func:`perception.geometry.load_dataset`;
+    names "Class/stem"), a list of (path, label) pairs (names "label/stem"), a list of catalogue pairs
+    (class, seed) with a class of :data:`perception.shapes.CLASSES` (names "class/seed"), or a list of
+    :class:`ObjectSpec` (mixing is allowed).
+
+    Raises:
+        DatasetError: an empty list, an item of none of these forms, an unknown catalogue class, or two
+            objects with the same name.
+    """
+    if isinstance(objects, (str, Path)):
+        from perception.geometry import load_dataset
+
+        objects = load_dataset(objects)
+    from perception.shapes import CLASSES
+
+    specs: list[ObjectSpec] = []
+    for item in objects:
+        if isinstance(item, ObjectSpec):
+            specs.append(item)
+            continue
+        if not (isinstance(item, (tuple, list)) and len(item) == 2):
+            raise DatasetError(f"object {item!r}: expected (path, label), (class, seed) or an ObjectSpec")
+        first, second = item
+        if isinstance(first, str) and first in CLASSES and isinstance(second, int) and not isinstance(second, bool):
+            if second < 0:
+                raise DatasetError(f"catalogue object {item!r}: the seed must be >= 0")
+            specs.append(ObjectSpec(f"{first}/{second}", first, catalogue=(first, second)))
+        elif isinstance(first, (str, Path)) and isinstance(second, str):
+            path = Path(first)
+            specs.append(ObjectSpec(f"{second}/{path.stem}", second, path=str(path)))
+        elif isinstance(first, str) and isinstance(second, int):
+            raise DatasetError(
+                f"catalogue object {item!r}: unknown class {first!r}; the built-in classes are {', '.join(CLASSES)}"
+            )
+        else:
+            raise DatasetError(f"object {item!r}: expected (path, label), (class, seed) or an ObjectSpec")
+    if not specs:
+        raise DatasetError("no objects given to generate a dataset from")
+    seen: dict[str, int] = {}
+    for i, spec in enumerate(specs):
+        if spec.name in seen:
+            raise DatasetError(
+                f"objects {seen[spec.name]} and {i} are both named {spec.name!r}; names must be unique "
+                "(seeds derive from them)"
+            )
+        seen[spec.name] = i
+    return specs
+
+
+__all__ = ["ObjectSpec", "object_specs"]

@@ -1,0 +1,276 @@
+"""Reading a tactile dataset store: lazy arrays, SequenceBatch, a PyTorch Dataset and seeded splits.
+
+Only objects with a complete record are part of the dataset: sequence indices 0..len-1 run over their
+rows in store order, ``object_names`` lists them, and failed or unfinished objects are listed in
+``failed`` / ``incomplete``.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from perception.errors import DatasetError
+from tactile.dataset.store import decode_frames, layout_of, read_attrs, read_records
+from tactile.explore import SequenceBatch
+
+log = logging.getLogger(__name__)
+
+#: Per-probe arrays a SequenceBatch / torch item carries besides the frames.
+PROBE_ARRAYS = ("normals", "positions", "tangents", "pad_sides_mm")
+
+
+def _read_rows(array, rows: np.ndarray, block: int) -> np.ndarray:
+    """``array[rows]`` for sorted or unsorted ``rows``, reading one contiguous range per ``block`` of rows
+    (zarr's point selection on sharded arrays decodes a shard per point; ranges decode each chunk once)."""
+    out = np.empty((len(rows), *array.shape[1:]), dtype=array.dtype)
+    if not len(rows):
+        return out
+    order = np.argsort(rows, kind="stable")
+    sorted_rows = rows[order]
+    blocks = sorted_rows // block
+    for b in np.unique(blocks):
+        pick = np.flatnonzero(blocks == b)
+        lo, hi = int(sorted_rows[pick[0]]), int(sorted_rows[pick[-1]]) + 1
+        out[order[pick]] = array[lo:hi][sorted_rows[pick] - lo]
+    return out
+
+
+class TactileDataset:
+    """A generated store, opened for reading (see :func:`open_dataset`).
+
+    Attributes:
+        path: the store folder.
+        attrs: the store metadata (settings, package version, command, creation time).
+        class_names, object_names: what ``labels`` and ``object_ids`` index (object_names: complete
+            objects only, in store order).
+        sensor_spec: the sensor's :meth:`FSRSensor.spec`; probes; grid (rows, cols); strategies.
+        labels, object_ids: (S,) int64; sequence_strategies: (S,) str; object_labels: (n_objects,) int64.
+        contour_seeds, noise_seeds: (S,) int64: the seed each contour was drawn from and its noise seed.
+        failed: {object name: reason} of failed objects; incomplete: names of objects not yet explored.
+        max_frame_error: largest |stored - pressed| reading (the quantisation step / 2; 0 if lossless).
+    """
+
+    def __init__(self, path: str | Path):
+        import zarr
+
+        self.path = Path(path)
+        self.attrs = read_attrs(self.path)
+        settings = self.attrs["settings"]
+        self._settings = settings
+        self._layout = layout_of(settings)
+        self._encoding = settings["encoding"]
+        self.class_names: tuple[str, ...] = tuple(settings["class_names"])
+        self.sensor_spec: dict = dict(settings["sensor"])
+        self.probes: int = int(settings["probes"])
+        self.grid: tuple[int, int] = (int(self.sensor_spec["rows"]), int(self.sensor_spec["cols"]))
+        self.strategies: tuple[str, ...] = tuple(settings["strategies"])
+        self.max_frame_error: float = float(self._encoding["max_error"])
+        objects = settings["objects"]
+        records = read_records(self.path, len(objects))
+        complete = [i for i in range(len(objects)) if records.get(i, {}).get("status") == "complete"]
+        self.failed = {objects[i]["name"]: records[i].get("reason", "") for i in records
+                       if records[i].get("status") == "failed"}
+        self.incomplete = tuple(objects[i]["name"] for i in range(len(objects)) if i not in records)
+        self._store_objects = np.asarray(complete, dtype=np.int64)
+        self._records = records
+        self.object_names: tuple[str, ...] = tuple(objects[i]["name"] for i in complete)
+        self.object_labels = np.array([self.class_names.index(objects[i]["label"]) for i in complete], np.int64)
+        block = self._layout.block
+        self._rows = (self._store_objects[:, None] * block + np.arange(block)[None, :]).ravel()
+        self.object_ids = np.repeat(np.arange(len(complete), dtype=np.int64), block)
+        self.labels = self.object_labels[self.object_ids] if len(complete) else np.zeros(0, np.int64)
+        within = np.tile(np.arange(block) // self._layout.contours, len(complete))
+        self.sequence_strategies = np.asarray(self.strategies, dtype=str)[within] if len(complete) else (
+            np.zeros(0, dtype=str))
+        try:
+            self._group = zarr.open_group(self.path, mode="r")
+            self._frames = self._group["frames"]
+        except Exception as exc:  # zarr raises several types for missing/corrupt metadata
+            raise DatasetError(f"{self.path}: cannot open the store's arrays ({type(exc).__name__}: {exc})") from exc
+        self.contour_seeds = self._column("contour_seeds")
+        self.noise_seeds = self._column("noise_seeds")
+
+    def _column(self, name: str) -> np.ndarray:
+        values = self._group[name][:]
+        return values[self._rows] if len(self._rows) else values[:0]
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def __repr__(self) -> str:
+        return (
+            f"TactileDataset({str(self.path)!r}, sequences={len(self)}, objects={len(self.object_names)}, "
+            f"classes={len(self.class_names)}, strategies={self.strategies}, failed={len(self.failed)})"
+        )
+
+    # ----------------------------------------------------------------------------------- selection
+    def _index(self, index) -> np.ndarray:
+        """A checked int64 index array into the sequences (None: all)."""
+        if index is None:
+            return np.arange(len(self), dtype=np.int64)
+        idx = np.asarray(index)
+        if idx.dtype == bool:
+            if idx.shape != (len(self),):
+                raise DatasetError(f"{self.path}: boolean index of shape {idx.shape}, expected ({len(self)},)")
+            return np.flatnonzero(idx).astype(np.int64)
+        if idx.ndim != 1 or not (idx.size == 0 or np.issubdtype(idx.dtype, np.integer)):
+            raise DatasetError(f"{self.path}: index must be a 1-D integer or boolean array, got {idx.dtype} {idx.shape}")
+        idx = idx.astype(np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
+            raise DatasetError(f"{self.path}: index out of range 0..{len(self) - 1}")
+        return idx
+
+    def indices(self, strategy: str | None = None) -> np.ndarray:
+        """Sequence indices (int64, sorted) of one strategy, or all when None.
+
+        Raises:
+            DatasetError: a strategy not in the store.
+        """
+        if strategy is None:
+            return np.arange(len(self), dtype=np.int64)
+        if strategy not in self.strategies:
+            raise DatasetError(f"{self.path}: no strategy {strategy!r}; the store has {list(self.strategies)}")
+        return np.flatnonzero(self.sequence_strategies == strategy).astype(np.int64)
+
+    def interest_points(self, object_name: str) -> dict[str, np.ndarray]:
+        """{strategy: (K, 3) interest points, mm} that the guided strategies of one object drew from."""
+        try:
+            k = self.object_names.index(object_name)
+        except ValueError:
+            raise DatasetError(f"{self.path}: no complete object {object_name!r}") from None
+        stored = self._records[int(self._store_objects[k])].get("interest_points", {})
+        return {s: np.asarray(p, dtype=np.float64).reshape(-1, 3) for s, p in stored.items()}
+
+    # ------------------------------------------------------------------------------------- reading
+    def frames(self, index=None) -> np.ndarray:
+        """(n, P, R, C) float32 decoded frames of the sequences at ``index`` (None: all)."""
+        rows = self._rows[self._index(index)]
+        return decode_frames(_read_rows(self._frames, rows, self._frames.shards[0]), self._encoding)
+
+    def load(self, index=None) -> SequenceBatch:
+        """The sequences at ``index`` (None: all), materialised as a :class:`SequenceBatch` (frames decoded
+        to float32: 100 KB per 25 x 32 x 32 sequence; use :meth:`torch_dataset` for stores larger than memory).
+
+        Raises:
+            DatasetError: a bad index.
+        """
+        idx = self._index(index)
+        rows = self._rows[idx]
+        block = self._layout.contours
+        read = {name: _read_rows(self._group[name], rows, block) for name in (*PROBE_ARRAYS, "plane_points", "plane_normals")}
+        return SequenceBatch(
+            frames=self.frames(idx),
+            normals=read["normals"], positions=read["positions"], tangents=read["tangents"],
+            pad_sides_mm=read["pad_sides_mm"], plane_points=read["plane_points"],
+            plane_normals=read["plane_normals"], labels=self.labels[idx].copy(),
+            object_ids=self.object_ids[idx].copy(), class_names=self.class_names,
+            object_names=self.object_names, sensor_spec=dict(self.sensor_spec),
+        )
+
+    def torch_dataset(self, index=None):
+        """A ``torch.utils.data.Dataset`` over the sequences at ``index`` (None: all) that reads each
+        sequence's frames chunk on demand (a store larger than memory works; DataLoader workers reopen
+        the store). Item i: (frames float32 tensor (P, R, C), {"normals", "positions", "tangents" (P, 3),
+        "pad_sides_mm" (P,)} float32 tensors, label int64 tensor). The per-probe arrays (about 2 % of the
+        store) are read into memory when the Dataset is made.
+        """
+        from tactile.dataset.torch_data import TorchTactileDataset
+
+        idx = self._index(index)
+        rows = self._rows[idx]
+        probe = {name: _read_rows(self._group[name], rows, self._layout.contours) for name in PROBE_ARRAYS}
+        return TorchTactileDataset(str(self.path), rows, probe, self.labels[idx].copy(), self._encoding)
+
+    # -------------------------------------------------------------------------------------- splits
+    @staticmethod
+    def _check_fraction(test_fraction: float) -> float:
+        if not (isinstance(test_fraction, (int, float)) and 0 < test_fraction < 1):
+            raise DatasetError(f"test_fraction must be in (0, 1), got {test_fraction!r}")
+        return float(test_fraction)
+
+    def split_by_sequence(self, test_fraction: float = 0.2, seed: int = 0, index=None) -> tuple[np.ndarray, np.ndarray]:
+        """Seeded split of the sequences (at ``index``, default all) into train and test, stratified by class:
+        round(test_fraction * n) test sequences of each class's n (the paper's 80/20). Sorted int64 arrays.
+
+        Raises:
+            DatasetError: test_fraction outside (0, 1), a bad index, or an empty test or train side.
+        """
+        test_fraction = self._check_fraction(test_fraction)
+        idx = np.unique(self._index(index))
+        rng = np.random.default_rng(seed)
+        test = []
+        for c in np.unique(self.labels[idx]):
+            members = rng.permutation(idx[self.labels[idx] == c])
+            test.append(members[: round(test_fraction * len(members))])
+        test = np.sort(np.concatenate(test)) if test else np.zeros(0, np.int64)
+        train = np.setdiff1d(idx, test)
+        if not len(test) or not len(train):
+            raise DatasetError(
+                f"{self.path}: splitting {len(idx)} sequences at {test_fraction} leaves an empty side"
+            )
+        return train, test
+
+    def _objects_by_class(self, idx: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
+        """Per class (sorted), the objects present in ``idx``, in a seeded random order."""
+        present = np.unique(self.object_ids[idx])
+        return [rng.permutation(present[self.object_labels[present] == c])
+                for c in np.unique(self.object_labels[present])]
+
+    def split_by_object(self, test_fraction: float = 0.2, seed: int = 0, index=None) -> tuple[np.ndarray, np.ndarray]:
+        """Seeded split by object (test objects unseen in training), stratified by class: of a class's n
+        objects, max(1, round(test_fraction * n)) go to test when n >= 2 (a class with one object stays in
+        training). Returns sorted int64 sequence indices (train, test) within ``index``.
+
+        Raises:
+            DatasetError: test_fraction outside (0, 1), a bad index, or no class with two objects.
+        """
+        test_fraction = self._check_fraction(test_fraction)
+        idx = np.unique(self._index(index))
+        test_objects = []
+        for objects in self._objects_by_class(idx, np.random.default_rng(seed)):
+            if len(objects) >= 2:
+                test_objects.extend(objects[: max(1, round(test_fraction * len(objects)))])
+        if not test_objects:
+            raise DatasetError(f"{self.path}: no class has two objects, so no object can be held out")
+        in_test = np.isin(self.object_ids[idx], test_objects)
+        return idx[~in_test], idx[in_test]
+
+    def kfold_by_object(self, k: int = 5, seed: int = 0, index=None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``k`` seeded folds by object, stratified by class: each class's objects (shuffled) are dealt to
+        the folds in turn, continuing where the previous class stopped, so every object is tested exactly
+        once and fold sizes differ by at most one object. Returns [(train, test)] sorted int64 indices.
+
+        Raises:
+            DatasetError: k < 2, fewer objects than k, or a bad index.
+        """
+        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
+            raise DatasetError(f"k must be an integer >= 2, got {k!r}")
+        idx = np.unique(self._index(index))
+        fold_of = {}
+        turn = 0
+        for objects in self._objects_by_class(idx, np.random.default_rng(seed)):
+            for obj in objects:
+                fold_of[int(obj)] = turn % k
+                turn += 1
+        if turn < k:
+            raise DatasetError(f"{self.path}: {turn} objects cannot fill {k} folds")
+        folds = np.array([fold_of[int(o)] for o in self.object_ids[idx]], dtype=np.int64)
+        return [(idx[folds != f], idx[folds == f]) for f in range(k)]
+
+
+def open_dataset(path: str | Path) -> TactileDataset:
+    """Open a store made by :func:`tactile.dataset.generate` for reading.
+
+    Raises:
+        DatasetError: ``path`` is missing, not a dataset store, of another format version, or unreadable.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: no such dataset store (a folder made by generate())")
+    return TactileDataset(path)
+
+
+__all__ = ["PROBE_ARRAYS", "TactileDataset", "open_dataset"]

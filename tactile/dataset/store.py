@@ -1,0 +1,286 @@
+"""The zarr (v3) layout of a tactile dataset store, its settings, frame encoding, seeds and object records.
+
+Layout of ``STORE/`` (one row per sequence; the rows of object ``o``, strategy ``s``, contour ``k`` are
+``(o * n_strategies + s) * contours_per_object + k``, so every object owns a contiguous block):
+
+- ``zarr.json``: group attributes under ``"visuotactile_dataset"``: ``settings`` (what must match to
+  resume: objects, strategies, contours per object, probes, sensor spec, seed, encoding), and
+  ``package_version``, ``command``, ``created`` (recorded, not compared).
+- ``frames`` (rows, P, R, C) uint16: quantised readings, ``value = code * scale`` with ``scale`` in
+  ``settings["encoding"]``. Sharded, one shard per (object, strategy) block, one inner chunk per
+  sequence: a random-order read decodes one sequence; a shard is written in one go by one worker.
+- ``normals``, ``positions``, ``tangents`` (rows, P, 3) float32; ``pad_sides_mm`` (rows, P) float32;
+  ``plane_points``, ``plane_normals`` (rows, 3) float64; ``labels``, ``object_ids`` (rows,) int64;
+  ``strategies`` (rows,) int8 (index into the store's strategies); ``contour_seeds`` (rows,) int64 (the
+  seed each contour's plane was drawn from); ``noise_seeds`` (rows,) int64 (the sensor-noise seed the
+  sequence records). Chunks of one (object, strategy) block.
+- ``records/NNNNN.json``: one completion record per object, written atomically after all of its rows:
+  ``status`` "complete" (with its interest points and timing) or "failed" (with the reason). Rows of
+  objects without a complete record are not part of the dataset.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from perception.atomic import write_text
+from perception.errors import DatasetError
+
+log = logging.getLogger(__name__)
+
+#: Attribute key of the store metadata in the root group's ``zarr.json``.
+ATTRS_KEY = "visuotactile_dataset"
+#: Layout version; a reader refuses stores of another version.
+FORMAT_VERSION = 1
+RECORDS = "records"
+#: Largest shard, in sequences, of the frames array (bounds a worker's write buffer: ~50 KB/sequence).
+MAX_SHARD_SEQUENCES = 2048
+#: Blosc settings of every array: zstd level 1 with byte shuffle, measured best size-for-speed on frames.
+COMPRESSOR = {"cname": "zstd", "clevel": 1, "shuffle": "shuffle"}
+#: Quantisation codes of the frames (uint16).
+CODE_MAX = np.iinfo(np.uint16).max
+
+#: name -> (dtype, trailing shape given (probes, rows, cols)) of the per-sequence arrays besides frames.
+SEQUENCE_ARRAYS: dict[str, tuple[str, callable]] = {
+    "normals": ("float32", lambda p, r, c: (p, 3)),
+    "positions": ("float32", lambda p, r, c: (p, 3)),
+    "tangents": ("float32", lambda p, r, c: (p, 3)),
+    "pad_sides_mm": ("float32", lambda p, r, c: (p,)),
+    "plane_points": ("float64", lambda p, r, c: (3,)),
+    "plane_normals": ("float64", lambda p, r, c: (3,)),
+    "labels": ("int64", lambda p, r, c: ()),
+    "object_ids": ("int64", lambda p, r, c: ()),
+    "strategies": ("int8", lambda p, r, c: ()),
+    "contour_seeds": ("int64", lambda p, r, c: ()),
+    "noise_seeds": ("int64", lambda p, r, c: ()),
+}
+
+
+# ----------------------------------------------------------------------------------- encoding
+def frame_encoding(sensor_spec: dict) -> dict:
+    """How frames are quantised to uint16 for this sensor: ``{"dtype", "scale", "max_error"}``.
+
+    Gap mode: readings lie in [0, range_mm]; scale = range_mm / 65535, so the error is at most scale / 2
+    (7.6e-5 mm for a 10 mm range). Contact mode: readings are already ADC levels k * saturation /
+    (2**adc_bits - 1); with adc_bits <= 16 the code is k itself and the round trip is exact.
+    """
+    if sensor_spec["mode"] == "contact":
+        levels = 2 ** int(sensor_spec["adc_bits"]) - 1
+        if levels <= CODE_MAX:
+            return {"dtype": "uint16", "scale": sensor_spec["saturation"] / levels, "max_error": 0.0}
+        top = float(sensor_spec["saturation"])
+    else:
+        top = float(sensor_spec["range_mm"])
+    scale = top / CODE_MAX
+    return {"dtype": "uint16", "scale": scale, "max_error": scale / 2}
+
+
+def encode_frames(frames: np.ndarray, encoding: dict, where: str) -> np.ndarray:
+    """float frames -> uint16 codes. Raises DatasetError for NaN/Inf or readings outside the code range."""
+    scale = float(encoding["scale"])
+    if not np.isfinite(frames).all():
+        raise DatasetError(f"{where}: frames contain NaN or Inf; nothing was written")
+    codes = frames.astype(np.float64)
+    codes *= 1.0 / scale
+    np.rint(codes, out=codes)
+    if codes.min(initial=0) < 0 or codes.max(initial=0) > CODE_MAX:
+        raise DatasetError(
+            f"{where}: readings {frames.min():.4g}..{frames.max():.4g} fall outside the encodable range "
+            f"0..{CODE_MAX * scale:.4g}"
+        )
+    return codes.astype(np.uint16)
+
+
+def decode_frames(codes: np.ndarray, encoding: dict) -> np.ndarray:
+    """uint16 codes -> float32 readings (code * scale, computed in float64 as the sensor's ADC does, in
+    pieces of 4 M values so that decoding a large selection needs no float64 copy of all of it)."""
+    scale = float(encoding["scale"])
+    codes = np.ascontiguousarray(codes)
+    out = np.empty(codes.shape, dtype=np.float32)
+    flat_codes, flat_out = codes.reshape(-1), out.reshape(-1)
+    step = 1 << 22
+    for lo in range(0, flat_codes.size, step):
+        flat_out[lo : lo + step] = flat_codes[lo : lo + step] * scale
+    return out
+
+
+# -------------------------------------------------------------------------------------- seeds
+@functools.lru_cache(maxsize=1024)
+def _key(text: str) -> int:
+    return int.from_bytes(hashlib.sha256(text.encode("utf-8")).digest()[:8], "little")
+
+
+def contour_seed(seed: int, object_name: str, strategy: str, contour: int) -> int:
+    """The seed of one contour, from (seed, object, strategy, contour) only: a non-negative 63-bit int.
+
+    It does not depend on the object's position in the list, the worker or the executor.
+    """
+    state = np.random.SeedSequence([int(seed), _key(object_name), _key(strategy), int(contour)])
+    high, low = state.generate_state(2, np.uint32)
+    return int((int(high) << 32 | int(low)) >> 1)
+
+
+# ------------------------------------------------------------------------------------- layout
+@dataclass(frozen=True)
+class Layout:
+    """Row arithmetic of a store: ``n_objects`` objects x ``strategies`` x ``contours`` rows."""
+
+    n_objects: int
+    strategies: tuple[str, ...]
+    contours: int
+
+    @property
+    def block(self) -> int:
+        """Rows of one object (all its strategies)."""
+        return len(self.strategies) * self.contours
+
+    @property
+    def n_rows(self) -> int:
+        return self.n_objects * self.block
+
+    def rows(self, obj: int, strategy: int | None = None) -> slice:
+        """The rows of object ``obj`` (all strategies, or one)."""
+        if strategy is None:
+            return slice(obj * self.block, (obj + 1) * self.block)
+        lo = obj * self.block + strategy * self.contours
+        return slice(lo, lo + self.contours)
+
+    @property
+    def shard(self) -> int:
+        """Sequences per frames shard: the largest divisor of ``contours`` up to MAX_SHARD_SEQUENCES, so
+        shards never straddle two objects' blocks (no two workers write one file)."""
+        if self.contours <= MAX_SHARD_SEQUENCES:
+            return self.contours
+        return max(d for d in range(1, MAX_SHARD_SEQUENCES + 1) if self.contours % d == 0)
+
+
+def layout_of(settings: dict) -> Layout:
+    return Layout(len(settings["objects"]), tuple(settings["strategies"]), int(settings["contours_per_object"]))
+
+
+def create_store(path: Path, settings: dict, meta: dict) -> None:
+    """Create an empty store at ``path`` (must not exist) with all arrays, atomically: built in a temporary
+    sibling folder, then renamed, so an interrupted creation leaves nothing half-made at ``path``."""
+    import zarr
+    from zarr.codecs import BloscCodec
+
+    layout = layout_of(settings)
+    probes = int(settings["probes"])
+    rows, cols = int(settings["sensor"]["rows"]), int(settings["sensor"]["cols"])
+    tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
+    if tmp.exists():
+        import shutil
+
+        shutil.rmtree(tmp)
+    compressor = BloscCodec(**COMPRESSOR)
+    group = zarr.open_group(tmp, mode="w")
+    n = max(layout.n_rows, 1)
+    group.create_array(
+        "frames", shape=(n, probes, rows, cols), dtype="uint16", shards=(layout.shard, probes, rows, cols),
+        chunks=(1, probes, rows, cols), compressors=[compressor], fill_value=0,
+    )
+    for name, (dtype, trailing) in SEQUENCE_ARRAYS.items():
+        shape = trailing(probes, rows, cols)
+        group.create_array(
+            name, shape=(n, *shape), dtype=dtype, chunks=(layout.contours, *shape), compressors=[compressor],
+            fill_value=0,
+        )
+    group.attrs[ATTRS_KEY] = {"format": FORMAT_VERSION, "settings": settings, **meta}
+    (tmp / RECORDS).mkdir()
+    os.replace(tmp, path)
+
+
+def read_attrs(path: Path) -> dict:
+    """The store metadata. Raises DatasetError if ``path`` is not a visuotactile dataset store."""
+    meta_file = Path(path) / "zarr.json"
+    if not meta_file.is_file():
+        raise DatasetError(f"{path}: not a dataset store (no zarr.json); create one with generate()")
+    try:
+        meta = json.loads(meta_file.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: unreadable zarr.json ({exc})") from exc
+    attrs = meta.get("attributes", {}).get(ATTRS_KEY)
+    if meta.get("node_type") != "group" or not isinstance(attrs, dict):
+        raise DatasetError(f"{path}: a zarr store, but not a visuotactile tactile dataset (no {ATTRS_KEY!r})")
+    if attrs.get("format") != FORMAT_VERSION:
+        raise DatasetError(
+            f"{path}: dataset format {attrs.get('format')!r}, this version reads format {FORMAT_VERSION}"
+        )
+    return attrs
+
+
+def settings_difference(old: dict, new: dict) -> list[str]:
+    """Human-readable differences between two settings dicts (empty when equal)."""
+    # JSON round trip: tuples vs lists and int vs float spellings compare as stored.
+    old, new = json.loads(json.dumps(old)), json.loads(json.dumps(new))
+    diffs = []
+    for key in sorted(set(old) | set(new)):
+        a, b = old.get(key), new.get(key)
+        if a == b:
+            continue
+        if key == "objects" and isinstance(a, list) and isinstance(b, list):
+            if len(a) != len(b):
+                diffs.append(f"objects: {len(a)} in the store, {len(b)} asked")
+            else:
+                first = next(i for i, (x, y) in enumerate(zip(a, b)) if x != y)
+                diffs.append(f"objects[{first}]: {a[first]} in the store, {b[first]} asked")
+        elif isinstance(a, dict) and isinstance(b, dict):
+            keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+            diffs.append(f"{key}: " + ", ".join(f"{k} {a.get(k)!r} -> {b.get(k)!r}" for k in keys))
+        else:
+            diffs.append(f"{key}: {a!r} in the store, {b!r} asked")
+    return diffs
+
+
+# ------------------------------------------------------------------------------------ records
+def record_path(path: Path, index: int) -> Path:
+    return Path(path) / RECORDS / f"{index:05d}.json"
+
+
+def write_record(path: Path, index: int, record: dict) -> None:
+    """Write object ``index``'s record atomically (temporary file + rename)."""
+    write_text(record_path(path, index), json.dumps(record, indent=1, sort_keys=True, allow_nan=False))
+
+
+def read_records(path: Path, n_objects: int) -> dict[int, dict]:
+    """All readable records, by object index. A record that cannot be parsed (it cannot be half-written,
+    but it could be damaged by hand) is ignored with a warning: its object counts as not done."""
+    records = {}
+    folder = Path(path) / RECORDS
+    if not folder.is_dir():
+        return records
+    for file in folder.glob("[0-9]*.json"):
+        try:
+            index = int(file.stem)
+            record = json.loads(file.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            log.warning("%s: ignoring unreadable record (%s)", file, exc)
+            continue
+        if 0 <= index < n_objects and isinstance(record, dict):
+            records[index] = record
+    return records
+
+
+__all__ = [
+    "ATTRS_KEY",
+    "FORMAT_VERSION",
+    "Layout",
+    "contour_seed",
+    "create_store",
+    "decode_frames",
+    "encode_frames",
+    "frame_encoding",
+    "layout_of",
+    "read_attrs",
+    "read_records",
+    "settings_difference",
+    "write_record",
+]

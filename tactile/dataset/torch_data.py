@@ -1,0 +1,42 @@
+"""The PyTorch view of a store (imported only when asked for: torch is slow to import)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from tactile.dataset.store import decode_frames
+
+
+class TorchTactileDataset(Dataset):
+    """Sequences of a store, frames read one sequence chunk at a time (see
+    :meth:`tactile.dataset.TactileDataset.torch_dataset`). Picklable: each DataLoader worker opens the
+    store itself on first use."""
+
+    def __init__(self, path: str, rows: np.ndarray, probe: dict[str, np.ndarray], labels: np.ndarray, encoding: dict):
+        self.path, self.rows, self.labels, self.encoding = path, rows, labels, encoding
+        self.probe = {name: torch.from_numpy(np.ascontiguousarray(values)) for name, values in probe.items()}
+        self._frames = None
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_frames"] = None  # zarr handles are reopened in the worker process
+        return state
+
+    def __getitem__(self, i: int):
+        if self._frames is None:
+            import zarr
+
+            self._frames = zarr.open_array(f"{self.path}/frames", mode="r")
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"index {i} out of range for {len(self)} sequences")
+        frames = decode_frames(self._frames[int(self.rows[i])], self.encoding)
+        probe = {name: values[i] for name, values in self.probe.items()}
+        return torch.from_numpy(frames), probe, torch.tensor(self.labels[i], dtype=torch.int64)
+
+
+__all__ = ["TorchTactileDataset"]

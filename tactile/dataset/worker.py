@@ -1,0 +1,150 @@
+"""Exploring one object into its rows of a store: what every worker (local process or Ray task) runs.
+
+Sequence k of strategy s of an object is, by construction, what
+``explore_object(model, s, 1, sensor, probes, seed=contour_seed(seed, name, s, k), saliency=...)`` returns:
+the plane-drawing loop of :func:`tactile.sampling.explore_object` runs with that contour's own generator.
+The contours of one strategy are then pressed in large batches (one ray-casting call per ~1,000 probes);
+when the sensor has no noise and no dead taxels its read-out does not use the seed, and a batched press
+gives the same frames as one press per contour. With noise, each contour is pressed alone with its seed.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from perception import saliency as attention
+from perception.errors import ContourError
+from perception.geometry import ObjectModel
+from tactile import sampling
+from tactile.contours import Contour, make_contour
+from tactile.dataset.objects import ObjectSpec
+from tactile.dataset.store import SEQUENCE_ARRAYS, contour_seed, encode_frames, layout_of, write_record
+from tactile.sensor import FSRSensor
+
+log = logging.getLogger(__name__)
+
+#: Contours pressed per batch (25 probes each: ~6,000 probes, ~25 MB of float32 frames).
+PRESS_BATCH = 256
+
+
+def draw_contour(model: ObjectModel, points: np.ndarray, probes: int, seed: int) -> tuple[Contour, int]:
+    """The contour and sensor-noise seed that ``explore_object`` draws for one contour from ``seed``.
+
+    Raises:
+        ContourError: MAX_DRAWS planes in a row missed the object.
+    """
+    rng = np.random.default_rng(seed)
+    for _ in range(sampling.MAX_DRAWS):
+        plane = sampling._draw_plane(model, points, rng)
+        try:
+            contour = make_contour(model, plane, probes)
+            break
+        except ContourError as exc:
+            log.debug("%s: re-drawing a plane (%s)", model.name, exc)
+    else:
+        raise ContourError(f"{model.name}: {sampling.MAX_DRAWS} planes in a row missed the object")
+    return contour, int(rng.integers(2**31 - 1))
+
+
+def _press(sensor: FSRSensor, model: ObjectModel, contours: list[Contour], noise_seeds: list[int]) -> tuple:
+    """Frames (N, P, R, C) float32 and pad sides (N, P) of the contours, as ``explore`` gives them."""
+    n, p = len(contours), contours[0].n_probes
+    if sensor.noise_std == 0 and sensor.dead_taxel_rate == 0:
+        stack = [np.concatenate([getattr(c, a) for c in contours]) for a in ("positions", "normals", "tangents")]
+        frames, sides = sensor.press(model, *stack)
+        return frames.reshape(n, p, sensor.rows, sensor.cols), sides.reshape(n, p)
+    pressed = [sensor.press(model, c.positions, c.normals, c.tangents, seed=s) for c, s in zip(contours, noise_seeds)]
+    return np.stack([f for f, _ in pressed]), np.stack([s for _, s in pressed])
+
+
+def explore_into_store(
+    store: str,
+    index: int,
+    spec: ObjectSpec,
+    settings: dict,
+    sensor: FSRSensor,
+    progress: Callable[[int], None] | None = None,
+) -> dict:
+    """Explore object ``index`` (``spec``) with every strategy of ``settings``, write its rows, then its
+    completion record; returns the record.
+
+    Raises:
+        whatever loading, saliency or exploring the object raises (the caller records it as failed).
+    """
+    import zarr
+
+    start = time.perf_counter()
+    layout = layout_of(settings)
+    probes, seed = int(settings["probes"]), int(settings["seed"])
+    label = settings["class_names"].index(spec.label)
+    model = spec.load()
+    check_not_flat = getattr(sampling, "_check_not_flat", None)
+    if check_not_flat is not None:  # as explore_object: a flat plate fails at once, not after MAX_DRAWS
+        check_not_flat(model)
+    # Named, not listed: listing the group would trip over the records folder (not a zarr node).
+    arrays = {name: zarr.open_array(f"{store}/{name}", mode="r+") for name in ("frames", *SEQUENCE_ARRAYS)}
+    saliencies: dict[str, attention.Saliency] = {}  # one per method, shared by the strategies using it
+    interest: dict[str, list] = {}
+    for s, strategy in enumerate(layout.strategies):
+        method = sampling.STRATEGIES[strategy]
+        if method is not None and method not in saliencies:
+            saliencies[method] = attention.saliency(model, method)
+        points = sampling._candidates(model, strategy, saliencies.get(method))
+        if method is not None:
+            interest[strategy] = points.tolist()
+        rows = layout.rows(index, s)
+        n = layout.contours
+        out = {
+            "frames": np.empty((n, probes, sensor.rows, sensor.cols), np.uint16),
+            "pad_sides_mm": np.empty((n, probes), np.float32),
+            **{a: np.empty((n, probes, 3), np.float32) for a in ("normals", "positions", "tangents")},
+            "plane_points": np.empty((n, 3)), "plane_normals": np.empty((n, 3)),
+            "contour_seeds": np.empty(n, np.int64), "noise_seeds": np.empty(n, np.int64),
+        }
+        for lo in range(0, n, PRESS_BATCH):
+            hi = min(lo + PRESS_BATCH, n)
+            contours, noise_seeds = [], []
+            for k in range(lo, hi):
+                cseed = contour_seed(seed, spec.name, strategy, k)
+                contour, nseed = draw_contour(model, points, probes, cseed)
+                contours.append(contour)
+                noise_seeds.append(nseed)
+                out["contour_seeds"][k], out["noise_seeds"][k] = cseed, nseed
+                out["plane_points"][k], out["plane_normals"][k] = contour.plane.point, contour.plane.normal
+                for a in ("normals", "positions", "tangents"):
+                    out[a][k] = getattr(contour, a)
+            frames, sides = _press(sensor, model, contours, noise_seeds)
+            out["frames"][lo:hi] = encode_frames(frames, settings["encoding"], f"{spec.name} ({strategy})")
+            out["pad_sides_mm"][lo:hi] = sides
+            if progress is not None:
+                progress(hi - lo)
+        out["labels"] = np.full(n, label, np.int64)
+        out["object_ids"] = np.full(n, index, np.int64)
+        out["strategies"] = np.full(n, s, np.int8)
+        for name, values in out.items():
+            if name not in ("labels", "object_ids", "strategies", "contour_seeds", "noise_seeds") and not (
+                np.isfinite(values).all()
+            ):
+                raise ContourError(f"{spec.name} ({strategy}): {name} contain NaN or Inf; nothing was written")
+        for name, values in out.items():
+            arrays[name][rows] = values
+    record = {
+        "index": index,
+        "name": spec.name,
+        "label": spec.label,
+        "status": "complete",
+        "sequences": layout.block,
+        "vertices": model.n_vertices,
+        "triangles": model.n_triangles,
+        "interest_points": interest,
+        "seconds": round(time.perf_counter() - start, 3),
+    }
+    write_record(store, index, record)
+    return record
+
+
+__all__ = ["PRESS_BATCH", "draw_contour", "explore_into_store"]

@@ -1,0 +1,75 @@
+"""``visuotactile generate``: catalogue and folder sources, the summary, resume, refusals, exit codes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from tactile.dataset import open_dataset
+
+CUBE_OFF = "OFF\n8 6 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n" + "".join(
+    f"4 {f}\n" for f in ("0 3 2 1", "4 5 6 7", "0 1 5 4", "1 2 6 5", "2 3 7 6", "3 0 4 7")
+)
+SMALL = ["--strategies", "blind", "--contours", "3", "--probes", "4", "--workers", "2", "--quiet"]
+
+
+def test_catalogue_generation_prints_a_json_summary_and_resumes(tmp_path, capsys):
+    args = ["generate", "--catalogue", "1", "--classes", "box", "can", "--out", str(tmp_path / "s"), *SMALL]
+    assert main([*args, "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["completed"] == 2 and result["stored_sequences"] == 6 and result["classes"] == ["box", "can"]
+    assert result["bytes_per_sequence"] > 0 and result["failed"] == []
+    ds = open_dataset(tmp_path / "s")
+    assert ds.object_names == ("box/0", "can/0")
+    assert ds.attrs["command"] == (
+        f"visuotactile generate --catalogue 1 --classes box can --out {tmp_path / 's'} --strategies blind "
+        "--contours 3 --probes 4 --seed 0"
+    )
+    # Same command again: nothing to do. Other settings: refused with exit 2 and one line.
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "2/2 complete (0 now, 2 already)" in out and "bytes/sequence" in out
+    assert main([*args[:-1], "--seed", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "other settings" in err and "seed: 0 in the store, 1 asked" in err and len(err.strip().splitlines()) == 1
+
+
+def test_folder_generation_picks_classes_and_objects_per_class(tmp_path, capsys):
+    for cls, names in (("cube", ("a", "b", "c")), ("other", ("d",))):
+        (tmp_path / "data" / cls).mkdir(parents=True)
+        for name in names:
+            (tmp_path / "data" / cls / f"{name}.off").write_text(CUBE_OFF)
+    (tmp_path / "data" / "cube" / "z_broken.off").write_text("OFF\n8 6 0\n0 0 0\n")
+    out = tmp_path / "s"
+    code = main(["generate", "--data", str(tmp_path / "data"), "--classes", "cube", "--objects-per-class", "2",
+                 "--out", str(out), *SMALL])
+    assert code == 0
+    ds = open_dataset(out)
+    assert ds.object_names == ("cube/a", "cube/b") and ds.class_names == ("cube",)
+    np.testing.assert_array_equal(ds.labels, 0)
+    # All of the class, the broken file included: recorded as failed, listed, exit code 1.
+    code = main(["generate", "--data", str(tmp_path / "data"), "--classes", "cube", "--out", str(tmp_path / "t"),
+                 *SMALL])
+    assert code == 1
+    assert "failed     cube/z_broken" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--catalogue", "1", "--classes", "teapot"], "unknown catalogue classes ['teapot']"),
+        (["--catalogue", "0"], "at least 1 object per class"),
+        (["--data", "NOWHERE"], "not a folder"),
+    ],
+)
+def test_bad_sources_exit_2_with_one_line(tmp_path, capsys, argv, message):
+    assert main(["generate", *argv, "--out", str(tmp_path / "s"), *SMALL]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_source_is_required():
+    with pytest.raises(SystemExit):
+        main(["generate", "--out", "x"])

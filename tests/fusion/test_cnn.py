@@ -1,0 +1,243 @@
+"""CNN pair: nets, preprocessing, training, fusion, determinism, persistence, numerics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from fusion.base import load_model
+from fusion.cnn import CNNClassifier, CutaneousNet, KinestheticNet, _circular_probes, pool_frames
+from fusion.cues import kinesthetic_cues
+from perception.errors import DatasetError, ModelMismatchError
+from tactile.explore import SequenceBatch
+from tactile.sensor import FSRSensor
+
+SPEC = FSRSensor(rows=8, cols=8).spec()
+FAST = {"epochs": 12, "batch_size": 16, "lr": 3e-3, "patience": 100, "progress": False, "threads": 1}
+
+
+def make_batch(n_per_class=16, probes=5, grid=(8, 8), n_classes=3, informative=("cutaneous", "kinesthetic"),
+               seed=0, spec=SPEC) -> SequenceBatch:
+    """Synthetic sequences whose class shows in the frames (a raised band of rows) and/or the normals (near
+    one axis per class); an uninformative modality is the same noise for every class."""
+    rng = np.random.default_rng(seed)
+    s = n_per_class * n_classes
+    labels = np.repeat(np.arange(n_classes), n_per_class)
+    frames = rng.uniform(0.0, 2.0, (s, probes) + grid).astype(np.float32)
+    normals = rng.normal(size=(s, probes, 3))
+    if "cutaneous" in informative:
+        band = np.array_split(np.arange(grid[0]), n_classes)
+        for i, c in enumerate(labels):
+            frames[i, :, band[c], :] += 6.0
+    if "kinesthetic" in informative:
+        normals = 0.3 * normals + 3.0 * np.eye(3)[labels % 3][:, None, :]
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    angle = np.linspace(0, 2 * np.pi, probes, endpoint=False)
+    positions = np.stack([50 * np.cos(angle), 50 * np.sin(angle), np.zeros(probes)], -1)
+    tangents = np.stack([-np.sin(angle), np.cos(angle), np.zeros(probes)], -1)
+    return SequenceBatch(
+        frames=frames, normals=normals.astype(np.float32),
+        positions=np.broadcast_to(positions, (s, probes, 3)).astype(np.float32),
+        tangents=np.broadcast_to(tangents, (s, probes, 3)).astype(np.float32),
+        pad_sides_mm=np.full((s, probes), 20.0, np.float32), plane_points=np.zeros((s, 3)),
+        plane_normals=np.tile([0.0, 0.0, 1.0], (s, 1)), labels=labels, object_ids=labels.copy(),
+        class_names=tuple(f"class{c}" for c in range(n_classes)),
+        object_names=tuple(f"object{c}" for c in range(n_classes)), sensor_spec=spec,
+    )
+
+
+def accuracy(model, batch, modality="fusion") -> float:
+    proba = model.predict_proba_modalities(batch)[modality]
+    names = np.asarray(batch.class_names)[batch.labels]
+    return float(np.mean(model.classes_[proba.argmax(1)] == names))
+
+
+# ------------------------------------------------------------------------------------------ the nets
+@pytest.mark.parametrize("probes,grid", [(1, (1, 1)), (7, (5, 9)), (25, (32, 32)), (4, (3, 16))])
+def test_nets_take_any_probe_count_and_grid(probes, grid):
+    x = torch.zeros((2, 1, probes) + grid)
+    assert CutaneousNet(probes, grid, 5).eval()(x).shape == (2, 5)
+    assert KinestheticNet(probes, 6, 2).eval()(torch.zeros(3, 1, probes, 6)).shape == (3, 2)
+
+
+def test_circular_padding_wraps_the_probe_axis():
+    x = torch.arange(5.0).view(1, 1, 5, 1)
+    assert _circular_probes(x).flatten().tolist() == [4, 0, 1, 2, 3, 4, 0]
+
+
+def test_convolutions_are_equivariant_to_cyclic_shifts_of_the_probes():
+    # A closed contour has no first probe: shifting the input's probes shifts the conv features the same.
+    torch.manual_seed(0)
+    net = CutaneousNet(9, (8, 8), 3).eval()
+    x = torch.randn(2, 1, 9, 8, 8)
+
+    def features(v):
+        v = torch.relu(net.bn1(net.conv1(_circular_probes(v))))
+        return torch.relu(net.bn2(net.conv2(_circular_probes(v))))
+
+    with torch.no_grad():
+        torch.testing.assert_close(features(torch.roll(x, 3, 2)), torch.roll(features(x), 3, 2))
+
+
+def test_pool_frames_averages_blocks_and_keeps_small_grids():
+    rng = np.random.default_rng(1)
+    frames = rng.uniform(0, 10, (3, 4, 32, 32)).astype(np.float32)
+    expected = frames.reshape(3, 4, 16, 2, 16, 2).mean(axis=(3, 5))
+    np.testing.assert_allclose(pool_frames(frames, 16).numpy(), expected, rtol=1e-5)
+    small = frames[:, :, :8, :12]
+    np.testing.assert_array_equal(pool_frames(small, 16).numpy(), small)
+
+
+# ------------------------------------------------------------------------------------ augmentation
+def test_reversing_a_contour_rotates_each_frame_by_180_degrees():
+    # The augmentation's assumption, checked against the sensor: press the probes in the reverse order with
+    # reversed tangents and each frame comes out turned by 180 degrees.
+    from perception.shapes import make_object
+    from tactile.sampling import explore_object
+
+    model = make_object("mug", 0)
+    seq = explore_object(model, "blind", 1, probes=9, seed=3)[0]
+    frames, _ = FSRSensor().press(model, seq.positions[::-1], seq.normals[::-1], -seq.tangents[::-1])
+    np.testing.assert_allclose(frames, seq.frames[::-1, ::-1, ::-1], atol=1e-4)
+
+
+def test_reversal_of_the_invariant_cue_matches_the_cue_of_the_reversed_contour():
+    batch = make_batch(n_per_class=2, probes=7)
+    rng = np.random.default_rng(2)
+    batch.positions = (batch.positions + rng.normal(size=batch.positions.shape)).astype(np.float32)
+    batch.tangents = rng.normal(size=batch.tangents.shape).astype(np.float32)
+    model = CNNClassifier(cue="invariant")
+    cues = torch.from_numpy(kinesthetic_cues(batch, "invariant")).unsqueeze(1)
+    gen = torch.Generator().manual_seed(0)
+    out = model._augment(cues, "kinesthetic", gen)
+    # the same draws, replayed: which sequences were shifted by how much and reversed
+    gen = torch.Generator().manual_seed(0)
+    shift = torch.randint(0, 7, (len(batch),), generator=gen).numpy()
+    flip = (torch.rand(len(batch), generator=gen) < 0.5).numpy()
+    assert flip.any() and not flip.all()
+    for i in range(len(batch)):
+        order = (np.arange(7) + shift[i]) % 7
+        if flip[i]:
+            order = order[::-1]
+        moved = batch.subset([i])
+        moved.positions, moved.normals = batch.positions[[i]][:, order], batch.normals[[i]][:, order]
+        moved.tangents = batch.tangents[[i]][:, order] * (-1 if flip[i] else 1)
+        moved.pad_sides_mm = batch.pad_sides_mm[[i]][:, order]
+        moved.plane_normals = batch.plane_normals[[i]] * (-1 if flip[i] else 1)
+        np.testing.assert_allclose(out[i, 0].numpy(), kinesthetic_cues(moved, "invariant")[0], atol=1e-4)
+
+
+# ---------------------------------------------------------------------------------------- training
+def test_learns_a_separable_problem_and_generalises():
+    train, test = make_batch(seed=0), make_batch(n_per_class=10, seed=1)
+    model = CNNClassifier(**FAST).fit(train)
+    assert list(model.classes_) == ["class0", "class1", "class2"]
+    for modality in ("cutaneous", "kinesthetic", "fusion"):
+        assert accuracy(model, test, modality) == 1.0, modality
+    assert model.score(test) == 1.0
+
+
+def test_each_modality_reads_its_own_input():
+    # The class only in the normals: the kinesthetic net finds it, the cutaneous net cannot beat chance.
+    train = make_batch(informative=("kinesthetic",), seed=0, n_per_class=20)
+    test = make_batch(informative=("kinesthetic",), seed=1, n_per_class=30)
+    model = CNNClassifier(**FAST).fit(train)
+    assert accuracy(model, test, "kinesthetic") == 1.0
+    assert accuracy(model, test, "cutaneous") < 0.6  # chance is 1/3 (90 test sequences)
+    only = CNNClassifier(modality="cutaneous", **FAST).fit(train)
+    assert only.kinesthetic_net_ is None and set(only.predict_proba_modalities(test)) == {"cutaneous", "fusion"}
+
+
+def test_invariant_cue_and_augmentation_train():
+    train, test = make_batch(seed=0), make_batch(n_per_class=6, seed=1)
+    model = CNNClassifier(cue="invariant", augment=True, modality="cutaneous", **FAST).fit(train)
+    assert model.score(test) == 1.0
+
+
+def test_early_stopping_keeps_the_best_epoch():
+    model = CNNClassifier(**{**FAST, "epochs": 30, "patience": 2, "val_fraction": 0.25}).fit(make_batch())
+    for history in model.history_.values():
+        assert history["epochs"] < 30 and history["best_epoch"] == history["epochs"] - 2
+        assert history["val_accuracy"] == 1.0
+
+
+def test_seeded_fits_give_identical_predictions_and_leave_torch_settings_alone():
+    train, test = make_batch(seed=0), make_batch(n_per_class=4, seed=1)
+    threads, deterministic = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
+    rng_state = torch.random.get_rng_state()
+    kw = {**FAST, "epochs": 3, "augment": True}
+    a = CNNClassifier(seed=5, **kw).fit(train).predict_proba_modalities(test)
+    b = CNNClassifier(seed=5, **kw).fit(train).predict_proba_modalities(test)
+    c = CNNClassifier(seed=6, **kw).fit(train).predict_proba_modalities(test)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key])
+    assert not np.array_equal(a["cutaneous"], c["cutaneous"])
+    assert torch.get_num_threads() == threads and torch.are_deterministic_algorithms_enabled() == deterministic
+    assert torch.equal(torch.random.get_rng_state(), rng_state)  # the caller's random stream is untouched
+
+
+def test_statistics_come_from_the_training_frames():
+    train = make_batch(seed=0)
+    model = CNNClassifier(**{**FAST, "epochs": 1}).fit(train)
+    assert model.frame_mean_ == pytest.approx(float(train.frames.astype(np.float64).mean()), rel=1e-6)
+    np.testing.assert_allclose(model.cue_mean_, train.normals.reshape(-1, 3).mean(axis=0), atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------- persistence
+def test_save_load_predicts_identically_and_refuses_another_sensor(tmp_path):
+    train, test = make_batch(seed=0), make_batch(n_per_class=4, seed=1)
+    model = CNNClassifier(**{**FAST, "epochs": 2}).fit(train)
+    path = model.save(tmp_path / "cnn.pkl")
+    loaded = load_model(path)
+    assert next(loaded.cutaneous_net_.parameters()).device.type == "cpu"
+    for key, value in model.predict_proba_modalities(test).items():
+        np.testing.assert_array_equal(loaded.predict_proba_modalities(test)[key], value)
+    other = make_batch(n_per_class=2, spec=FSRSensor(rows=8, cols=8, side_mm=15.0).spec())
+    with pytest.raises(ModelMismatchError, match="side_mm"):
+        loaded.predict(other)
+    with pytest.raises(ModelMismatchError, match="probes"):
+        loaded.predict(make_batch(n_per_class=2, probes=6))
+
+
+# ---------------------------------------------------------------------------------------- numerics
+def test_constant_and_huge_inputs_give_finite_probabilities():
+    train = make_batch(informative=("kinesthetic",))
+    train.frames[:] = 0.0  # a constant video: no spread to divide by
+    model = CNNClassifier(**{**FAST, "epochs": 2}).fit(train)
+    assert model.frame_std_ == 1.0
+    huge = make_batch(n_per_class=2)
+    huge.frames[:] = 3e38
+    for proba in model.predict_proba_modalities(huge).values():
+        assert np.isfinite(proba).all() and np.allclose(proba.sum(1), 1.0)
+
+
+def test_bad_input_is_refused():
+    train = make_batch(n_per_class=3)
+    nan = make_batch(n_per_class=3)
+    nan.frames[0, 0, 0, 0] = np.nan
+    with pytest.raises(DatasetError, match="NaN"):
+        CNNClassifier(**FAST).fit(nan)
+    with pytest.raises(DatasetError, match="one class"):
+        CNNClassifier(**FAST).fit(train.subset(train.labels == 0))
+    with pytest.raises(DatasetError, match="cue"):
+        CNNClassifier(cue="colour", **FAST).fit(train)
+    with pytest.raises(DatasetError, match="modality"):
+        CNNClassifier(modality="smell", **FAST).fit(train)
+    with pytest.raises(DatasetError, match="val_fraction"):
+        CNNClassifier(**{**FAST, "val_fraction": 1.0}).fit(train)
+    model = CNNClassifier(**{**FAST, "epochs": 1}).fit(train)
+    with pytest.raises(DatasetError, match="NaN"):
+        model.predict(nan)
+
+
+# ------------------------------------------------------------------------------------ catalogue data
+@pytest.mark.slow
+def test_recognises_guided_catalogue_contours():
+    # 10 catalogue classes x 2 objects x 20 guided contours, 80/20 by sequence (the paper's protocol, small).
+    from benchmarks.classifiers import catalogue_batch, split
+
+    batch = catalogue_batch(objects=2, contours=20, strategy="guided", seed=0)
+    train, test = split(batch, "sequence", seed=0)
+    model = CNNClassifier(epochs=40, progress=False).fit(batch.subset(train))
+    assert accuracy(model, batch.subset(test)) >= 0.85

@@ -1,0 +1,114 @@
+"""ConventionalClassifier: learns, probabilities, determinism, persistence, sensor checks, numerics, CV."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sklearn.model_selection import StratifiedKFold, cross_val_score
+
+from fusion.base import load_model
+from fusion.conventional import ConventionalClassifier, conventional_pipeline, cross_validate
+from fusion.features import sequence_features
+from perception.errors import DatasetError, ModelMismatchError
+from tests.fusion.test_features import small_batch
+
+FAST = {"som_iterations": 300, "n_select": 30}
+
+
+def _split(batch, seed=0):
+    """Every 4th contour of each object for testing (by sequence, as in the paper)."""
+    test = np.zeros(len(batch), dtype=bool)
+    test[np.arange(len(batch)) % 5 == seed % 5] = True
+    return batch.subset(~test), batch.subset(test)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    """An SVM and a kNN trained once on 4/5 of the small batch (fitting costs seconds: share them)."""
+    train, test = _split(small_batch())
+    models = {kind: ConventionalClassifier(kind=kind, **FAST).fit(train) for kind in ("svm", "knn")}
+    return models, train, test
+
+
+@pytest.mark.parametrize("kind", ["svm", "knn"])
+def test_learns_and_gives_probabilities(fitted, kind):
+    models, train, test = fitted
+    clf = models[kind]
+    assert list(clf.classes_) == sorted(train.class_names)
+    proba = clf.predict_proba(test)
+    assert proba.shape == (len(test), 4) and np.isfinite(proba).all()
+    np.testing.assert_allclose(proba.sum(axis=1), 1.0)
+    # Four classes: chance is 25 %; the features must carry the class.
+    assert clf.score(test) >= 0.5
+    assert clf.score(train) >= 0.6
+    assert len(clf.pipeline_.named_steps["reduce"].representatives_) == 5  # "SOM to 5"
+
+
+def test_same_seed_same_bytes_and_save_load(fitted, tmp_path):
+    models, train, test = fitted
+    a = models["svm"]
+    b = ConventionalClassifier(kind="svm", **FAST).fit(train.subset(np.arange(len(train))))  # no shared cache
+    assert a.predict_proba(test).tobytes() == b.predict_proba(test).tobytes()
+    path = a.save(tmp_path / "svm.pkl")
+    loaded = load_model(path)
+    assert isinstance(loaded, ConventionalClassifier) and loaded.cue == "normals"
+    assert loaded.predict_proba(test).tobytes() == a.predict_proba(test).tobytes()
+
+
+def test_other_sensor_is_refused(fitted):
+    models, _, test = fitted
+    other = test.subset(np.arange(len(test)))
+    other.sensor_spec = dict(other.sensor_spec, side_mm=15.0)
+    with pytest.raises(ModelMismatchError, match="side_mm"):
+        models["knn"].predict(other)
+
+
+def test_invariant_cue_and_small_training_sets():
+    batch = small_batch()
+    clf = ConventionalClassifier(kind="knn", cue="invariant", **FAST).fit(batch.subset(np.arange(0, 80, 10)))
+    # 8 sequences: k is capped at 8, the selector keeps what there is; still a valid distribution.
+    assert clf.pipeline_[-1].n_neighbors == 8
+    proba = clf.predict_proba(batch)
+    assert np.isfinite(proba).all() and np.allclose(proba.sum(axis=1), 1.0)
+
+
+def test_constant_video_and_bad_input(fitted):
+    batch = small_batch()
+    models, train, _ = fitted
+    clf = models["svm"]
+    flat = batch.subset(np.arange(3))
+    flat.frames = np.zeros_like(flat.frames)  # a constant tactile video: all subband stds are 0
+    assert np.all(sequence_features(flat)[:, : 16 * flat.n_probes] == 0.0)
+    assert np.isfinite(clf.predict_proba(flat)).all()
+    # Constant training features (every frame flat, every normal equal) still train and predict finitely.
+    dull = train.subset(np.arange(len(train)))
+    dull.frames = np.zeros_like(dull.frames)
+    dull.normals = np.broadcast_to(np.float32([0, 0, 1]), dull.normals.shape).copy()
+    proba = ConventionalClassifier(kind="knn", **FAST).fit(dull).predict_proba(dull)
+    assert np.isfinite(proba).all()
+    nan = batch.subset(np.arange(3))
+    nan.frames = nan.frames.copy()
+    nan.frames[0, 0, 0, 0] = np.nan
+    with pytest.raises(DatasetError, match="NaN"):
+        clf.predict(nan)
+    single = batch.subset(batch.labels == 0)
+    with pytest.raises(DatasetError, match="only one class"):
+        ConventionalClassifier(**FAST).fit(single)
+    with pytest.raises(DatasetError, match="unknown classifier kind"):
+        ConventionalClassifier(kind="forest").fit(train)
+    with pytest.raises(DatasetError, match="unknown kinesthetic cue"):
+        conventional_pipeline(cue="colour")
+
+
+def test_cross_validate_matches_sklearn():
+    batch = small_batch().subset(np.arange(0, 80, 2))  # 40 sequences, 10 per class: two folds of 20
+    clf = ConventionalClassifier(kind="knn", **FAST)
+    scores = cross_validate(clf, batch, folds=2, seed=3)
+    assert scores.shape == (2,) and ((0 <= scores) & (scores <= 1)).all()
+    # Peer: scikit-learn's own cross_val_score of the array half of the pipeline, same folds.
+    features = sequence_features(batch, "normals")
+    cv = StratifiedKFold(2, shuffle=True, random_state=3)
+    ref = cross_val_score(clf.make_pipeline(batch.labels[:20])[1:], features, batch.labels, cv=cv)
+    np.testing.assert_allclose(scores, ref)
+    with pytest.raises(DatasetError, match="sequences per class"):
+        cross_validate(clf, batch.subset(np.arange(0, 40, 4)), folds=5)

@@ -1,0 +1,285 @@
+"""Experiments machinery: Pareto front, K-touch scoring, jitter, caches, and a tiny end-to-end reproduce.
+
+The classifiers here are a small stand-in (:class:`NearestMean`), so the machinery is tested without the
+CNN / contourlet pipelines; the real ones are exercised by the lead's full runs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusion.base import TactileClassifier
+from fusion.cues import kinesthetic_cues
+from fusion.experiments import Sizes, reproduce
+from fusion.experiments.analysis import name_operating_points, pareto_front, score, touches_score
+from fusion.experiments.config import TILT_DEG_PER_MM
+from fusion.experiments.data import folder_objects
+from fusion.experiments.models import Predictions
+from fusion.experiments.report import table1
+from fusion.experiments.touch import (
+    TouchTiming,
+    jitter_contour,
+    load_batch,
+    save_batch,
+    touch_object,
+    touch_objects,
+)
+from perception.errors import DatasetError, InvalidArgumentError
+from perception.shapes import make_object
+from tactile.contours import Contour, Plane
+
+
+# ------------------------------------------------------------------------------------------ stand-in
+def _features(batch) -> np.ndarray:
+    cues = kinesthetic_cues(batch, "invariant").mean(axis=1)
+    frames = batch.frames.reshape(len(batch), -1)
+    return np.column_stack([cues, frames.mean(axis=1), frames.std(axis=1)]).astype(np.float64)
+
+
+class NearestMean(TactileClassifier):
+    """Nearest class mean of a few z-scored sequence statistics; softmax of minus the squared distance."""
+
+    def __init__(self, scale: float = 1.0):
+        self.scale = scale
+
+    def _fit(self, batch, y):
+        x = _features(batch)
+        self.mu_, self.sd_ = x.mean(0), x.std(0) + 1e-9
+        z = (x - self.mu_) / self.sd_
+        self.means_ = np.stack([z[y == c].mean(0) for c in range(len(self.classes_))])
+
+    def _predict_proba(self, batch):
+        z = (_features(batch) - self.mu_) / self.sd_
+        d = ((z[:, None, :] - self.means_[None]) ** 2).sum(-1) * self.scale
+        e = np.exp(-(d - d.min(1, keepdims=True)))
+        return e / e.sum(1, keepdims=True)
+
+
+STANDINS = {"nm": lambda: NearestMean(), "nm-soft": lambda: NearestMean(scale=0.3)}
+
+
+def write_off(model, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = ["OFF", f"{len(model.vertices)} {len(model.triangles)} 0"]
+    lines += [" ".join(f"{x:.6f}" for x in v) for v in model.vertices]
+    lines += ["3 " + " ".join(map(str, t)) for t in model.triangles]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def mesh_folder(root: Path, classes=("box", "can"), per_class: int = 3) -> Path:
+    for c in classes:
+        for s in range(per_class):
+            write_off(make_object(c, s), root / c / f"{c}{s}.off")
+    return root
+
+
+# ----------------------------------------------------------------------------------- pure functions
+def test_pareto_front_by_hand():
+    times = [1.0, 2.0, 3.0, 4.0, 5.0, 2.0]
+    errors = [0.5, 0.4, 0.45, 0.1, 0.1, 0.3]
+    # (2, 0.3) beats (2, 0.4); (3, 0.45) is beaten; (5, 0.1) ties (4, 0.1) in error but is slower.
+    assert pareto_front(times, errors).tolist() == [0, 5, 3]
+    with pytest.raises(InvalidArgumentError):
+        pareto_front([1.0], [0.1, 0.2])
+
+
+def test_operating_points_name_the_knee():
+    # Normalised log-time 0, 0.151, 1; normalised error drop 0, 0.889, 1: the middle point is the knee.
+    times, errors = [1.0, 2.0, 100.0], [0.5, 0.1, 0.05]
+    named = name_operating_points(times, errors, pareto_front(times, errors))
+    assert named == {"fastest": 0, "most accurate": 2, "knee": 1}
+
+
+def _predictions() -> Predictions:
+    # Object 0 (class a): two confident right, two mild wrong. Object 1 (class b): one confident right,
+    # three mild wrong: log rule -> b (log .99 + 3 log .3 > log .01 + 3 log .7), sum rule -> a (2.11 > 1.89).
+    proba = np.array([[0.9, 0.1], [0.9, 0.1], [0.4, 0.6], [0.4, 0.6],
+                      [0.01, 0.99], [0.7, 0.3], [0.7, 0.3], [0.7, 0.3]])
+    labels = np.array(["a"] * 4 + ["b"] * 4, dtype=object)
+    return Predictions(proba, labels, np.repeat([0, 1], 4), ["a", "b"], ["a/0", "b/0"])
+
+
+def test_touch_scores_by_hand():
+    pred = _predictions()
+    assert score(pred).value == pytest.approx(3 / 8)
+    assert touches_score(pred, 4, "log").value == 1.0
+    assert touches_score(pred, 4, "sum").value == 0.5
+    acc = touches_score(pred, 1, "log")
+    assert acc.value == pytest.approx(3 / 8) and acc.n == 8 and 0 <= acc.low <= acc.value <= acc.high <= 1
+    with pytest.raises(DatasetError):
+        touches_score(pred, 5)
+
+
+def test_table1_puts_paper_numbers_only_next_to_the_papers_classifiers():
+    acc = {"value": 0.9, "low": 0.8, "high": 0.95, "n": 10}
+    rows = [{"classifier": c, "strategy": s, "accuracy": acc}
+            for c in ("CNN fusion", "CNN cutaneous", "SVM") for s in ("guided", "blind")]
+    out = {r["classifier"]: r for r in table1(rows)}
+    assert out["CNN fusion"]["paper guided"] == "98.97 %" and out["SVM"]["paper blind"] == "77.21 %"
+    assert out["CNN cutaneous"]["paper guided"] == "-"
+    assert out["SVM"]["guided"] == "90.0 % [80.0, 95.0]"
+
+
+def test_sizes_refuse_bad_values():
+    with pytest.raises(InvalidArgumentError, match="paper_contours"):
+        Sizes(paper_contours=0)
+    with pytest.raises(InvalidArgumentError, match="unseen_folds"):
+        Sizes(unseen_folds=1)
+    with pytest.raises(InvalidArgumentError, match="unknown kinds"):
+        Sizes(noise_levels={"cosmic_rays": (1.0,)})
+
+
+# ------------------------------------------------------------------------------------------ jitter
+def _flat_contour(n: int = 4000) -> Contour:
+    positions = np.zeros((n, 3))
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    tangents = np.tile([1.0, 0.0, 0.0], (n, 1))
+    plane = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))
+    return Contour(plane, positions[:3] + np.eye(3), True, positions, normals, tangents, np.zeros(n, dtype=np.int64))
+
+
+def test_jitter_moves_probes_in_the_pad_plane_with_the_stated_spread():
+    contour = _flat_contour()
+    assert jitter_contour(contour, 0.0, np.random.default_rng(0)) is contour
+    moved = jitter_contour(contour, 2.0, np.random.default_rng(0))
+    shift = moved.positions - contour.positions
+    assert np.abs(shift[:, 2]).max() == 0  # in the pad plane (z = 0 here)
+    assert np.std(shift[:, :2], axis=0) == pytest.approx([2.0, 2.0], rel=0.06)
+    tilt = np.degrees(np.arccos(np.clip(moved.normals[:, 2], -1, 1)))
+    # |N(0, s)| has RMS s: the tilt's RMS is the stated std.
+    assert math.sqrt(np.mean(tilt**2)) == pytest.approx(TILT_DEG_PER_MM * 2.0, rel=0.06)
+    assert np.allclose(np.linalg.norm(moved.normals, axis=1), 1)
+    assert np.abs(np.sum(moved.normals * moved.tangents, axis=1)).max() < 1e-12
+    with pytest.raises(DatasetError):
+        jitter_contour(contour, -1.0, np.random.default_rng(0))
+
+
+def test_touching_is_seeded_and_jitter_keeps_the_planned_contours():
+    box = make_object("box", 0)
+    timing = TouchTiming()
+    clean, contours = touch_object(box, "blind", 3, probes=10, seed=5, timing=timing)
+    again, _ = touch_object(box, "blind", 3, probes=10, seed=5)
+    jittered, _ = touch_object(box, "blind", 3, probes=10, seed=5, jitter_mm=2.0)
+    assert timing.saliency_seconds == [] and len(timing.contour_seconds) == 3  # blind: no saliency
+    for a, b, c, contour in zip(clean, again, jittered, contours):
+        assert np.array_equal(a.frames, b.frames)
+        assert np.array_equal(a.plane.normal, c.plane.normal)
+        assert np.array_equal(c.normals, contour.normals) and np.array_equal(c.positions, contour.positions)
+        assert not np.array_equal(a.frames, c.frames)
+
+
+def test_batch_cache_round_trip_and_key(tmp_path):
+    batch = touch_objects([make_object("can", 1)], ["box", "can"], "blind", 2, probes=6, seed=1)
+    path = save_batch(batch, tmp_path / "b.npz", {"level": 1})
+    back = load_batch(path, {"level": 1})
+    assert np.array_equal(back.frames, batch.frames) and back.class_names == ("box", "can")
+    assert back.labels.tolist() == [1, 1] and back.sensor_spec == batch.sensor_spec
+    assert load_batch(path, {"level": 2}) is None and load_batch(tmp_path / "none.npz") is None
+
+
+def test_folder_objects_choose_and_refuse(tmp_path):
+    for c in ("b", "a", "c"):
+        for i in range(2):
+            (tmp_path / c).mkdir(exist_ok=True)
+            (tmp_path / c / f"{i}.off").write_text("OFF\n")
+    assert [label for _, label in folder_objects(tmp_path, max_classes=2)] == ["a", "a", "b", "b"]
+    assert [p.name for p, _ in folder_objects(tmp_path, ["c"], per_class=1)] == ["0.off"]
+    with pytest.raises(DatasetError, match="'zebra'"):
+        folder_objects(tmp_path, ["zebra"])
+    with pytest.raises(DatasetError, match="fewer than the 3"):
+        folder_objects(tmp_path, per_class=3)
+
+
+def test_reproduce_refuses_bad_parts(tmp_path):
+    with pytest.raises(InvalidArgumentError, match="unknown parts"):
+        reproduce(tmp_path, tmp_path / "r", parts=("paper", "tea"), classifiers=STANDINS)
+    with pytest.raises(InvalidArgumentError, match="add 'paper'"):
+        reproduce(tmp_path, tmp_path / "r", parts=("touches",), classifiers=STANDINS)
+
+
+# ------------------------------------------------------------------------------------ end to end
+# Blind only: no saliency, so the fast tests stay fast (the slow test runs both strategies and every part).
+TINY = Sizes(strategies=("blind",), paper_contours=10, unseen_contours=10, unseen_folds=3, touches=(1, 2), noise_contours=2,
+             noise_levels={"taxel_noise": (0.5,), "dead_taxels": (0.5,), "pose_jitter": (2.0,)},
+             paper_classifiers=("nm", "nm-soft"), unseen_classifiers=("nm",))
+FAST_PARTS = ("paper", "unseen", "touches", "noise")
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("reproduce")
+    data = mesh_folder(root / "meshes")
+    out = root / "report"
+    results = reproduce(data, out, sizes=TINY, classifiers=STANDINS, parts=FAST_PARTS, workers=2, progress=False)
+    return data, out, results
+
+
+def _accuracies(obj):
+    if isinstance(obj, dict):
+        if set(obj) == {"value", "low", "high", "n"}:
+            yield obj
+        for v in obj.values():
+            yield from _accuracies(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            yield from _accuracies(v)
+
+
+def test_reproduce_writes_a_complete_report(tiny_run):
+    _, out, _results = tiny_run
+    saved = json.loads((out / "results.json").read_text())
+    assert set(FAST_PARTS) <= set(saved)
+    rows = saved["paper"]["rows"]
+    assert {(r["classifier"], r["strategy"]) for r in rows} == {("nm", "blind"), ("nm-soft", "blind")}
+    # 2 classes x 3 objects x 10 contours, 20 % held out per strategy.
+    assert all(r["accuracy"]["n"] == 12 for r in rows)
+    assert sum(r["accuracy"]["n"] for r in saved["unseen"]["rows"]) == 2 * 3 * 10
+    assert len(list((out / "stores").glob("*.zarr"))) == 1  # the same data: one shared store
+    accs = list(_accuracies(saved))
+    assert accs and all(0 <= a["low"] <= a["value"] <= a["high"] <= 1 for a in accs)
+    assert {r["kind"] for r in saved["noise"]["rows"]} == {"taxel_noise", "dead_taxels", "pose_jitter"}
+    report = (out / "report.md").read_text()
+    for name in ["accuracy_vs_k.png", "accuracy_vs_noise.png", *saved["paper"]["figures"]]:
+        assert f"]({name})" in report
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "## Paper protocol (Table 1)" in report and "## Unseen objects" in report
+
+
+def test_reproduce_resumes_from_its_cache_with_the_same_numbers(tiny_run):
+    data, out, results = tiny_run
+    models = sorted((out / "models").rglob("*.pkl"))
+    stamps = [p.stat().st_mtime_ns for p in models]
+    again = reproduce(data, out, sizes=TINY, classifiers=STANDINS, parts=FAST_PARTS, workers=2, progress=False)
+    assert [p.stat().st_mtime_ns for p in models] == stamps  # nothing retrained
+    for part in ("paper", "unseen", "touches", "noise"):
+        assert list(_accuracies(again[part])) == list(_accuracies(results[part]))
+
+
+@pytest.mark.slow
+def test_reproduce_every_part_both_strategies(tmp_path):
+    data = mesh_folder(tmp_path / "meshes", classes=("box", "can", "mug"))
+    sizes = TINY.with_(strategies=("guided", "blind"), attention_contours=6, attention_folds=3, runtime_contours=6,
+                       runtime_probes=(5, 10), runtime_grids=(8, 16), touches=(1, 2, 4))
+    results = reproduce(data, tmp_path / "report", sizes=sizes, classifiers=STANDINS, workers=2, progress=False)
+    assert {r["strategy"] for r in results["paper"]["rows"]} == {"guided", "blind"}
+    attention = {r["strategy"]: r for r in results["attention"]["rows"]}
+    assert set(attention) == {"blind", "guided", "mesh", "iss", "pcl_harris", "pcl_iss"}
+    assert attention["blind"]["saliency_seconds_per_object"] == 0.0
+    assert attention["guided"]["saliency_seconds_per_object"] > 0
+    runtime = results["runtime"]
+    assert {(p["probes"], p["grid"]) for p in runtime["points"]} == {(5, 8), (5, 16), (10, 8), (10, 16)}
+    front = [runtime["points"][i] for i in runtime["front"]]
+    # Along the front time grows and error falls, and no point beats a front point in both.
+    assert all(a["seconds"] <= b["seconds"] and a["error"] > b["error"] for a, b in itertools.pairwise(front))
+    for f in front:
+        assert not any(p["seconds"] < f["seconds"] and p["error"] < f["error"] for p in runtime["points"])
+    assert set(runtime["named"]) >= {"fastest", "most accurate"}
+    for name in ("pareto.png", "accuracy_vs_k.png", "accuracy_vs_noise.png"):
+        assert (tmp_path / "report" / name).stat().st_size > 10_000

@@ -1,0 +1,164 @@
+"""Conventional features: series from batches, wavelet statistics vs PyWavelets/scipy, selection, SOM, sklearn checks."""
+
+from __future__ import annotations
+
+import warnings
+from functools import cache
+
+import numpy as np
+import pytest
+import pywt
+from scipy.stats import skew
+from sklearn.feature_selection import mutual_info_classif
+from sklearn.utils.estimator_checks import parametrize_with_checks
+
+from fusion.contourlet import contourlet
+from fusion.features import (
+    InfoGainSelector,
+    SequenceSeries,
+    SOMProjection,
+    WaveletStatistics,
+    contourlet_std,
+    n_series,
+    safe_skew,
+    sequence_features,
+)
+from perception.errors import DatasetError
+from perception.shapes import CLASSES, make_object
+from tactile.explore import SequenceBatch
+from tactile.sampling import explore_object
+from tactile.sensor import FSRSensor
+
+CLASS_SUBSET = CLASSES[:4]
+
+
+@cache
+def small_batch(rows: int = 16, cols: int = 16) -> SequenceBatch:
+    """4 classes x 2 objects x 10 blind contours of 25 probes, a 16 x 16 pad (shared with test_conventional)."""
+    sensor = FSRSensor(rows=rows, cols=cols)
+    sequences = []
+    for c, name in enumerate(CLASS_SUBSET):
+        for o in range(2):
+            model = make_object(name, 100 * c + o)
+            sequences += explore_object(model, "blind", 10, sensor=sensor, seed=10 * c + o)
+    return SequenceBatch.from_sequences(sequences, CLASS_SUBSET, sensor_spec=sensor.spec())
+
+
+# ------------------------------------------------------------------------------------- series
+def test_sequence_features_layout_and_cache():
+    batch = small_batch()
+    s, p = len(batch), batch.n_probes
+    feats = sequence_features(batch, "normals")
+    assert feats.shape == (s, 19 * p) and n_series("normals") == 19 and n_series("invariant") == 22
+    series = feats.reshape(s, 19, p)
+    # Series 0..15: the std of each finest contourlet subband of each frame (direct transform as reference).
+    direct = contourlet(batch.frames[:3], levels=(3, 4)).bands[-1].std(axis=(-2, -1))  # (3, P, 16)
+    np.testing.assert_allclose(series[:3, :16], direct.transpose(0, 2, 1), rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(series[:, 16:], batch.normals.transpose(0, 2, 1), rtol=1e-6)
+    assert sequence_features(batch, "invariant").shape == (s, 22 * p)
+    assert contourlet_std(batch) is contourlet_std(batch)  # computed once per batch
+    assert np.array_equal(SequenceSeries("normals").fit(batch).transform(batch), feats)
+
+
+def test_sequence_features_bad_input():
+    batch = small_batch()
+    with pytest.raises(DatasetError, match="unknown kinesthetic cue"):
+        sequence_features(batch, "colour")
+    with pytest.raises(DatasetError, match="SequenceBatch"):
+        sequence_features(np.zeros((2, 25, 16, 16)))
+    bad = batch.subset(np.arange(4))
+    bad.frames = bad.frames.copy()
+    bad.frames[1, 3, 2, 2] = np.nan
+    with pytest.raises(DatasetError, match="NaN or Inf"):
+        sequence_features(bad)
+    with pytest.raises(DatasetError, match="NaN or Inf"):
+        SequenceSeries().transform(bad)
+
+
+# ---------------------------------------------------------------------------------- statistics
+def test_safe_skew_matches_scipy_and_is_zero_on_constants():
+    rng = np.random.default_rng(0)
+    a = rng.gamma(2.0, size=(6, 25))
+    np.testing.assert_allclose(safe_skew(a), skew(a, axis=-1), rtol=1e-12)
+    const = np.full((3, 25), 4.2)
+    const[1] = 0.0
+    const[2] = 1e-300
+    out = safe_skew(const)
+    assert np.array_equal(out, np.zeros(3))
+    assert safe_skew(np.array([0.1 + 1e-17 * i for i in range(8)])) == 0.0  # rounding-level wiggle is flat
+
+
+def test_wavelet_statistics_against_pywavelets_by_hand():
+    rng = np.random.default_rng(1)
+    p = 25
+    X = rng.standard_normal((4, 3 * p))
+    out = WaveletStatistics(n_series=3).fit(X).transform(X)
+    assert out.shape == (4, 3 * 15)
+    # Hand-assembled reference for sample 2, series 1.
+    x = X[2, p : 2 * p]
+    arrays = [x, *pywt.wavedec(x, "db2", level=3)]
+    assert [len(a) for a in arrays[1:]] == [5, 5, 8, 14]
+    ref = np.concatenate([[np.sqrt(np.mean(a**2)), np.std(a), skew(a)] for a in arrays])
+    np.testing.assert_allclose(out[2, 15:30], ref, rtol=1e-10)
+    names = WaveletStatistics(n_series=3).fit(X).get_feature_names_out()
+    assert names[15] == "s1_series_rms" and names[29] == "s1_cD1_skew" and len(names) == 45
+
+
+def test_wavelet_statistics_constant_series_finite():
+    X = np.full((3, 2 * 25), 2.5)
+    X[1] = 0.0
+    out = WaveletStatistics(n_series=2).fit(X).transform(X)
+    assert np.isfinite(out).all()
+    # rms of a constant c is |c|, its std 0 and its skewness 0; the detail coefficients of a constant are 0.
+    assert out[0, 0] == pytest.approx(2.5) and out[0, 1] == pytest.approx(0.0, abs=1e-12)
+    assert np.all(out[:, 2::3] == 0.0)
+
+
+def test_wavelet_statistics_rejects_bad_layout():
+    with pytest.raises(ValueError, match="whole number"):
+        WaveletStatistics(n_series=4).fit(np.zeros((3, 10)))
+
+
+# ----------------------------------------------------------------------------------- selection
+def test_info_gain_keeps_the_informative_features():
+    rng = np.random.default_rng(2)
+    y = np.repeat(np.arange(3), 40)
+    X = rng.standard_normal((120, 8))
+    X[:, 5] += 3.0 * y  # strongly informative
+    X[:, 2] += 1.0 * y  # weakly informative
+    sel = InfoGainSelector(k=2, random_state=0).fit(X, y)
+    assert sorted(np.flatnonzero(sel.get_support())) == [2, 5]
+    np.testing.assert_allclose(sel.scores_, mutual_info_classif(X, y, n_neighbors=3, random_state=0))
+    assert sel.transform(X).shape == (120, 2)
+    assert InfoGainSelector(k=50).fit(X, y).transform(X).shape == (120, 8)  # k above the width keeps all
+    again = InfoGainSelector(k=2, random_state=0).fit(X, y)
+    assert np.array_equal(again.scores_, sel.scores_)  # seeded: same bytes
+
+
+# ------------------------------------------------------------------------------------------ SOM
+def test_som_distances_are_distances_to_prototypes():
+    rng = np.random.default_rng(3)
+    centres = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    X = np.concatenate([c + 0.3 * rng.standard_normal((50, 2)) for c in centres])
+    som = SOMProjection(n_units=5, n_iterations=3000, random_state=0).fit(X)
+    d = som.transform(X)
+    assert d.shape == (150, 5) and np.isfinite(d).all()
+    np.testing.assert_allclose(d, np.linalg.norm(X[:, None] - som.prototypes_[None], axis=-1), rtol=1e-12)
+    # Each cluster centre has a prototype near it (the map covers the data).
+    assert np.linalg.norm(centres[:, None] - som.prototypes_[None], axis=-1).min(axis=1).max() < 1.5
+    again = SOMProjection(n_units=5, n_iterations=3000, random_state=0).fit(X)
+    assert np.array_equal(again.prototypes_, som.prototypes_)
+    # Constant data: prototypes collapse onto it, distances 0, finite.
+    flat = SOMProjection(n_iterations=50).fit(np.ones((10, 3)))
+    assert np.allclose(flat.transform(np.ones((2, 3))), 0.0)
+
+
+# ---------------------------------------------------------------------------- scikit-learn checks
+@parametrize_with_checks(
+    [WaveletStatistics(), InfoGainSelector(k=2), SOMProjection(n_iterations=50)],
+)
+def test_sklearn_compatible(estimator, check):
+    # check_array_api_input skips itself unless SCIPY_ARRAY_API is set (none of these use the array API).
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check(estimator)

@@ -1,0 +1,70 @@
+"""``visuotactile recognize``: a mesh file -> class, probabilities, touched contours (with a stand-in model)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from fusion.experiments.recognize import recognize
+from fusion.experiments.touch import touch_objects
+from perception.geometry import load_object
+from perception.shapes import make_object
+from tests.fusion.test_experiments import NearestMean, write_off
+
+
+@pytest.fixture(scope="module")
+def model_and_meshes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("recognize")
+    objects = [make_object(c, s) for c in ("box", "can") for s in range(3)]
+    batch = touch_objects(objects, ["box", "can"], "blind", 6, probes=10, seed=0)
+    model = NearestMean().fit(batch)
+    path = model.save(root / "model.pkl")
+    # Instances never seen in training.
+    meshes = {c: write_off(make_object(c, 11), root / f"{c}.off") for c in ("box", "can")}
+    return path, meshes, root
+
+
+@pytest.mark.parametrize("cls", ["box", "can"])
+def test_recognize_json_names_the_class_of_an_unseen_instance(model_and_meshes, cls, capsys):
+    path, meshes, root = model_and_meshes
+    figure = root / f"{cls}.png"
+    rc = main(["recognize", str(meshes[cls]), "--model", str(path), "--touches", "4", "--strategy", "blind",
+               "--seed", "3", "--json", "--figure", str(figure)])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    out = json.loads(captured.out)
+    assert out["label"] == cls
+    assert set(out["probabilities"]) == {"box", "can"}
+    assert sum(out["probabilities"].values()) == pytest.approx(1.0, abs=1e-5)
+    assert len(out["per_touch"]) == 4 and out["rule"] == "log"
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_recognize_is_seeded_and_uses_the_models_sensor(model_and_meshes):
+    path, meshes, _ = model_and_meshes
+    from fusion.base import load_model
+
+    model = load_model(path)
+    obj = load_object(meshes["can"])
+    a = recognize(model, obj, touches=3, strategy="blind", seed=1)
+    b = recognize(model, obj, touches=3, strategy="blind", seed=1)
+    c = recognize(model, obj, touches=3, strategy="blind", seed=2)
+    assert np.array_equal(a.per_touch, b.per_touch)
+    assert not np.array_equal(a.per_touch, c.per_touch)
+    assert all(contour.n_probes == model.probes == 10 for contour in a.contours)
+    assert a.seconds["saliency"] == 0.0  # blind touching never computes saliency
+
+
+def test_recognize_errors_are_one_line_and_exit_2(model_and_meshes, tmp_path, capsys):
+    path, meshes, _ = model_and_meshes
+    assert main(["recognize", str(meshes["box"]), "--model", str(tmp_path / "none.pkl")]) == 2
+    assert "no model there" in capsys.readouterr().err
+    assert main(["recognize", str(tmp_path / "missing.off"), "--model", str(path)]) == 2
+    assert "missing.off" in capsys.readouterr().err
+    assert main(["recognize", str(meshes["box"]), "--model", str(path), "--touches", "0"]) == 2
+    assert "touches must be a positive integer" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["recognize", str(meshes["box"]), "--strategy", "psychic"])

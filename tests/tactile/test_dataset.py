@@ -1,0 +1,379 @@
+"""Tactile dataset stores: frames equal explore_object's, bytes independent of workers, resume after
+SIGKILL, failures recorded, settings checked, splits and the PyTorch view."""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import perception.saliency as attention
+from perception.errors import DatasetError
+from perception.shapes import make_object
+from tactile.dataset import ObjectSpec, contour_seed, frame_encoding, generate, open_dataset
+from tactile.dataset.store import decode_frames, encode_frames
+from tactile.sampling import explore_object
+from tactile.sensor import FSRSensor
+
+ROOT = Path(__file__).resolve().parents[2]
+#: Small and fast: 16 x 16 taxels, 10 probes, blind contours on catalogue objects.
+SMALL = FSRSensor(rows=16, cols=16)
+#: Two classes of three objects: enough for object splits and k-fold.
+BLIND_OBJECTS = [("box", 0), ("box", 1), ("box", 2), ("can", 0), ("can", 1), ("can", 2)]
+BLIND = {"strategies": ("blind",), "contours_per_object": 12, "sensor": SMALL, "probes": 10, "seed": 7, "progress": False}
+
+
+# ------------------------------------------------------------------------------------ helpers
+def store_files(path: Path) -> dict[str, object]:
+    """Every file of a store: bytes, except what legitimately differs between runs (timings in the
+    records, creation time and command in the root metadata)."""
+    files = {}
+    for file in sorted(p for p in path.rglob("*") if p.is_file()):
+        rel = file.relative_to(path).as_posix()
+        if rel.startswith("records/"):
+            record = json.loads(file.read_text())
+            record.pop("seconds", None)
+            files[rel] = record
+        elif rel == "zarr.json":
+            meta = json.loads(file.read_text())
+            for key in ("created", "command", "store_id"):
+                meta["attributes"]["visuotactile_dataset"].pop(key)
+            files[rel] = meta
+        else:
+            files[rel] = file.read_bytes()
+    return files
+
+
+def refuse_saliency(*args, **kwargs):
+    raise AssertionError("saliency was computed")
+
+
+def mug_without_saliency():
+    """Loader run in the worker: from here on, computing saliency in this process fails."""
+    attention.saliency = refuse_saliency
+    return make_object("mug", 0)
+
+
+def mug_counting_saliency(log_file: str):
+    """Loader run in the worker: every saliency computation appends its method to ``log_file``."""
+    original = attention.saliency
+
+    def counting(model, method="multiview", **kwargs):
+        with open(log_file, "a") as f:
+            f.write(method + "\n")
+        return original(model, method, **kwargs)
+
+    attention.saliency = counting
+    return make_object("mug", 0)
+
+
+def hanging_loader():
+    """Loader run in the worker: never returns in reasonable time, as pymeshlab can on tiny meshes."""
+    time.sleep(600)
+
+
+def aborting_loader():
+    """Loader run in the worker: a native abort, as pymeshlab does on some meshes."""
+    os.abort()
+
+
+# ----------------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def blind_store(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("blind") / "store"
+    report = generate(BLIND_OBJECTS, out, workers=1, **BLIND)
+    assert report.completed == len(BLIND_OBJECTS) and not report.failed
+    return out
+
+
+@pytest.fixture(scope="module")
+def guided_store(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("guided") / "store"
+    generate([("mug", 0), ("box", 1)], out, strategies=("guided", "blind"), contours_per_object=3,
+             sensor=FSRSensor(), probes=25, seed=3, workers=2, progress=False)
+    return out
+
+
+# ----------------------------------------------------------------------------- known answers
+def test_frames_read_back_equal_explore_object(guided_store):
+    ds = open_dataset(guided_store)
+    assert ds.object_names == ("mug/0", "box/1") and ds.class_names == ("box", "mug")
+    assert ds.strategies == ("guided", "blind") and len(ds) == 2 * 2 * 3
+    batch = ds.load()
+    for name, obj in (("mug", 0), ("box", 1)):
+        model = make_object(name, obj)
+        sal = attention.saliency(model, "multiview")
+        for strategy in ds.strategies:
+            rows = np.flatnonzero((ds.object_ids == ds.object_names.index(f"{name}/{obj}"))
+                                  & (ds.sequence_strategies == strategy))
+            for k, i in enumerate(rows):
+                seed = contour_seed(3, f"{name}/{obj}", strategy, k)
+                assert ds.contour_seeds[i] == seed
+                expected = explore_object(model, strategy, 1, FSRSensor(), 25, seed=seed,
+                                          saliency=sal if strategy == "guided" else None)[0]
+                assert ds.noise_seeds[i] == expected.seed
+                assert np.abs(batch.frames[i] - expected.frames).max() <= ds.max_frame_error * (1 + 1e-6)
+                for attr in ("normals", "positions", "tangents", "pad_sides_mm"):
+                    np.testing.assert_array_equal(getattr(batch, attr)[i], getattr(expected, attr).astype(np.float32))
+                np.testing.assert_array_equal(batch.plane_normals[i], expected.plane.normal)
+                assert batch.labels[i] == ds.class_names.index(name)
+    # The guided contours' planes pass through the centre and two of the recorded interest points.
+    points = ds.interest_points("mug/0")["guided"]
+    assert points.shape == (10, 3) and set(ds.interest_points("mug/0")) == {"guided"}
+    i = ds.indices("guided")[0]
+    on_plane = np.abs((points - batch.plane_points[i]) @ batch.plane_normals[i]) < 1e-6
+    assert on_plane.sum() >= 2
+
+
+def test_noisy_contact_frames_are_stored_losslessly(tmp_path):
+    # Contact mode with noise: each contour is pressed alone with its noise seed; ADC levels are exact codes.
+    sensor = FSRSensor(rows=8, cols=8, mode="contact", noise_std=0.05, adc_bits=10)
+    generate([("box", 5)], tmp_path / "s", strategies="blind", contours_per_object=4, sensor=sensor, probes=6,
+             seed=1, workers=1, progress=False)
+    ds = open_dataset(tmp_path / "s")
+    assert ds.max_frame_error == 0.0
+    model = make_object("box", 5)
+    for k in range(4):
+        expected = explore_object(model, "blind", 1, sensor, 6, seed=contour_seed(1, "box/5", "blind", k))[0]
+        np.testing.assert_array_equal(ds.frames([k])[0], expected.frames)
+
+
+def test_frame_encoding_error_bound():
+    enc = frame_encoding(FSRSensor().spec())
+    assert enc["scale"] == 10.0 / 65535 and enc["max_error"] == 5.0 / 65535
+    values = np.random.default_rng(0).uniform(0, 10, (1000, 4, 4)).astype(np.float32)
+    values[0, 0, :2] = [0.0, 10.0]
+    decoded = decode_frames(encode_frames(values, enc, "t"), enc)
+    assert decoded.dtype == np.float32 and decoded[0, 0, 1] == 10.0 and decoded[0, 0, 0] == 0.0
+    assert np.abs(decoded - values).max() <= enc["max_error"] * (1 + 1e-6)
+    with pytest.raises(DatasetError, match="NaN"):
+        encode_frames(np.array([np.nan], np.float32), enc, "obj")
+    with pytest.raises(DatasetError, match="outside"):
+        encode_frames(np.array([-1.0], np.float32), enc, "obj")
+
+
+# ------------------------------------------------------------------------ determinism, resume
+def test_workers_do_not_change_the_bytes(blind_store, tmp_path):
+    generate(BLIND_OBJECTS, tmp_path / "w2", workers=2, **BLIND)
+    assert store_files(tmp_path / "w2") == store_files(blind_store)
+
+
+def test_sigkill_part_way_then_resume_equals_an_uninterrupted_run(blind_store, tmp_path):
+    out = tmp_path / "killed"
+    script = (
+        "from tactile.dataset import generate; from tactile.sensor import FSRSensor; "
+        f"generate({BLIND_OBJECTS!r}, {str(out)!r}, strategies=('blind',), contours_per_object=12, "
+        "sensor=FSRSensor(rows=16, cols=16), probes=10, seed=7, workers=1, progress=False)"
+    )
+    # A script without a main guard: workers must not run it again (forkserver would re-import __main__).
+    (tmp_path / "run.py").write_text(script.replace("; ", "\n"))
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "run.py")], cwd=ROOT)
+    deadline = time.monotonic() + 120
+    while not list((out / "records").glob("*.json")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    time.sleep(0.5)  # the in-flight worker dies with its forkserver
+    done = len(list((out / "records").glob("*.json")))
+    assert 1 <= done < len(BLIND_OBJECTS), "the run finished before it could be killed"
+    partial = open_dataset(out)
+    assert len(partial.object_names) == done and len(partial) == done * 12
+    assert len(partial.incomplete) == len(BLIND_OBJECTS) - done
+    report = generate(BLIND_OBJECTS, out, workers=2, **BLIND)
+    assert report.skipped == done and report.completed == len(BLIND_OBJECTS) - done
+    assert store_files(out) == store_files(blind_store)
+
+
+def test_rerun_skips_complete_objects(blind_store):
+    before = {p: p.stat().st_mtime_ns for p in blind_store.rglob("*") if p.is_file()}
+    report = generate(BLIND_OBJECTS, blind_store, workers=1, **BLIND)
+    assert (report.skipped, report.completed, report.sequences) == (len(BLIND_OBJECTS), 0, 0)
+    assert {p: p.stat().st_mtime_ns for p in blind_store.rglob("*") if p.is_file()} == before
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"contours_per_object": 13}, "contours_per_object: 12 in the store, 13 asked"),
+        ({"sensor": FSRSensor(rows=16, cols=16, range_mm=8.0)}, "range_mm 10.0 -> 8.0"),
+        ({"seed": 8}, "seed: 7 in the store, 8 asked"),
+        ({"strategies": ("blind", "guided")}, "strategies"),
+    ],
+)
+def test_other_settings_on_an_existing_store_are_refused(blind_store, change, message):
+    with pytest.raises(DatasetError, match="other settings") as info:
+        generate(BLIND_OBJECTS, blind_store, workers=1, **{**BLIND, **change})
+    assert message in str(info.value) and str(blind_store) in str(info.value)
+
+
+def test_other_objects_on_an_existing_store_are_refused(blind_store):
+    with pytest.raises(DatasetError, match=r"objects\[4\]"):
+        generate([*BLIND_OBJECTS[:4], ("ring", 5), BLIND_OBJECTS[5]], blind_store, workers=1, **BLIND)
+
+
+# --------------------------------------------------------------------------------- failures
+def test_corrupt_and_aborting_meshes_are_recorded_and_the_rest_complete(tmp_path):
+    corrupt = tmp_path / "corrupt.off"
+    corrupt.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n")  # promises 3 vertices, has 2
+    objects = [("mug", 0), ObjectSpec("bad/corrupt", "bad", path=str(corrupt)),
+               ObjectSpec("bad/abort", "bad", loader=aborting_loader), ("box", 1)]
+    report = generate(objects, tmp_path / "s", strategies="blind", contours_per_object=2, sensor=SMALL, probes=5,
+                      workers=2, progress=False)
+    assert report.completed == 2 and dict(report.failed).keys() == {"bad/corrupt", "bad/abort"}
+    ds = open_dataset(tmp_path / "s")
+    assert ds.object_names == ("mug/0", "box/1") and len(ds) == 4
+    assert ds.class_names == ("bad", "box", "mug")  # labels keep their meaning when failed objects are redone
+    assert "SIGABRT" in ds.failed["bad/abort"]
+    assert "MeshLoadError" in ds.failed["bad/corrupt"] and "corrupt.off" in ds.failed["bad/corrupt"]
+
+
+def test_strict_stops_at_the_first_failure(tmp_path):
+    objects = [ObjectSpec("bad/abort", "bad", loader=aborting_loader), ("mug", 0), ("box", 1), ("can", 2)]
+    with pytest.raises(DatasetError, match="SIGABRT.*strict"):
+        generate(objects, tmp_path / "s", strategies="blind", contours_per_object=2, sensor=SMALL, probes=5,
+                 workers=1, strict=True, progress=False)
+    ds = open_dataset(tmp_path / "s")
+    assert "bad/abort" in ds.failed and len(ds.object_names) < 3
+
+
+def test_a_hanging_object_times_out_and_is_recorded(tmp_path):
+    objects = [ObjectSpec("bad/hang", "bad", loader=hanging_loader), ("mug", 0)]
+    start = time.monotonic()
+    report = generate(objects, tmp_path / "s", strategies="blind", contours_per_object=2, sensor=SMALL, probes=5,
+                      workers=2, object_timeout_s=3, progress=False)
+    assert time.monotonic() - start < 60
+    assert report.completed == 1 and report.failed == [("bad/hang", "timed out after 3 s")]
+
+
+def test_blind_never_computes_saliency_and_guided_computes_it_once(tmp_path):
+    spec = ObjectSpec("mug/0", "mug", loader=mug_without_saliency)
+    report = generate([spec], tmp_path / "blind", strategies="blind", contours_per_object=2, sensor=SMALL,
+                      probes=5, workers=1, progress=False)
+    assert report.completed == 1, report.failed
+    calls = tmp_path / "calls.txt"
+    spec = ObjectSpec("mug/0", "mug", loader=functools.partial(mug_counting_saliency, str(calls)))
+    report = generate([spec], tmp_path / "both", strategies=("guided", "blind"), contours_per_object=2,
+                      sensor=SMALL, probes=5, workers=1, progress=False)
+    assert report.completed == 1, report.failed
+    assert calls.read_text().split() == ["multiview"]
+
+
+# ------------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"strategies": ("blind", "psychic")}, "unknown strategies"),
+        ({"strategies": ()}, "non-empty"),
+        ({"contours_per_object": 0}, "contours_per_object must be an integer >= 1"),
+        ({"probes": 1}, "probes must be"),
+        ({"workers": 0}, "workers must be"),
+        ({"executor": "dask"}, "executor must be"),
+    ],
+)
+def test_bad_generate_arguments(tmp_path, kwargs, message):
+    with pytest.raises(DatasetError, match=message):
+        generate([("mug", 0)], tmp_path / "s", **{**BLIND, **kwargs})
+    assert not (tmp_path / "s").exists()
+
+
+def test_bad_objects_and_outputs(tmp_path):
+    with pytest.raises(DatasetError, match="both named 'mug/0'"):
+        generate([("mug", 0), ("mug", 0)], tmp_path / "s", **BLIND)
+    with pytest.raises(DatasetError, match="unknown class 'teapot'"):
+        generate([("teapot", 0)], tmp_path / "s", **BLIND)
+    with pytest.raises(DatasetError, match="no objects"):
+        generate([], tmp_path / "s", **BLIND)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    with pytest.raises(DatasetError, match="not a dataset store"):
+        generate([("mug", 0)], tmp_path / "other", **BLIND)
+
+
+def test_open_dataset_refuses_what_is_not_a_store(tmp_path):
+    with pytest.raises(DatasetError, match="no such dataset store"):
+        open_dataset(tmp_path / "missing")
+    with pytest.raises(DatasetError, match="not a dataset store"):
+        open_dataset(tmp_path)
+    import zarr
+
+    zarr.open_group(tmp_path / "plain", mode="w")
+    with pytest.raises(DatasetError, match="not a visuotactile tactile dataset"):
+        open_dataset(tmp_path / "plain")
+
+
+# ---------------------------------------------------------------------------- reading, splits
+def test_load_selects_in_the_given_order(blind_store):
+    ds = open_dataset(blind_store)
+    everything = ds.load()
+    assert len(everything) == 72 and everything.frames.shape == (72, 10, 16, 16)
+    pick = np.array([59, 3, 30, 4])
+    part = ds.load(pick)
+    np.testing.assert_array_equal(part.frames, everything.frames[pick])
+    np.testing.assert_array_equal(part.object_ids, [4, 0, 2, 0])
+    assert part.object_names == ds.object_names and part.sensor_spec == SMALL.spec()
+    with pytest.raises(DatasetError, match="out of range"):
+        ds.load([72])
+    with pytest.raises(DatasetError, match="no strategy 'guided'"):
+        ds.indices("guided")
+
+
+def test_splits_by_sequence_are_stratified_seeded_and_disjoint(guided_store):
+    ds = open_dataset(guided_store)
+    train, test = ds.split_by_sequence(0.5, seed=1)
+    assert len(np.intersect1d(train, test)) == 0 and len(train) + len(test) == len(ds)
+    for c in range(len(ds.class_names)):
+        assert (ds.labels[test] == c).sum() == 3  # round(0.5 * 6)
+    again = ds.split_by_sequence(0.5, seed=1)
+    np.testing.assert_array_equal(again[1], test)
+    guided = ds.indices("guided")
+    train, test = ds.split_by_sequence(0.5, seed=1, index=guided)
+    assert set(train) | set(test) == set(guided)
+    with pytest.raises(DatasetError, match=r"test_fraction must be in \(0, 1\)"):
+        ds.split_by_sequence(1.0)
+
+
+def test_splits_by_object_hold_out_whole_objects_per_class(blind_store):
+    ds = open_dataset(blind_store)
+    train, test = ds.split_by_object(0.2, seed=0)
+    test_objects, train_objects = set(ds.object_ids[test]), set(ds.object_ids[train])
+    assert not test_objects & train_objects and len(test_objects) == 2  # max(1, round(0.6)) per class
+    assert sorted(ds.object_labels[list(test_objects)]) == [0, 1]
+    assert len(test) == 2 * 12
+    other = [set(ds.object_ids[ds.split_by_object(0.2, seed=s)[1]]) for s in range(6)]
+    assert len({frozenset(o) for o in other}) > 1  # the seed chooses the held-out objects
+    folds = ds.kfold_by_object(3, seed=2)
+    tested = np.concatenate([ds.object_ids[t] for _, t in folds])
+    assert sorted(set(tested)) == list(range(6)) and len(tested) == len(ds)  # each object tested once
+    for train, test in folds:
+        assert not set(ds.object_ids[train]) & set(ds.object_ids[test])
+        assert sorted(ds.object_labels[np.unique(ds.object_ids[test])]) == [0, 1]  # both classes per fold
+    with pytest.raises(DatasetError, match="cannot fill 7 folds"):
+        ds.kfold_by_object(7)
+
+
+def test_torch_dataset_reads_the_same_sequences(blind_store):
+    import torch
+
+    ds = open_dataset(blind_store)
+    pick = np.array([5, 41, 17])
+    batch = ds.load(pick)
+    tds = ds.torch_dataset(pick)
+    assert len(tds) == 3
+    loader = torch.utils.data.DataLoader(tds, batch_size=2, shuffle=False)
+    frames, probe, labels = zip(*loader)
+    np.testing.assert_array_equal(torch.cat(frames).numpy(), batch.frames)
+    np.testing.assert_array_equal(torch.cat([p["normals"] for p in probe]).numpy(), batch.normals)
+    np.testing.assert_array_equal(torch.cat(labels).numpy(), batch.labels)
+    # Picklable (DataLoader workers): a copy reads the same item.
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(tds))
+    np.testing.assert_array_equal(copy[2][0].numpy(), batch.frames[2])
