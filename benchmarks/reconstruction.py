@@ -15,6 +15,7 @@
     a figure of it.
 
     .venv/bin/python -m benchmarks.reconstruction [--quick] [--json] [--objects K] [--figure PATH]
+        [--sweep all|default] [--parts abc] [--per-object]
 """
 
 from __future__ import annotations
@@ -47,7 +48,9 @@ DEPTHS = (6, 7, 8)
 FORMATS = (".pcd", ".xyz", ".ply", ".npz")
 
 
-def _settings(quick: bool) -> list[dict]:
+def _settings(quick: bool, sweep: str = "all") -> list[dict]:
+    if sweep == "default":
+        return [{"sweep": "default", "views": 4, "distance_mm": 500.0, "depth": 7, "icp": True}]
     views = (1, 4) if quick else VIEWS
     distances = (500.0,) if quick else DISTANCES_MM
     depths = (6, 7) if quick else DEPTHS
@@ -58,9 +61,9 @@ def _settings(quick: bool) -> list[dict]:
     return rows
 
 
-def views_sweep(classes: list[str], quick: bool, seed: int) -> list[dict]:
+def views_sweep(classes: list[str], quick: bool, seed: int, sweep: str = "all") -> list[dict]:
     rows = []
-    for setting in _settings(quick):
+    for setting in _settings(quick, sweep):
         per_object = []
         for name in classes:
             camera = VirtualOakCamera(make_object(name, 0), seed=seed)
@@ -195,13 +198,31 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="one object, fewer settings")
     parser.add_argument("--objects", type=int, default=None, help="built-in classes to use (default 3, quick 1)")
     parser.add_argument("--figure", default=None, help="write the real-frame segmentation figure here (PNG)")
+    parser.add_argument("--sweep", choices=("all", "default"), default="all",
+                        help="all: views, distance, depth and ICP sweeps; default: only 4 views at 500 mm, depth 7")
+    parser.add_argument("--parts", default="abc", help="which parts to run (default abc)")
+    parser.add_argument("--per-object", action="store_true", help="print (a) per object too")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     n = args.objects or (1 if args.quick else 3)
     preferred = ["bottle", "mug", "box", "can", "bowl", "wineglass", "hammer", "funnel", "spoon", "ring"]
     classes = [c for c in preferred if c in CLASSES][:n]
 
-    result = {"machine": machine(), "classes": classes, "views": views_sweep(classes, args.quick, args.seed)}
+    result = {"machine": machine(), "classes": classes}
+    if "a" in args.parts:
+        _part_a(result, classes, args)
+    if "b" in args.parts:
+        _part_b(result, classes, args)
+    if "c" in args.parts:
+        _part_c(result, args)
+    if args.json:
+        json.dump(result, sys.stdout, indent=2, default=str)
+        sys.stdout.write("\n")
+    return 0
+
+
+def _part_a(result: dict, classes: list[str], args) -> None:
+    result["views"] = views_sweep(classes, args.quick, args.seed, args.sweep)
     _print_table(
         f"(a) virtual OAK-D 400p -> reconstruction, surface error to the true mesh (mean over {', '.join(classes)})",
         result["views"],
@@ -209,6 +230,18 @@ def main(argv: list[str] | None = None) -> int:
          ("mean mm", "mean_mm"), ("p95 mm", "p95_mm"), ("worst p95", "worst_p95_mm"), ("cover p95", "coverage_p95_mm"), ("points", "points"),
          ("capture s", "capture_s"), ("recon s", "reconstruct_s")],
     )
+    if args.per_object:
+        _print_table(
+            "(a) per object",
+            [{**o, "views": r["views"], "distance_mm": r["distance_mm"], "depth": r["depth"], "icp": r["icp"]}
+             for r in result["views"] for o in r["objects"]],
+            [("object", "object"), ("views", "views"), ("dist mm", "distance_mm"), ("depth", "depth"),
+             ("icp", "icp"), ("mean mm", "mean_mm"), ("p95 mm", "p95_mm"), ("cover p95", "coverage_p95_mm"),
+             ("recon s", "reconstruct_s")],
+        )
+
+
+def _part_b(result: dict, classes: list[str], args) -> None:
     result["files"] = files_sweep(classes, args.seed)
     _print_table(
         "(b) point-cloud files (15k samples) -> load_points, error to the true mesh",
@@ -216,6 +249,9 @@ def main(argv: list[str] | None = None) -> int:
         [("object", "object"), ("format", "format"), ("mean mm", "mean_mm"), ("p95 mm", "p95_mm"),
          ("max mm", "max_mm"), ("cover p95", "coverage_p95_mm"), ("load s", "load_s")],
     )
+
+
+def _part_c(result: dict, args) -> None:
     real = real_frame(args.figure)
     if real is not None:
         result["real_frame"] = real
@@ -225,10 +261,6 @@ def main(argv: list[str] | None = None) -> int:
             real["matches"],
             [("graspnet id", "graspnet_id"), ("cluster", "cluster"), ("dist mm", "distance_mm")],
         )
-    if args.json:
-        json.dump(result, sys.stdout, indent=2, default=str)
-        sys.stdout.write("\n")
-    return 0
 
 
 if __name__ == "__main__":

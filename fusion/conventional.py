@@ -5,8 +5,8 @@ One scikit-learn :class:`~sklearn.pipeline.Pipeline` (:func:`conventional_pipeli
     SequenceSeries(cue)          batch -> 19 (normals) or 22 (invariant) series of P per sequence
     WaveletStatistics(F)         3-level db2 -> rms / std / skewness of each level and of the series
     InfoGainSelector(k)          mutual information with the class, seeded
-    StandardScaler               (ours: the SOM's distances need features on one scale)
-    SOMProjection(5) | PCA(5)    "SOM to 5": a 1 x 5 map groups the features; best of each group
+    StandardScaler               (ours: PCA needs features on one scale; the SOM standardises too)
+    SOMProjection(5) | PCA(5)    "SOM to 5": a 1 x 5 map groups the features; PC1 of each
     StandardScaler               the paper's z-score
     SVC(rbf, gamma 1, C 1) Platt-calibrated, seeded | KNeighborsClassifier(10, Euclidean)
 
@@ -112,7 +112,7 @@ class ConventionalClassifier(TactileClassifier):
         n_components: features after the reduction (5).
         som_iterations: SOM training steps.
         n_neighbors: kNN's k (10); lowered to the training-set size when that is smaller.
-        random_state: seeds selection, SOM, PCA and the SVM's probability calibration.
+        random_state: seeds selection, SOM and PCA (the SVM and its unshuffled calibration folds are deterministic).
 
     Fitted: ``pipeline_`` (a :class:`~sklearn.pipeline.Pipeline` over SequenceBatches) and the base's attributes.
     """
@@ -144,9 +144,11 @@ class ConventionalClassifier(TactileClassifier):
         Raises:
             DatasetError: unknown kind, cue or reduce; an SVM with a class of a single sequence (no calibration).
         """
-        k, folds = self.n_neighbors, 5
+        k, folds, components = self.n_neighbors, 5, self.n_components
         if y is not None:
             k = max(1, min(self.n_neighbors, len(y)))
+            if self.reduce == "pca":  # PCA cannot give more components than samples or features
+                components = max(1, min(self.n_components, self.n_select, len(y)))
             smallest = int(np.bincount(np.unique(y, return_inverse=True)[1]).min())
             if self.kind == "svm" and smallest < 2:
                 raise DatasetError(
@@ -156,7 +158,7 @@ class ConventionalClassifier(TactileClassifier):
             folds = min(5, smallest)
         return conventional_pipeline(
             kind=self.kind, cue=self.cue, n_select=self.n_select, reduce=self.reduce,
-            n_components=self.n_components, som_iterations=self.som_iterations, n_neighbors=k,
+            n_components=components, som_iterations=self.som_iterations, n_neighbors=k,
             random_state=self.random_state, calibration_folds=folds,
         )
 
@@ -167,9 +169,8 @@ class ConventionalClassifier(TactileClassifier):
         self.pipeline_ = pipeline
 
     def _predict_proba(self, batch: SequenceBatch) -> np.ndarray:
-        proba = self.pipeline_.predict_proba(batch)
         # Columns follow the labels seen in training, which are all of 0..C-1 (classes_ comes from them).
-        return proba
+        return self.pipeline_.predict_proba(batch)
 
 
 def cross_validate(clf: TactileClassifier, X, folds: int = 5, seed: int = 0) -> np.ndarray:

@@ -254,7 +254,7 @@ def _report(summary: dict) -> str:
                    "(the paper's protocol; interval over sequences). Unseen: the held-out instances "
                    "(interval over objects). 95 % percentile bootstrap, 1000 resamples."), "",
                   markdown_table(rec["table"]), "", "![accuracy vs K](accuracy_vs_k.png)", ""]
-        lines += [f"![{f}]({f})" for f in rec["figures"] if f.startswith("confusion")]
+        lines += [f"![{f}]({f})" for f in summary["figures"] if f.startswith("confusion")]
         lines += ["", f"Recognition took {rec['seconds']} s (data {rec['data_seconds']} s). Models: "
                   + ", ".join(f"`{m}`" for m in rec["models"]), ""]
     return "\n".join(lines)

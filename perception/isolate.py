@@ -118,8 +118,11 @@ def run_isolated(func: Callable[..., Any], *args: Any, timeout_s: float, what: s
     except Exception:  # noqa: BLE001 - truncated: the child died while writing
         ok = None
     if ok is None:
-        _, status = os.waitpid(pid, 0)
-        how = f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status) else f"exit {os.WEXITSTATUS(status)}"
+        try:
+            _, status = os.waitpid(pid, 0)
+            how = f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status) else f"exit {os.WEXITSTATUS(status)}"
+        except ChildProcessError:  # SIGCHLD ignored by the application: the child was reaped for us
+            how = "exit status unknown"
         raise IsolatedCallFailed(what, f"crashed ({how})")
     # The child is exiting (its teardown takes tens of ms for a large process): reap it later, not now.
     _UNREAPED.append(pid)
@@ -138,10 +141,13 @@ def _reap_finished() -> None:
     for pid in list(_UNREAPED):
         try:
             finished, _ = os.waitpid(pid, os.WNOHANG)
-        except ChildProcessError:
+        except ChildProcessError:  # already reaped (another thread, or SIGCHLD ignored)
             finished = pid
         if finished:
-            _UNREAPED.remove(pid)
+            try:
+                _UNREAPED.remove(pid)
+            except ValueError:  # another thread removed it first
+                pass
 
 
 def _kill(pid: int) -> None:

@@ -71,6 +71,8 @@ def _patches(triangles: np.ndarray):
     relative = (directed[a, 0] == directed[b, 0]).astype(np.int8)
     graph = sparse.coo_matrix((np.ones(len(fa)), (fa, fb)), shape=(n_faces, n_faces)).tocsr()
     n_labels, labels = csgraph.connected_components(graph, directed=False)
+    if not relative.any():  # already consistent (the usual file): nothing to propagate
+        return labels, n_labels, np.zeros(n_faces, dtype=bool), np.zeros(n_faces, dtype=bool), boundary
     # One spanning forest for all patches: a virtual node n_faces joined to every patch's first triangle.
     # Parity of a tree edge = whether the two triangles disagree; pairs sharing two edges count once (a
     # disagreement between those two edges shows up as a conflict below).

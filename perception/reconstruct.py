@@ -37,10 +37,14 @@ MIN_POINTS = 30
 FLAT_RATIO = 1e-3
 #: Surface methods of :func:`surface_from_points`.
 METHODS = ("poisson", "ball_pivoting", "alpha")
+#: Surface pieces with fewer triangles than this fraction of the largest piece are dropped as specks.
+MIN_PIECE = 0.05
 #: Default alpha of alpha shapes, as a fraction of the cloud's bounding-box diagonal.
 ALPHA_FRACTION = 0.2
-#: Normals are oriented consistently on at most this many points, then copied to their neighbours.
-_ORIENT_POINTS = 4000
+#: Normals are oriented consistently on at most this many points, then copied to their neighbours. The
+#: subsample must be denser than thin walls are thick: at 4,000 points (spacing ~4 mm) the 3 mm wall of a
+#: catalogue mug got 43 % of its normals flipped; at 15,000 none (1.7 s CPU).
+_ORIENT_POINTS = 20000
 #: Smallest bytes of one point in each text / binary format (bounded-resources check before parsing).
 _MIN_POINT_BYTES = {"ascii": 6, "binary": 12}
 
@@ -309,7 +313,8 @@ def surface_from_points(
     the mean point spacing. ``alpha``: alpha shape (normals unused) with ``alpha_mm``, by default
     ``ALPHA_FRACTION`` of the cloud's bounding-box diagonal (alpha shapes need alpha above the largest gap
     between samples: on 6k random samples of a catalogue box, 15 % of the diagonal left holes, 20 % none).
-    The largest connected piece is kept and, above ``max_triangles``, simplified by quadric decimation.
+    Pieces under ``MIN_PIECE`` of the largest one are dropped and, above ``max_triangles``, the surface is
+    simplified by quadric decimation.
 
     Raises:
         InvalidArgumentError: unknown method or bad parameter.
@@ -343,9 +348,10 @@ def surface_from_points(
     if len(mesh.triangles) == 0:
         raise InvalidMeshError(f"{name}: {method} built no surface from {len(points)} points")
     labels, counts, _ = mesh.cluster_connected_triangles()
-    labels = np.asarray(labels)
-    if len(counts) > 1:
-        mesh.remove_triangles_by_mask(labels != int(np.argmax(counts)))
+    labels, counts = np.asarray(labels), np.asarray(counts)
+    small = counts < MIN_PIECE * counts.max()
+    if small.any():  # floating specks; real parts cut apart by trimming (a glass's foot) are kept
+        mesh.remove_triangles_by_mask(small[labels])
         mesh.remove_unreferenced_vertices()
     if max_triangles is not None and len(mesh.triangles) > max_triangles:
         mesh = mesh.simplify_quadric_decimation(int(max_triangles))
@@ -395,6 +401,7 @@ def points_to_model(
 
     Raises:
         InvalidMeshError: a bad cloud (:func:`validate_points`), bad normals, or no surface.
+        InvalidArgumentError: unknown surface method or bad parameter.
     """
     where = source or name  # messages name the file when there is one
     points = validate_points(points, where)
@@ -443,6 +450,7 @@ def load_points(
         MeshLoadError: missing, empty, unknown type, or unparseable file.
         InvalidMeshError: empty cloud, NaN/Inf, a handful of points, collinear or coplanar points, or no
             surface could be built.
+        InvalidArgumentError: unknown surface method or bad parameter.
     """
     normals = None
     src = None
@@ -662,6 +670,52 @@ def _inside_table(pts: np.ndarray, table: np.ndarray, normal: np.ndarray) -> np.
     return np.all(flat(pts) @ equations[:, :2].T + equations[:, 2] <= 1e-9, axis=1)
 
 
+def merge_stacked(scene: TableScene, cluster: Cluster) -> Cluster:
+    """``cluster`` joined with every other cluster of ``scene`` whose footprint centre (its centroid seen
+    from above the table) lies inside ``cluster``'s footprint, or the other way round.
+
+    On a table objects stand side by side, not on top of each other, so pieces stacked above one
+    footprint are one object split where the camera saw too little of it (a wine glass's thin stem
+    leaves its bowl and foot apart).
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    normal = scene.plane[:3]
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(normal, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+
+    def footprint(c: Cluster):
+        flat = np.stack([c.points @ u, c.points @ v], axis=1)
+        try:
+            return ConvexHull(flat).equations, flat.mean(axis=0)
+        except (QhullError, ValueError):
+            return None, flat.mean(axis=0)
+
+    def inside(equations, point) -> bool:
+        return equations is not None and bool(np.all(equations[:, :2] @ point + equations[:, 2] <= 0))
+
+    hull, centre = footprint(cluster)
+    parts = [cluster]
+    for other in scene.clusters:
+        if other is cluster:
+            continue
+        other_hull, other_centre = footprint(other)
+        if inside(hull, other_centre) or inside(other_hull, centre):
+            parts.append(other)
+    if len(parts) == 1:
+        return cluster
+    points = np.concatenate([c.points for c in parts])
+    height = points @ normal + scene.plane[3]
+    top = float(height.max())
+    mean = points.mean(axis=0)
+    return Cluster(
+        points, np.concatenate([c.colors for c in parts]), np.concatenate([c.viewpoints for c in parts]), mean,
+        mean - (height.mean() - 0.5 * top) * normal, top,
+    )
+
+
 def pick_cluster(scene: TableScene, target: np.ndarray | None = None) -> Cluster:
     """The cluster whose centroid is nearest ``target`` (mm), or the largest one.
 
@@ -749,7 +803,8 @@ def reconstruct_frames(
     """RGB-D frames of one object on a table (poses in ``frame.pose``) -> a reconstructed ``ObjectModel``.
 
     Per frame: points in the world frame, table removed, the cluster nearest ``target`` (world mm;
-    default: the first frame's largest cluster, then the nearest to it) kept. The views are ICP-refined
+    default: the first frame's largest cluster, then the nearest to it) kept, with the pieces stacked
+    above its footprint (:func:`merge_stacked`). The views are ICP-refined
     onto each other, outliers removed, normals estimated and turned towards the camera that saw each point,
     and a Poisson surface (``poisson_depth``) built; ``size_mm=None`` keeps world millimetres.
     ``method`` is the segmentation of :func:`segment_table` (``"smooth"`` for cluttered real scenes).
@@ -771,7 +826,7 @@ def reconstruct_frames(
         scene = segment_table(
             pts, cols, views, voxel_mm=voxel_mm, cluster_eps_mm=cluster_eps_mm, method=method, seed=seed + i
         )
-        cluster = pick_cluster(scene, target)
+        cluster = merge_stacked(scene, pick_cluster(scene, target))
         if target is None:
             target = cluster.centroid
         scenes.append(scene)
@@ -832,6 +887,7 @@ __all__ = [
     "estimate_normals",
     "frames_to_points",
     "load_points",
+    "merge_stacked",
     "pick_cluster",
     "points_to_model",
     "read_points",

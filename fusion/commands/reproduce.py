@@ -10,7 +10,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.commands import print_json
     from fusion.evaluate import markdown_table
     from fusion.experiments import reproduce
-    from fusion.experiments.report import table1
+    from fusion.experiments.report import pct, table1
 
     out = args.out or ("out/reproduce-quick" if args.quick else "out/reproduce")
     results = reproduce(args.data, out, classes=args.classes, objects_per_class=args.objects_per_class,
@@ -25,6 +25,14 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     if "unseen" in results:
         print("\nUnseen objects (one touch):")
         print(markdown_table(table1(results["unseen"]["rows"])))
+    if "touches" in results:
+        rows = [r for r in results["touches"]["rows"] if r["rule"] == "log"]
+        for setting in dict.fromkeys(r["setting"] for r in rows):
+            k = max(r["k"] for r in rows if r["setting"] == setting)
+            print(f"\n{setting.replace('_', ' ')}, K = {k} touches (sum of log probabilities):")
+            for r in rows:
+                if r["setting"] == setting and r["k"] == k:
+                    print(f"  {r['classifier']:<28} {r['strategy']:<7} {pct(r['accuracy'])}")
     if "runtime" in results:
         points = results["runtime"]["points"]
         for name, i in results["runtime"]["named"].items():

@@ -33,14 +33,17 @@ class Sizes:
         objects_per_class: instances per class of the paper protocol (the first ones, sorted by file name).
         paper_contours: contours per object and strategy of the paper protocol (the paper: 950).
         test_fraction: the paper protocol's held-out share of sequences (the paper: 0.2).
-        unseen_contours, unseen_folds: contours per object of the unseen-objects part (all instances of
-            every class) and its grouped k-fold by object.
+        unseen_contours, unseen_folds: contours per object of the unseen-objects part and its grouped
+            k-fold by object.
+        unseen_per_class: instances per class of the unseen-objects part (None: all).
         touches: K, the contours per decision.
         noise_contours: held-out contours per object for each noise level (same seed at every level).
         noise_levels: kind -> levels (see :data:`NOISE_KINDS`); level 0 (clean) is always added.
         attention_contours, attention_folds: per object, and the grouped k-fold by object, of the attention
             comparison (paper objects).
         runtime_contours: contours per object of each (probes, grid) store of the error-vs-run-time part.
+        runtime_strategies: the strategies timed there (default guided, the paper's method; its saliency
+            time is stated separately).
         runtime_probes, runtime_grids: probes per contour and taxel grids (n x n) compared there.
         epochs: CNN epochs (None: the classifier's default).
         paper_classifiers, unseen_classifiers: which classifiers (see ``fusion.experiments.models``) each
@@ -52,8 +55,9 @@ class Sizes:
     objects_per_class: int = 3
     paper_contours: int = 950
     test_fraction: float = 0.2
-    unseen_contours: int = 100
-    unseen_folds: int = 5
+    unseen_contours: int = 24
+    unseen_folds: int = 3
+    unseen_per_class: int | None = None
     touches: tuple[int, ...] = (1, 2, 4, 8)
     noise_contours: int = 10
     noise_levels: dict = field(
@@ -63,14 +67,15 @@ class Sizes:
             "pose_jitter": (0.5, 1.0, 2.0),
         }
     )
-    attention_contours: int = 100
+    attention_contours: int = 40
     attention_folds: int = 3
-    runtime_contours: int = 60
+    runtime_contours: int = 20
+    runtime_strategies: tuple[str, ...] = ("guided",)
     runtime_probes: tuple[int, ...] = (5, 10, 25, 50)
     runtime_grids: tuple[int, ...] = (8, 16, 32)
     epochs: int | None = None
     paper_classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
-    unseen_classifiers: tuple[str, ...] = ("cnn", "cnn-invariant", "svm", "knn")
+    unseen_classifiers: tuple[str, ...] = ("cnn-invariant", "svm", "knn")
 
     def __post_init__(self) -> None:
         for name in ("paper_classes", "objects_per_class", "paper_contours", "unseen_contours", "noise_contours",
@@ -87,8 +92,10 @@ class Sizes:
             raise InvalidArgumentError(f"Sizes.touches must be positive integers, got {self.touches!r}")
         from tactile.sampling import STRATEGIES
 
-        if not self.strategies or set(self.strategies) - set(STRATEGIES):
-            raise InvalidArgumentError(f"Sizes.strategies must be among {list(STRATEGIES)}, got {self.strategies!r}")
+        for name in ("strategies", "runtime_strategies"):
+            value = getattr(self, name)
+            if not value or set(value) - set(STRATEGIES):
+                raise InvalidArgumentError(f"Sizes.{name} must be among {list(STRATEGIES)}, got {value!r}")
         unknown = set(self.noise_levels) - set(NOISE_KINDS)
         if unknown:
             raise InvalidArgumentError(f"Sizes.noise_levels: unknown kinds {sorted(unknown)}; use {list(NOISE_KINDS)}")
@@ -110,12 +117,12 @@ QUICK = Sizes(
     paper_contours=60,
     unseen_contours=16,
     unseen_folds=3,
+    unseen_per_class=4,
     noise_contours=3,
     noise_levels={"taxel_noise": (0.3, 1.0), "dead_taxels": (0.2, 0.5), "pose_jitter": (1.0, 2.0)},
     attention_contours=16,
     runtime_contours=16,
-    runtime_probes=(10, 25),
-    runtime_grids=(16, 32),
+    runtime_probes=(5, 25),
+    runtime_grids=(8, 32),
     epochs=5,
-    unseen_classifiers=("cnn", "svm", "knn"),
 )

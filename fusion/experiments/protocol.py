@@ -1,9 +1,14 @@
-"""The paper's protocol (80/20 by sequence) and unseen objects (grouped k-fold by object), both strategies,
-and K touches per decision on their test predictions."""
+"""The paper's protocol (80/20 by sequence) and unseen objects (grouped k-fold by object), for each strategy
+of the run's sizes, and K touches per decision on their test predictions.
+
+Models and predictions are cached under ``models/<part>/<strategy>/[fold<i>/]<classifier>.{pkl,json,npz}``.
+"""
 
 from __future__ import annotations
 
 import logging
+
+import numpy as np
 
 from fusion.evaluate import confusion, plot_confusion
 from fusion.experiments.analysis import score, touch_curve
@@ -57,14 +62,20 @@ def _loader(ds, train, test):
     return load
 
 
+def paper_dataset(ctx: Context, objects):
+    """The paper protocol's dataset (generated, resumed or reused) and its store record."""
+    sizes = ctx.sizes
+    return ensure_store(objects, ctx.path("stores"), strategies=sizes.strategies, contours=sizes.paper_contours,
+                        seed=ctx.seed, workers=ctx.workers, progress=ctx.progress)
+
+
 def paper_protocol(ctx: Context, objects) -> dict[str, dict[str, Predictions]]:
     """Train every paper classifier on 80 % of each strategy's sequences and predict the other 20 %.
 
     Returns predictions[strategy][classifier name]; models go to ``models/paper/<strategy>/``.
     """
     sizes = ctx.sizes
-    ds, record = ensure_store(objects, ctx.path("stores"), strategies=sizes.strategies,
-                      contours=sizes.paper_contours, seed=ctx.seed, workers=ctx.workers, progress=ctx.progress)
+    ds, record = paper_dataset(ctx, objects)
     preds: dict[str, dict[str, Predictions]] = {}
     for strategy in sizes.strategies:
         train, test = ds.split_by_sequence(sizes.test_fraction, seed=ctx.seed, index=ds.indices(strategy))
@@ -121,10 +132,8 @@ def touches_rows(preds: dict[str, dict[str, Predictions]], setting: str, ks, see
 
 
 def _min_per_object(pred: Predictions) -> int:
-    import numpy as np
-
     return int(np.bincount(np.unique(pred.object_ids, return_inverse=True)[1]).min())
 
 
-__all__ = ["STRATEGIES", "accuracy_rows", "confusion_figures", "paper_protocol", "store_record", "touches_rows",
-           "unseen_objects"]
+__all__ = ["STRATEGIES", "accuracy_rows", "confusion_figures", "paper_dataset", "paper_protocol", "store_record",
+           "touches_rows", "unseen_objects"]

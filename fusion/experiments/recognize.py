@@ -99,7 +99,7 @@ def plot_recognition(obj: ObjectModel, result: Recognition, path: str | Path, to
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     v = obj.vertices
     step = max(1, len(v) // 4000)
-    ax.scatter(*v[::step].T, s=0.5, c="0.6", alpha=0.3)
+    ax.scatter(*v[::step].T, s=1.5, c="0.55", alpha=0.35, linewidths=0)
     colours = [f"C{i % 10}" for i in range(len(result.contours))]
     for i, (contour, colour) in enumerate(zip(result.contours, colours)):
         loop = np.vstack([contour.polyline, contour.polyline[:1]]) if contour.closed else contour.polyline

@@ -76,7 +76,10 @@ def render(results: dict) -> str:
                   f"({', '.join(paper['classes'])}), {paper['contours']} contours per object and strategy, "
                   f"{paper['test_fraction']:.0%} of each strategy's sequences held out at random (by sequence, "
                   "as in the paper: the same objects are in training and test). Interval: bootstrap over test "
-                  "sequences."), "", markdown_table(table1(paper["rows"])), ""]
+                  "sequences."), "",
+                  (f"Objects: {', '.join(paper['objects'])} (the first classes in sorted order unless named, and "
+                   "the first instances of each by file name: a fixed rule, not chosen by results)."), "",
+                  markdown_table(table1(paper["rows"])), ""]
         lines += [_image(f, f) for f in paper.get("figures", [])] + [""]
     unseen = results.get("unseen")
     if unseen:

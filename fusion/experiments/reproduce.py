@@ -26,6 +26,7 @@ from fusion.experiments.models import default_classifiers
 from fusion.experiments.protocol import (
     accuracy_rows,
     confusion_figures,
+    paper_dataset,
     paper_protocol,
     touches_rows,
     unseen_objects,
@@ -100,7 +101,6 @@ def reproduce(
         start = time.perf_counter()
         value = fn()
         ctx.timings[name] = round(time.perf_counter() - start, 1)
-        _write(out, results)  # a partial report after every part
         return value
 
     paper_preds = unseen_preds = None
@@ -113,8 +113,9 @@ def reproduce(
             "rows": accuracy_rows(paper_preds, "decision", ctx.seed),
             "figures": confusion_figures(ctx, paper_preds, "paper"),
         }
+        _write(out, results)  # a partial report after every part
     if "unseen" in parts:
-        unseen_list = folder_objects(data, classes)
+        unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
         unseen_preds = timed("unseen", lambda: unseen_objects(ctx, unseen_list))
         results["unseen"] = {
             "n_objects": len(unseen_list), "classes": list(dict.fromkeys(label for _, label in unseen_list)),
@@ -122,22 +123,26 @@ def reproduce(
             "rows": accuracy_rows(unseen_preds, "object", ctx.seed),
             "figures": confusion_figures(ctx, unseen_preds, "unseen"),
         }
+        _write(out, results)  # a partial report after every part
     if "touches" in parts:
         rows = touches_rows(paper_preds, "paper_protocol", sizes.touches, ctx.seed)
         if unseen_preds:
             rows += touches_rows(unseen_preds, "unseen_objects", sizes.touches, ctx.seed)
         figures.plot_touches(rows, out / "accuracy_vs_k.png")
         results["touches"] = {"rows": rows, "figure": "accuracy_vs_k.png"}
+        _write(out, results)  # a partial report after every part
     if "noise" in parts:
         from fusion.experiments.robustness import noise_rows
 
         record = {"objects": [str(p) for p, _ in paper_objects], "sizes": sizes.to_dict(), "seed": ctx.seed,
                   "models": _model_records(out, sizes)}
         rows = timed("noise", lambda: ctx.cached_part("noise", record, lambda: {"rows": noise_rows(
-            ctx, load_models(paper_objects), results["paper"]["classes"])}))["rows"]
+            ctx, load_models(paper_objects), results["paper"]["classes"],
+            paper_dataset(ctx, paper_objects)[0])}))["rows"]
         figures.plot_noise(rows, NOISE_KINDS, out / "accuracy_vs_noise.png")
         results["noise"] = {"rows": rows, "contours": sizes.noise_contours, "kinds": NOISE_KINDS,
                             "figure": "accuracy_vs_noise.png"}
+        _write(out, results)  # a partial report after every part
     if "attention" in parts:
         from fusion.experiments.attention import attention_rows
 
@@ -146,6 +151,7 @@ def reproduce(
         rows = timed("attention", lambda: ctx.cached_part("attention", record, lambda: {
             "rows": attention_rows(ctx, paper_objects)}))["rows"]
         results["attention"] = {"rows": rows, "contours": sizes.attention_contours, "folds": sizes.attention_folds}
+        _write(out, results)  # a partial report after every part
     if "runtime" in parts:
         from fusion.experiments.runtime import runtime_rows
 

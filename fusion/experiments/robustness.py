@@ -3,18 +3,24 @@ read with taxel noise, dead taxels or jittered probe poses, at growing levels.
 
 Every level touches the same contours (planes and seeds from the run seed + ``TEST_SEED_OFFSET``, the object
 and the strategy, :func:`fusion.experiments.touch.touch_object`), so only the perturbation differs between
-levels; level 0 is the clean reading. Intervals: bootstrap over test sequences.
+levels; level 0 is the clean reading. Guided contours are drawn from the interest points the training store
+recorded for the object (no saliency is recomputed). Intervals: bootstrap over test sequences.
 """
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
+
+import numpy as np
 
 from fusion.base import load_model
 from fusion.experiments.analysis import score
 from fusion.experiments.context import Context
 from fusion.experiments.models import DISPLAY, predict
 from fusion.experiments.touch import load_batch, save_batch, touch_objects
+from perception.errors import SaliencyError
+from perception.geometry import ObjectModel
 from tactile.sampling import STRATEGIES as METHODS
 from tactile.sensor import FSRSensor
 
@@ -22,6 +28,38 @@ log = logging.getLogger(__name__)
 
 #: Test contours use seed + this, so they are drawn independently of the training store's.
 TEST_SEED_OFFSET = 7919
+
+
+@dataclass(frozen=True, eq=False)
+class StoredAttention:
+    """The interest points a dataset store recorded for one object, usable where sampling wants a Saliency."""
+
+    model: ObjectModel
+    method: str
+    points: np.ndarray
+
+    def interest_points(self, n: int, **_) -> np.ndarray:
+        if n > len(self.points):
+            raise SaliencyError(f"{self.model.name}: the store recorded {len(self.points)} interest points, "
+                                f"{n} asked for")
+        return self.points[:n].copy()
+
+
+def _attention(ds, models: list, strategy: str, seed: int) -> dict | None:
+    """{object name: attention} of a guided-like strategy: the store's interest points, else computed."""
+    method = METHODS[strategy]
+    if method is None:
+        return None
+    out = {}
+    for model in models:
+        stored = ds.interest_points(model.name).get(strategy) if ds is not None else None
+        if stored is not None and len(stored):
+            out[model.name] = StoredAttention(model, method, stored)
+        else:
+            from perception.saliency import saliency
+
+            out[model.name] = saliency(model, method, seed=seed)
+    return out
 
 
 def _sensor_and_jitter(kind: str, level: float) -> tuple[FSRSensor, float]:
@@ -32,8 +70,12 @@ def _sensor_and_jitter(kind: str, level: float) -> tuple[FSRSensor, float]:
     return FSRSensor(), float(level)
 
 
-def noise_rows(ctx: Context, models: list, class_names: list[str]) -> list[dict]:
-    """Accuracy rows {kind, level, strategy, classifier, accuracy} for every noise kind and level (0 included)."""
+def noise_rows(ctx: Context, models: list, class_names: list[str], ds=None) -> list[dict]:
+    """Accuracy rows {kind, level, strategy, classifier, accuracy} for every noise kind and level (0 included).
+
+    Args:
+        ds: the paper protocol's dataset (its recorded interest points are reused for guided contours).
+    """
     sizes = ctx.sizes
     levels = [("clean", 0.0)] + [(k, float(v)) for k, vs in sizes.noise_levels.items() for v in vs]
     attention: dict[str, dict] = {}
@@ -48,11 +90,8 @@ def noise_rows(ctx: Context, models: list, class_names: list[str]) -> list[dict]
             path = ctx.path("noise", f"{strategy}-{kind}-{level:g}.npz")
             batch = load_batch(path, key)
             if batch is None:
-                method = METHODS[strategy]
-                if method and strategy not in attention:
-                    from perception.saliency import saliency
-
-                    attention[strategy] = {m.name: saliency(m, method, seed=ctx.seed) for m in models}
+                if strategy not in attention:
+                    attention[strategy] = _attention(ds, models, strategy, ctx.seed)
                 batch = touch_objects(models, class_names, strategy, sizes.noise_contours, sensor=sensor,
                                       seed=ctx.seed + TEST_SEED_OFFSET, jitter_mm=jitter,
                                       attention=attention.get(strategy), progress=ctx.progress)
@@ -66,4 +105,4 @@ def noise_rows(ctx: Context, models: list, class_names: list[str]) -> list[dict]
     return rows
 
 
-__all__ = ["TEST_SEED_OFFSET", "noise_rows"]
+__all__ = ["TEST_SEED_OFFSET", "StoredAttention", "noise_rows"]

@@ -14,6 +14,7 @@ sequence. Guided decisions also need the object's saliency once; that time is st
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 
@@ -33,25 +34,33 @@ TIMING_OBJECTS = 2
 TIMING_CONTOURS = 5
 
 
-def touch_seconds(models: list, probes: int, grid: int, seed: int, strategies=STRATEGIES) -> dict[str, dict]:
-    """Median seconds per contour (and per object for saliency) of each strategy with a P-probe, G x G sensor."""
+def saliency_for(models: list, strategies, seed: int) -> tuple[dict, dict]:
+    """Each guided-like strategy's saliency of ``models`` ({strategy: {name: Saliency}}) and its median
+    seconds per object ({strategy: s}, 0 for blind), computed once for all (probes, grid) settings."""
     from perception.saliency import saliency
 
+    attention, seconds = {}, {}
+    for strategy in strategies:
+        attention[strategy], times = {}, []
+        for model in models if METHODS[strategy] else []:
+            start = time.perf_counter()
+            attention[strategy][model.name] = saliency(model, METHODS[strategy], seed=seed)
+            times.append(time.perf_counter() - start)
+        seconds[strategy] = float(np.median(times)) if times else 0.0
+    return attention, seconds
+
+
+def touch_seconds(models: list, probes: int, grid: int, seed: int, attention: dict,
+                  strategies=STRATEGIES) -> dict[str, float]:
+    """Median seconds per contour (cut + press) of each strategy with a P-probe, G x G sensor."""
     sensor = FSRSensor(rows=grid, cols=grid)
     out = {}
     for strategy in strategies:
         timing = TouchTiming()
         for model in models:
-            attention = None
-            if METHODS[strategy]:
-                import time
-
-                start = time.perf_counter()
-                attention = saliency(model, METHODS[strategy], seed=seed)
-                timing.saliency_seconds.append(time.perf_counter() - start)
             touch_object(model, strategy, TIMING_CONTOURS, sensor=sensor, probes=probes, seed=seed,
-                         attention=attention, timing=timing)
-        out[strategy] = {"contour_seconds": timing.median_contour(), "saliency_seconds": timing.median_saliency()}
+                         attention=attention[strategy].get(model.name), timing=timing)
+        out[strategy] = timing.median_contour()
     return out
 
 
@@ -61,15 +70,16 @@ def runtime_rows(ctx: Context, objects) -> dict:
     sizes = ctx.sizes
     by_object = min(np.unique([label for _, label in objects], return_counts=True)[1]) >= 2
     timing_models = load_models(objects[:: max(1, len(objects) // TIMING_OBJECTS)][:TIMING_OBJECTS])
+    attention, saliency_seconds = saliency_for(timing_models, sizes.runtime_strategies, ctx.seed)
     points, failures = [], []
     for probes in sizes.runtime_probes:
         for grid in sizes.runtime_grids:
             sensor = FSRSensor(rows=grid, cols=grid)
-            ds, record = ensure_store(objects, ctx.path("stores"), strategies=sizes.strategies,
+            ds, record = ensure_store(objects, ctx.path("stores"), strategies=sizes.runtime_strategies,
                               contours=sizes.runtime_contours, seed=ctx.seed, sensor=sensor, probes=probes,
                               workers=ctx.workers, progress=ctx.progress)
-            seconds = touch_seconds(timing_models, probes, grid, ctx.seed, sizes.strategies)
-            for strategy in sizes.strategies:
+            seconds = touch_seconds(timing_models, probes, grid, ctx.seed, attention, sizes.runtime_strategies)
+            for strategy in sizes.runtime_strategies:
                 index = ds.indices(strategy)
                 split = ds.split_by_object if by_object else ds.split_by_sequence
                 train, test = split(1 / 3 if by_object else 0.2, seed=ctx.seed, index=index)
@@ -86,7 +96,7 @@ def runtime_rows(ctx: Context, objects) -> dict:
                         failures.append({"classifier": name, "strategy": strategy, "probes": probes, "grid": grid,
                                          "error": f"{type(exc).__name__}: {exc}"})
                         continue
-                    per_touch = seconds[strategy]["contour_seconds"] + pred.predict_seconds
+                    per_touch = seconds[strategy] + pred.predict_seconds
                     for k in sizes.touches:
                         try:
                             acc = touches_score(pred, k, "log", by="object" if by_object else "decision",
@@ -97,9 +107,9 @@ def runtime_rows(ctx: Context, objects) -> dict:
                             "classifier": DISPLAY.get(name, name), "name": name, "strategy": strategy,
                             "probes": probes, "grid": grid, "k": k, "accuracy": acc.to_dict(),
                             "error": round(1 - acc.value, 4), "seconds": k * per_touch,
-                            "touch_seconds_per_contour": seconds[strategy]["contour_seconds"],
+                            "touch_seconds_per_contour": seconds[strategy],
                             "inference_seconds_per_sequence": pred.predict_seconds,
-                            "saliency_seconds_per_object": seconds[strategy]["saliency_seconds"],
+                            "saliency_seconds_per_object": saliency_seconds[strategy],
                             "fit_seconds": pred.fit_seconds})
     front = pareto_front([p["seconds"] for p in points], [p["error"] for p in points]) if points else []
     named = name_operating_points([p["seconds"] for p in points], [p["error"] for p in points], front)
@@ -110,4 +120,4 @@ def runtime_rows(ctx: Context, objects) -> dict:
             "split": "by object (one held-out instance per class)" if by_object else "80/20 by sequence"}
 
 
-__all__ = ["TIMING_CONTOURS", "TIMING_OBJECTS", "runtime_rows", "touch_seconds"]
+__all__ = ["TIMING_CONTOURS", "TIMING_OBJECTS", "runtime_rows", "saliency_for", "touch_seconds"]

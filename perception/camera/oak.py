@@ -183,8 +183,9 @@ class OakCamera:
         deadline = time.monotonic() + self.timeout_s
         color = depth = None
         while (color is None or depth is None) and time.monotonic() < deadline:
-            color = color_q.tryGet() or color
-            depth = depth_q.tryGet() or depth
+            new_color, new_depth = color_q.tryGet(), depth_q.tryGet()
+            color = new_color if new_color is not None else color
+            depth = new_depth if new_depth is not None else depth
             if color is None or depth is None:
                 time.sleep(0.005)
         if color is None or depth is None:

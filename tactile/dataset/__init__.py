@@ -1,6 +1,16 @@
 """Tactile datasets: :func:`generate` a zarr store (local processes or Ray), :func:`open_dataset` to read it.
 
-See :mod:`tactile.dataset.store` for the layout and the frame encoding.
+    from tactile.dataset import generate, open_dataset
+
+    generate([("mug", 0), ("box", 0)], "out/small.zarr", contours_per_object=50)  # or a mesh folder
+    ds = open_dataset("out/small.zarr")
+    train, test = ds.split_by_object(0.2, seed=0, index=ds.indices("guided"))
+    batch = ds.load(train)                 # a SequenceBatch (float32 frames in memory)
+    items = ds.torch_dataset(test)         # a torch Dataset reading one sequence chunk per item
+
+Sequence k of strategy s of object o is what ``explore_object(model, s, 1, sensor, probes,
+seed=contour_seed(seed, o, s, k))`` gives, frames within the encoding's quantisation step / 2. See
+:mod:`tactile.dataset.store` for the layout and the frame encoding.
 """
 
 from tactile.dataset.generate import EXECUTORS, GenerationReport, generate

@@ -26,6 +26,7 @@ import hashlib
 import json
 import logging
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +50,7 @@ COMPRESSOR = {"cname": "zstd", "clevel": 1, "shuffle": "shuffle"}
 CODE_MAX = np.iinfo(np.uint16).max
 
 #: name -> (dtype, trailing shape given (probes, rows, cols)) of the per-sequence arrays besides frames.
-SEQUENCE_ARRAYS: dict[str, tuple[str, callable]] = {
+SEQUENCE_ARRAYS: dict[str, tuple[str, Callable[[int, int, int], tuple]]] = {
     "normals": ("float32", lambda p, r, c: (p, 3)),
     "positions": ("float32", lambda p, r, c: (p, 3)),
     "tangents": ("float32", lambda p, r, c: (p, 3)),

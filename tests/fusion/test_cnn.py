@@ -224,6 +224,8 @@ def test_bad_input_is_refused():
         CNNClassifier(cue="colour", **FAST).fit(train)
     with pytest.raises(DatasetError, match="modality"):
         CNNClassifier(modality="smell", **FAST).fit(train)
+    with pytest.raises(DatasetError, match="augment"):
+        CNNClassifier(augment="sometimes", **FAST).fit(train)
     with pytest.raises(DatasetError, match="val_fraction"):
         CNNClassifier(**{**FAST, "val_fraction": 1.0}).fit(train)
     model = CNNClassifier(**{**FAST, "epochs": 1}).fit(train)

@@ -283,3 +283,37 @@ def test_reproduce_every_part_both_strategies(tmp_path):
     assert set(runtime["named"]) >= {"fastest", "most accurate"}
     for name in ("pareto.png", "accuracy_vs_k.png", "accuracy_vs_noise.png"):
         assert (tmp_path / "report" / name).stat().st_size > 10_000
+
+
+def test_reproduce_command_help_and_errors(tmp_path, capsys):
+    from fusion.cli import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["reproduce", "--help"])
+    assert info.value.code == 0 and "--objects-per-class" in capsys.readouterr().out
+    assert main(["reproduce", "--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "r")]) == 2
+    assert "nowhere: not a folder" in capsys.readouterr().err
+    (tmp_path / "meshes" / "a").mkdir(parents=True)
+    (tmp_path / "meshes" / "a" / "x.off").write_text("OFF\n")
+    assert main(["reproduce", "--data", str(tmp_path / "meshes"), "--classes", "b", "--out", str(tmp_path / "r")]) == 2
+    assert "no class folders ['b']" in capsys.readouterr().err
+
+
+def test_guided_noise_contours_reuse_the_stores_interest_points():
+    from fusion.experiments.robustness import StoredAttention, _attention
+
+    mug = make_object("mug", 0)
+    points = mug.vertices[::max(1, len(mug.vertices) // 10)][:10]
+
+    class FakeStore:
+        def interest_points(self, name):
+            return {"guided": points} if name == mug.name else {}
+
+    attention = _attention(FakeStore(), [mug], "guided", seed=0)
+    assert isinstance(attention[mug.name], StoredAttention)
+    assert _attention(FakeStore(), [mug], "blind", seed=0) is None
+    sequences, _ = touch_object(mug, "guided", 4, probes=8, seed=0, attention=attention[mug.name])
+    for seq in sequences:
+        # Every plane holds the centre and two of the stored points (distance to the plane ~ 0).
+        distance = np.abs((points - mug.center) @ seq.plane.normal)
+        assert np.sum(distance < 1e-6) >= 2

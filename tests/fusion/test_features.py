@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import pywt
 from scipy.stats import skew
+from sklearn.decomposition import PCA
 from sklearn.feature_selection import mutual_info_classif
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
@@ -136,21 +137,56 @@ def test_info_gain_keeps_the_informative_features():
 
 
 # ------------------------------------------------------------------------------------------ SOM
-def test_som_distances_are_distances_to_prototypes():
-    rng = np.random.default_rng(3)
-    centres = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
-    X = np.concatenate([c + 0.3 * rng.standard_normal((50, 2)) for c in centres])
-    som = SOMProjection(n_units=5, n_iterations=3000, random_state=0).fit(X)
-    d = som.transform(X)
-    assert d.shape == (150, 5) and np.isfinite(d).all()
-    np.testing.assert_allclose(d, np.linalg.norm(X[:, None] - som.prototypes_[None], axis=-1), rtol=1e-12)
-    # Each cluster centre has a prototype near it (the map covers the data).
-    assert np.linalg.norm(centres[:, None] - som.prototypes_[None], axis=-1).min(axis=1).max() < 1.5
-    again = SOMProjection(n_units=5, n_iterations=3000, random_state=0).fit(X)
-    assert np.array_equal(again.prototypes_, som.prototypes_)
-    # Constant data: prototypes collapse onto it, distances 0, finite.
-    flat = SOMProjection(n_iterations=50).fit(np.ones((10, 3)))
-    assert np.allclose(flat.transform(np.ones((2, 3))), 0.0)
+def _grouped_features(seed: int = 3):
+    """15 features: 3 noisy copies of each of 5 independent signals (column 3 g + c copies signal g)."""
+    rng = np.random.default_rng(seed)
+    y = np.repeat(np.arange(3), 60)
+    latent = rng.standard_normal((180, 5))
+    latent[:, 1] += 1.5 * y  # signal 1 carries the class
+    noise = np.array([0.1, 0.3, 0.6])  # copy 0 is the cleanest
+    X = np.repeat(latent, 3, axis=1) + rng.standard_normal((180, 15)) * np.tile(noise, 5)
+    return X * rng.uniform(0.5, 20.0, 15) + rng.uniform(-5, 5, 15), y  # arbitrary units and offsets
+
+
+def test_som_groups_redundant_features():
+    X, y = _grouped_features()
+    som = SOMProjection(n_units=5, output="best", random_state=0).fit(X, y)
+    # Each unit holds exactly the 3 copies of one signal (feature correlations are ~0.9 within, ~0 across).
+    groups = som.groups_.reshape(5, 3)
+    assert all(len(set(g)) == 1 for g in groups) and len(set(groups[:, 0])) == 5
+    # "best": per group the copy of highest mutual information with y (scikit-learn's estimate as the peer).
+    mi = mutual_info_classif(X, y, n_neighbors=3, random_state=0)
+    for unit, rep in enumerate(som.representatives_):
+        members = np.flatnonzero(som.groups_ == unit)
+        assert rep == members[np.argmax(mi[members])]
+    z = (X - X.mean(axis=0)) / X.std(axis=0)
+    np.testing.assert_allclose(som.transform(X), z[:, som.representatives_], rtol=1e-10)
+    # The informative signal's group is represented by its cleanest copy (column 3).
+    assert 3 in som.representatives_
+    # "mean": the average of each group's standardised features.
+    mean = SOMProjection(n_units=5, output="mean", random_state=0).fit(X)
+    expected = np.stack([z[:, mean.groups_ == j].mean(axis=1) for j in range(5)], axis=1)
+    np.testing.assert_allclose(mean.transform(X), expected, rtol=1e-10)
+    # "pc1" (default): each group's first principal component (scikit-learn's PCA as the peer, up to sign).
+    pc1 = SOMProjection(n_units=5, random_state=0).fit(X, y)
+    out = pc1.transform(X)
+    for j in range(5):
+        ref = PCA(n_components=1).fit_transform(z[:, pc1.groups_ == j])[:, 0]
+        np.testing.assert_allclose(np.abs(out[:, j]), np.abs(ref), rtol=1e-8, atol=1e-10)
+    again = SOMProjection(n_units=5, random_state=0).fit(X, y)
+    assert np.array_equal(again.transform(X), out)  # seeded: same bytes
+
+
+def test_som_edge_cases():
+    X, y = _grouped_features()
+    # Fewer features than units: one output per feature; constant features stay finite (0 after centring).
+    few = SOMProjection(n_units=5).fit(X[:, :3], y)
+    assert few.transform(X[:, :3]).shape == (180, 3)
+    flat = np.ones((10, 6))
+    out = SOMProjection(n_units=5, n_iterations=50).fit(flat, np.arange(10) % 2).transform(flat)
+    assert out.shape == (10, 5) and np.all(out == 0.0)
+    with pytest.raises(ValueError, match="output"):
+        SOMProjection(output="distance").fit(X)
 
 
 # ---------------------------------------------------------------------------- scikit-learn checks

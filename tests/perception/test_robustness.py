@@ -371,3 +371,21 @@ def test_bad_seeds_counts_and_channels_raise_project_errors():
     ):
         with pytest.raises(InvalidArgumentError):
             call()
+
+
+def test_a_moebius_strip_cannot_be_oriented_and_is_left_as_it_is(caplog):
+    from perception.orientation import orient_outward
+
+    n = 24  # quads around the strip; the last one joins the first with the two rows swapped
+    angle = 2 * np.pi * np.arange(n) / n
+    centre = np.stack([40 * np.cos(angle), 40 * np.sin(angle), np.zeros(n)], 1)
+    radial = np.stack([np.cos(angle), np.sin(angle), np.zeros(n)], 1)
+    across = np.cos(angle / 2)[:, None] * radial + np.sin(angle / 2)[:, None] * [0.0, 0.0, 1.0]
+    vertices = np.vstack([centre - 10 * across, centre + 10 * across])  # rows 0..n-1 and n..2n-1
+    quads = [(i, i + 1, n + i + 1, n + i) for i in range(n - 1)] + [(n - 1, n, 0, 2 * n - 1)]
+    triangles = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    with caplog.at_level(logging.WARNING, logger="perception.orientation"):
+        out, report = orient_outward(vertices, triangles, "moebius")
+    assert report.non_orientable == 1
+    np.testing.assert_array_equal(out, triangles)
+    assert warned(caplog, "non-orientable")
