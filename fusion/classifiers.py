@@ -21,7 +21,7 @@ def make_classifier(name: str, *, cue: str = "normals", seed: int = 0, progress:
     if name in ("svm", "knn"):
         from fusion.conventional import ConventionalClassifier
 
-        return ConventionalClassifier(kind=name, cue=cue, seed=seed, **options)
+        return ConventionalClassifier(kind=name, cue=cue, random_state=seed, **options)
     raise DatasetError(f"unknown classifier {name!r}; choose one of {', '.join(CLASSIFIERS)}")
 
 

@@ -20,7 +20,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     model = load_model(args.model)
     dataset = open_dataset(args.store)
     info = getattr(model, "training_", {})
-    same_store = info and info.get("store_id", "") == dataset.attrs.get("created_by", "") and \
+    same_store = info and info.get("store_id", "") == dataset.attrs.get("store_id", "") and \
         Path(info.get("store", "")).resolve() == Path(args.store).resolve()
     if same_store and info.get("split", "none") != "none":
         # Test only on what training held out.

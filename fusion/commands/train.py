@@ -40,7 +40,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     # Remembered so that `evaluate` on the same store tests on the same held-out sequences.
     model.training_ = {
         "store": str(args.store),
-        "store_id": dataset.attrs.get("created_by", ""),
+        "store_id": dataset.attrs.get("store_id", ""),
         "split": args.split,
         "strategy": args.strategy,
         "test_fraction": args.test_fraction,

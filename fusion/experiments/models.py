@@ -79,10 +79,22 @@ def digest(*parts) -> str:
     return h.hexdigest()[:16]
 
 
+#: Modules of ``fusion`` that do not define how a classifier learns (their changes keep cached models valid).
+NOT_MODEL_CODE = {"cli.py", "demo.py", "evaluate.py", "decide.py", "__init__.py"}
+
+
+def model_code_version() -> str:
+    """A hash of the classifier code (``fusion/*.py`` but :data:`NOT_MODEL_CODE`): a cached model trained by
+    other code is trained again (an old pickle may not even run with the new code)."""
+    folder = Path(__file__).resolve().parents[1]
+    files = sorted(p for p in folder.glob("*.py") if p.name not in NOT_MODEL_CODE)
+    return digest(*[f"{p.name}:{p.read_text(encoding='utf-8')}" for p in files])
+
+
 def describe(estimator: TactileClassifier) -> str:
-    """The estimator's class and parameters (part of the cache record)."""
+    """The estimator's class, parameters and code version (part of the cache record)."""
     params = {k: v for k, v in estimator.get_params(deep=False).items() if k != "progress"}
-    return f"{type(estimator).__name__}({json.dumps(params, sort_keys=True, default=str)})"
+    return f"{type(estimator).__name__}({json.dumps(params, sort_keys=True, default=str)}) code {model_code_version()}"
 
 
 def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[TactileClassifier, float]:

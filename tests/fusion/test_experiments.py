@@ -317,3 +317,22 @@ def test_guided_noise_contours_reuse_the_stores_interest_points():
         # Every plane holds the centre and two of the stored points (distance to the plane ~ 0).
         distance = np.abs((points - mug.center) @ seq.plane.normal)
         assert np.sum(distance < 1e-6) >= 2
+
+
+def test_model_cache_reloads_only_the_same_estimator_on_the_same_data(tmp_path):
+    from fusion.experiments.models import fit_cached
+
+    batch = touch_objects([make_object("box", 0), make_object("can", 0)], ["box", "can"], "blind", 3, probes=6)
+    path = tmp_path / "m.pkl"
+    calls = []
+
+    def train():
+        calls.append(1)
+        return batch
+
+    first, _ = fit_cached(lambda: NearestMean(), train, path, {"data": "a"})
+    again, _ = fit_cached(lambda: NearestMean(), train, path, {"data": "a"})
+    assert len(calls) == 1 and np.array_equal(again.means_, first.means_)  # loaded, not trained
+    fit_cached(lambda: NearestMean(scale=2.0), train, path, {"data": "a"})  # other parameters
+    fit_cached(lambda: NearestMean(scale=2.0), train, path, {"data": "b"})  # other data
+    assert len(calls) == 3
