@@ -13,10 +13,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from perception.errors import DatasetError
-from tactile.explore import SequenceBatch
+
+if TYPE_CHECKING:  # the command line imports CUES without loading the geometry stack
+    from tactile.explore import SequenceBatch
 
 CUES = ("normals", "invariant")
 INVARIANT_NAMES = ("radial_mm", "normal_out_of_plane", "normal_radial", "tangent_radial", "pad_side_mm", "step_mm")

@@ -1,7 +1,34 @@
-"""Objects, geometry and visual attention: the bottom of the visuotactile stack."""
+"""Objects, geometry and visual attention: the bottom of the visuotactile stack.
 
-from perception.errors import VisuotactileError
-from perception.geometry import Curvature, ObjectModel, load_dataset, load_object
-from perception.shapes import CLASSES, make_object
+Names are imported on first use (PEP 562), so ``import perception.errors`` (as the command line does
+before it knows what it will run) does not load Open3D.
+"""
 
-__all__ = ["CLASSES", "Curvature", "ObjectModel", "VisuotactileError", "load_dataset", "load_object", "make_object"]
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "VisuotactileError": "errors",
+    "Curvature": "geometry",
+    "ObjectModel": "geometry",
+    "load_dataset": "geometry",
+    "load_object": "geometry",
+    "CLASSES": "shapes",
+    "make_object": "shapes",
+    "load_points": "reconstruct",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'perception' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"perception.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -1,21 +1,39 @@
-"""Touching: contours on the object surface and the virtual FSR tactile array pressed along them."""
+"""Touching: contours on the object surface, the virtual FSR tactile array pressed along them, datasets.
 
-from tactile.contours import Contour, Plane, make_contour, plane_through, section
-from tactile.explore import SequenceBatch, TactileSequence, explore
-from tactile.sensor import FSRSensor
+Names are imported on first use (PEP 562): ``import tactile`` alone loads nothing heavy.
+"""
 
-__all__ = [
-    "Contour",
-    "FSRSensor",
-    "Plane",
-    "SequenceBatch",
-    "TactileSequence",
-    "explore",
-    "make_contour",
-    "plane_through",
-    "section",
-]
+from __future__ import annotations
 
-from tactile.sampling import explore_object, sample_planes
+import importlib
 
-__all__ += ["explore_object", "sample_planes"]
+_EXPORTS = {
+    "Contour": "contours",
+    "Plane": "contours",
+    "make_contour": "contours",
+    "plane_through": "contours",
+    "section": "contours",
+    "SequenceBatch": "explore",
+    "TactileSequence": "explore",
+    "explore": "explore",
+    "FSRSensor": "sensor",
+    "explore_object": "sampling",
+    "sample_planes": "sampling",
+    "TactileDataset": "dataset",
+    "generate": "dataset",
+    "open_dataset": "dataset",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'tactile' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"tactile.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -118,9 +118,6 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
 
 def register(sub) -> None:
-    from tactile.dataset import EXECUTORS
-    from tactile.sampling import STRATEGIES
-
     p = sub.add_parser(
         "generate", help="explore objects into a tactile dataset store (zarr; resumable)",
         description=__doc__.split("\n\n")[0] + " Re-running resumes; exit 1 if some objects failed.",
@@ -131,12 +128,12 @@ def register(sub) -> None:
     p.add_argument("--classes", nargs="+", help="only these classes (default: all)")
     p.add_argument("--objects-per-class", type=int, metavar="N", help="with --data: the first N files of each class")
     p.add_argument("--out", type=Path, required=True, help="the store folder (created, or resumed)")
-    p.add_argument("--strategies", nargs="+", choices=list(STRATEGIES), default=["guided", "blind"],
-                   help="sampling strategies (default: guided blind)")
+    p.add_argument("--strategies", nargs="+", default=["guided", "blind"],
+                   help="sampling strategies: blind, guided, mesh, iss (default: guided blind)")
     p.add_argument("--contours", type=int, default=950, help="contours per object and strategy (default: 950, the paper's)")
     p.add_argument("--probes", type=int, default=25, help="probes per contour (default: 25)")
     p.add_argument("--workers", type=int, default=None, help="parallel workers (default: the usable cores)")
-    p.add_argument("--executor", choices=EXECUTORS, default="local",
+    p.add_argument("--executor", default="local",
                    help="local processes or a Ray cluster (RAY_ADDRESS, else a local Ray instance)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--strict", action="store_true", help="stop at the first failed object")

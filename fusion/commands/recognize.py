@@ -43,7 +43,6 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
 
 def register(sub) -> None:
-    from tactile.sampling import STRATEGIES
 
     parser = sub.add_parser("recognize", help="recognise a mesh file by touch (class, probabilities, contours)",
                             description="Touch a mesh (OFF, OBJ, PLY, STL) along K contours with the model's "
@@ -52,8 +51,8 @@ def register(sub) -> None:
     parser.add_argument("--model", default=DEFAULT_MODEL,
                         help=f"a model from `visuotactile train` or the demo (default: {DEFAULT_MODEL})")
     parser.add_argument("--touches", "-k", type=int, default=4, help="contours per decision K (default 4)")
-    parser.add_argument("--strategy", choices=list(STRATEGIES), default="guided",
-                        help="where to touch (default guided: multiview saliency)")
+    parser.add_argument("--strategy", default="guided",
+                        help="where to touch: blind, guided (multiview saliency), mesh, iss (default: guided)")
     parser.add_argument("--rule", choices=("log", "sum"), default="log",
                         help="fusion of the K touches (default log: sum of log probabilities)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the contour choice (default 0)")
