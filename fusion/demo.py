@@ -8,8 +8,8 @@
    remaining 20 % (the paper's by-sequence protocol) and on the unseen instances; K touches per decision on
    the unseen instances. A Table-1-style table is printed and ``report.md`` written with the figures.
 
-Default sizes (about 3-4 minutes on 2 CPU cores): 10 classes x 3 instances, 40 contours per object and
-strategy (2,400 sequences), CNN at most 15 epochs. Models are saved in ``<out>/models/`` (guided) and
+Default sizes (:data:`DEMO_SIZES`, chosen for under 5 minutes on 2 CPU cores): 10 classes x 3 instances,
+30 contours per object and strategy (1,800 sequences), CNN at most 12 epochs. Models are saved in ``<out>/models/`` (guided) and
 ``<out>/models/blind/`` for ``visuotactile recognize``; stores, models and predictions are reused by a re-run.
 """
 
@@ -43,8 +43,8 @@ class DemoSizes:
     """Sizes of the demo's recognition part (defaults fit in about 5 minutes on 2 CPU cores)."""
 
     objects_per_class: int = 3
-    contours: int = 40
-    epochs: int = 15
+    contours: int = 30
+    epochs: int = 12
     touches: tuple[int, ...] = (1, 2, 4, 8)
     classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
     strategies: tuple[str, ...] = STRATEGIES

@@ -1,39 +1,24 @@
-"""Touching: contours on the object surface, the virtual FSR tactile array pressed along them, datasets.
+"""Touching: contours on the object surface, the virtual FSR tactile array pressed along them, datasets."""
 
-Names are imported on first use (PEP 562): ``import tactile`` alone loads nothing heavy.
-"""
+from tactile.contours import Contour, Plane, make_contour, plane_through, section
+from tactile.explore import SequenceBatch, TactileSequence, explore
+from tactile.sensor import FSRSensor
+from tactile.sampling import explore_object, sample_planes  # noqa: I001 (after the modules it builds on)
+from tactile.dataset import TactileDataset, generate, open_dataset
 
-from __future__ import annotations
-
-import importlib
-
-_EXPORTS = {
-    "Contour": "contours",
-    "Plane": "contours",
-    "make_contour": "contours",
-    "plane_through": "contours",
-    "section": "contours",
-    "SequenceBatch": "explore",
-    "TactileSequence": "explore",
-    "explore": "explore",
-    "FSRSensor": "sensor",
-    "explore_object": "sampling",
-    "sample_planes": "sampling",
-    "TactileDataset": "dataset",
-    "generate": "dataset",
-    "open_dataset": "dataset",
-}
-
-__all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'tactile' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"tactile.{_EXPORTS[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__all__ = [
+    "Contour",
+    "FSRSensor",
+    "Plane",
+    "SequenceBatch",
+    "TactileDataset",
+    "TactileSequence",
+    "explore",
+    "explore_object",
+    "generate",
+    "make_contour",
+    "open_dataset",
+    "plane_through",
+    "sample_planes",
+    "section",
+]

@@ -1,20 +1,35 @@
-"""``visuotactile demo``: the whole pipeline on built-in objects (what ``make demo`` runs)."""
+"""``visuotactile demo``: the whole pipeline on built-in objects, recognition included (what ``make demo`` runs)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
+from dataclasses import replace
 from pathlib import Path
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
-    from fusion.demo import run_demo
+    from fusion.commands import print_json
+    from fusion.demo import DEMO_SIZES, run_demo
 
-    run_demo(Path(args.out), seed=args.seed)
+    changes = {k: v for k, v in (("objects_per_class", args.objects_per_class), ("contours", args.contours),
+                                 ("epochs", args.epochs)) if v is not None}
+    echo = (lambda line: print(line, file=sys.stderr)) if args.json else print
+    summary = run_demo(Path(args.out), seed=args.seed, sizes=replace(DEMO_SIZES, **changes),
+                       recognition=not args.no_recognition, progress=not args.no_progress, echo=echo)
+    if args.json:
+        print_json(summary)
     return 0
 
 
 def register(sub) -> None:
-    demo = sub.add_parser("demo", help="run the pipeline on built-in objects and write figures")
+    demo = sub.add_parser("demo", help="recognise built-in objects by touch, end to end (report, figures, models)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--seed", type=int, default=0, help="seed of objects, data, splits and models (default 0)")
+    demo.add_argument("--objects-per-class", type=int, help="built-in instances per class (default 3)")
+    demo.add_argument("--contours", type=int, help="contours per object and strategy (default 30)")
+    demo.add_argument("--epochs", type=int, help="CNN epochs at most (default 12)")
+    demo.add_argument("--no-recognition", action="store_true", help="only the catalogue, saliency and touch figures")
+    demo.add_argument("--no-progress", action="store_true", help="no progress bars")
+    demo.add_argument("--json", action="store_true", help="print summary.json on stdout (tables go to stderr)")
     demo.set_defaults(func=run)

@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 
 DEFAULT_MODEL = "out/demo/models/cnn.pkl"
+#: tactile.sampling.STRATEGIES, spelled out so that the command line starts without importing Open3D.
+STRATEGIES = ("blind", "guided", "mesh", "iss")
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
@@ -43,7 +45,6 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
 
 def register(sub) -> None:
-
     parser = sub.add_parser("recognize", help="recognise a mesh file by touch (class, probabilities, contours)",
                             description="Touch a mesh (OFF, OBJ, PLY, STL) along K contours with the model's "
                                         "sensor and fuse the K decisions (sum of log probabilities).")
@@ -51,7 +52,7 @@ def register(sub) -> None:
     parser.add_argument("--model", default=DEFAULT_MODEL,
                         help=f"a model from `visuotactile train` or the demo (default: {DEFAULT_MODEL})")
     parser.add_argument("--touches", "-k", type=int, default=4, help="contours per decision K (default 4)")
-    parser.add_argument("--strategy", default="guided",
+    parser.add_argument("--strategy", choices=STRATEGIES, default="guided",
                         help="where to touch: blind, guided (multiview saliency), mesh, iss (default: guided)")
     parser.add_argument("--rule", choices=("log", "sum"), default="log",
                         help="fusion of the K touches (default log: sum of log probabilities)")

@@ -21,18 +21,6 @@ def test_unknown_arguments_are_refused_outside_bench():
         main(["demo", "--no-such-flag"])
 
 
-def test_demo_writes_figures_and_summary(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path)]) == 0
-    summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["figures"] == ["catalogue.png", "saliency.png", "contour_blind.png", "contour_guided.png"]
-    for name in summary["figures"]:
-        data = (tmp_path / name).read_bytes()
-        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
-    rows = summary["catalogue"]
-    assert all(row["watertight"] and row["diagonal_mm"] == 150.0 for row in rows)
-    assert "mug" in capsys.readouterr().out
-
-
 @pytest.mark.parametrize("name", available_benchmarks())
 def test_every_benchmark_imports_and_has_main(name):
     import importlib

@@ -336,3 +336,10 @@ def test_model_cache_reloads_only_the_same_estimator_on_the_same_data(tmp_path):
     fit_cached(lambda: NearestMean(scale=2.0), train, path, {"data": "a"})  # other parameters
     fit_cached(lambda: NearestMean(scale=2.0), train, path, {"data": "b"})  # other data
     assert len(calls) == 3
+
+
+def test_reproduce_command_offers_exactly_the_parts():
+    from fusion.commands.reproduce import PARTS as COMMAND_PARTS
+    from fusion.experiments import PARTS
+
+    assert COMMAND_PARTS == PARTS

@@ -68,3 +68,10 @@ def test_recognize_errors_are_one_line_and_exit_2(model_and_meshes, tmp_path, ca
     assert "touches must be a positive integer" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["recognize", str(meshes["box"]), "--strategy", "psychic"])
+
+
+def test_recognize_offers_exactly_the_sampling_strategies():
+    from fusion.commands.recognize import STRATEGIES
+    from tactile.sampling import STRATEGIES as SAMPLING
+
+    assert set(STRATEGIES) == set(SAMPLING)
