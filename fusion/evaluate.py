@@ -68,7 +68,7 @@ def accuracy(y_true, y_pred, *, groups=None, n_boot: int = 1000, seed: int = 0) 
         draws = rng.integers(0, len(sizes), size=(n_boot, len(sizes)))
         boot = hits[draws].sum(axis=1) / sizes[draws].sum(axis=1)
     low, high = np.percentile(boot, [2.5, 97.5])
-    return Accuracy(float(correct.mean()), float(low), float(high), int(len(correct)))
+    return Accuracy(float(correct.mean()), float(low), float(high), len(correct))
 
 
 def confusion(y_true, y_pred, classes) -> np.ndarray:

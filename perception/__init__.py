@@ -19,7 +19,7 @@ _EXPORTS = {
     "load_points": "reconstruct",
 }
 
-__all__ = sorted(_EXPORTS)
+__all__ = ["CLASSES", "Curvature", "ObjectModel", "VisuotactileError", "load_dataset", "load_object", "load_points", "make_object"]
 
 
 def __getattr__(name: str):

@@ -1,10 +1,10 @@
 """Touching: contours on the object surface, the virtual FSR tactile array pressed along them, datasets."""
 
 from tactile.contours import Contour, Plane, make_contour, plane_through, section
-from tactile.explore import SequenceBatch, TactileSequence, explore
-from tactile.sensor import FSRSensor
-from tactile.sampling import explore_object, sample_planes  # noqa: I001 (after the modules it builds on)
 from tactile.dataset import TactileDataset, generate, open_dataset
+from tactile.explore import SequenceBatch, TactileSequence, explore
+from tactile.sampling import explore_object, sample_planes
+from tactile.sensor import FSRSensor
 
 __all__ = [
     "Contour",

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -142,9 +142,9 @@ class SequenceBatch:
         """Taxel (rows, cols)."""
         return self.frames.shape[2], self.frames.shape[3]
 
-    def subset(self, index) -> "SequenceBatch":
+    def subset(self, index) -> SequenceBatch:
         """The sequences at ``index`` (an index array, a boolean mask or a slice), same class/object lists."""
-        pick = lambda a: np.asarray(a)[index]  # noqa: E731
+        pick = lambda a: np.asarray(a)[index]
         return SequenceBatch(
             frames=pick(self.frames), normals=pick(self.normals), positions=pick(self.positions),
             tangents=pick(self.tangents), pad_sides_mm=pick(self.pad_sides_mm),
@@ -159,7 +159,7 @@ class SequenceBatch:
         sequences: Sequence[TactileSequence],
         class_names: Sequence[str] | None = None,
         sensor_spec: dict | None = None,
-    ) -> "SequenceBatch":
+    ) -> SequenceBatch:
         """Stack explored sequences (same probe count and taxel grid). Labels index ``class_names``
         (default: the sorted labels present); objects are numbered in order of first appearance.
 
@@ -179,7 +179,7 @@ class SequenceBatch:
             raise DatasetError(f"SequenceBatch.from_sequences: labels {sorted(unknown)} not in {list(class_names)}")
         object_names = list(dict.fromkeys(s.object_name for s in sequences))
         object_index = {name: i for i, name in enumerate(object_names)}
-        stack = lambda attr, dtype: np.stack([getattr(s, attr) for s in sequences]).astype(dtype)  # noqa: E731
+        stack = lambda attr, dtype: np.stack([getattr(s, attr) for s in sequences]).astype(dtype)
         return cls(
             frames=stack("frames", np.float32),
             normals=stack("normals", np.float32),

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     by_object = accuracy(truth, predicted, groups=decision_groups, seed=args.seed)
     result = {
         "model": str(args.model), "store": str(args.store), "subset": subset, "touches": args.touches,
-        "rule": args.rule, "decisions": int(len(predicted)), "accuracy": acc.to_dict(),
+        "rule": args.rule, "decisions": len(predicted), "accuracy": acc.to_dict(),
         "accuracy_object_bootstrap": by_object.to_dict(),
         "per_class": per_class_accuracy(truth, predicted, classes),
     }

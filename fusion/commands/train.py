@@ -45,16 +45,16 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
         "strategy": args.strategy,
         "test_fraction": args.test_fraction,
         "seed": args.seed,
-        "train_sequences": int(len(train)),
+        "train_sequences": len(train),
     }
     model.save(args.out)
-    result = {"model": args.model, "cue": args.cue, "out": str(args.out), "train_sequences": int(len(train)),
+    result = {"model": args.model, "cue": args.cue, "out": str(args.out), "train_sequences": len(train),
               "fit_seconds": round(fit_s, 2)}
     if len(test):
         batch = dataset.load(test)
         truth = np.asarray(batch.class_names, dtype=object)[batch.labels]
         acc = accuracy(truth, model.predict(batch), seed=args.seed)
-        result.update(test_sequences=int(len(test)), test_accuracy=acc.to_dict())
+        result.update(test_sequences=len(test), test_accuracy=acc.to_dict())
     if args.json:
         print_json(result)
     else:

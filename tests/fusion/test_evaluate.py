@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 from sklearn.metrics import confusion_matrix as sk_confusion
 
-from fusion.evaluate import accuracy, confusion, markdown_table, per_class_accuracy, plot_confusion, table1_rows
+from fusion.evaluate import (
+    accuracy,
+    confusion,
+    markdown_table,
+    per_class_accuracy,
+    plot_confusion,
+    table1_rows,
+)
 from perception.errors import DatasetError
 
 
