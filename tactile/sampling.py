@@ -21,7 +21,7 @@ from perception import saliency as attention
 from perception.errors import ContourError, SaliencyError
 from perception.geometry import ObjectModel
 from perception.validate import check_count, check_seed
-from tactile.contours import Plane, make_contour, plane_through
+from tactile.contours import Contour, Plane, make_contour, plane_through
 from tactile.explore import TactileSequence, explore
 from tactile.sensor import FSRSensor
 
@@ -111,6 +111,22 @@ def sample_planes(
     return [_draw_plane(model, points, rng) for _ in range(n)]
 
 
+def draw_contour(model: ObjectModel, points: np.ndarray, rng: np.random.Generator, probes: int = 25) -> Contour:
+    """One contour through ``model.center`` and two of ``points`` drawn with ``rng``; planes that miss the
+    object (or cut a zero-length contour) are re-drawn, up to ``MAX_DRAWS`` times.
+
+    Raises:
+        ContourError: ``MAX_DRAWS`` planes in a row missed the object.
+    """
+    for _ in range(MAX_DRAWS):
+        plane = _draw_plane(model, points, rng)
+        try:
+            return make_contour(model, plane, probes)
+        except ContourError as exc:
+            log.debug("%s: re-drawing a plane (%s)", model.name, exc)
+    raise ContourError(f"{model.name}: {MAX_DRAWS} planes in a row missed the object")
+
+
 def explore_object(
     model: ObjectModel,
     strategy: str = "guided",
@@ -143,15 +159,7 @@ def explore_object(
     points = _candidates(model, strategy, saliency)
     sequences = []
     for _ in tqdm(range(n_contours), desc=f"explore {model.name}", disable=not progress):
-        for _ in range(MAX_DRAWS):
-            plane = _draw_plane(model, points, rng)
-            try:
-                contour = make_contour(model, plane, probes)
-                break
-            except ContourError as exc:
-                log.debug("%s: re-drawing a plane (%s)", model.name, exc)
-        else:
-            raise ContourError(f"{model.name}: {MAX_DRAWS} planes in a row missed the object")
+        contour = draw_contour(model, points, rng, probes)
         contour_seed = int(rng.integers(2**31 - 1))
         sequences.append(explore(model, contour, sensor, seed=contour_seed, strategy=strategy))
     return sequences

@@ -20,7 +20,7 @@ from perception import saliency as attention
 from perception.errors import ContourError
 from perception.geometry import ObjectModel
 from tactile import sampling
-from tactile.contours import Contour, make_contour
+from tactile.contours import Contour
 from tactile.dataset.objects import ObjectSpec
 from tactile.dataset.store import SEQUENCE_ARRAYS, contour_seed, encode_frames, layout_of, write_record
 from tactile.sensor import FSRSensor
@@ -38,15 +38,7 @@ def draw_contour(model: ObjectModel, points: np.ndarray, probes: int, seed: int)
         ContourError: MAX_DRAWS planes in a row missed the object.
     """
     rng = np.random.default_rng(seed)
-    for _ in range(sampling.MAX_DRAWS):
-        plane = sampling._draw_plane(model, points, rng)
-        try:
-            contour = make_contour(model, plane, probes)
-            break
-        except ContourError as exc:
-            log.debug("%s: re-drawing a plane (%s)", model.name, exc)
-    else:
-        raise ContourError(f"{model.name}: {sampling.MAX_DRAWS} planes in a row missed the object")
+    contour = sampling.draw_contour(model, points, rng, probes)
     return contour, int(rng.integers(2**31 - 1))
 
 
