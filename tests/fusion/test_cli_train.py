@@ -1,0 +1,66 @@
+"""``visuotactile train`` and ``evaluate`` on a small store: held-out split remembered, K touches, errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from fusion.base import load_model
+from fusion.cli import main
+from tactile.dataset import generate, open_dataset
+from tactile.sensor import FSRSensor
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train") / "small.zarr"
+    objects = [(name, seed) for name in ("box", "ring", "spoon") for seed in (0, 1)]
+    generate(objects, out, strategies=("blind",), contours_per_object=12, sensor=FSRSensor(rows=8, cols=8),
+             probes=10, seed=0, workers=1, progress=False)
+    return out
+
+
+def test_train_then_evaluate_on_the_held_out_sequences(store, tmp_path, capsys):
+    model_path = tmp_path / "knn.pkl"
+    assert main(["train", "--store", str(store), "--model", "knn", "--out", str(model_path), "--json"]) == 0
+    trained = json.loads(capsys.readouterr().out)
+    # 6 objects x 12 contours, 20 % held out by sequence.
+    assert trained["train_sequences"] + trained["test_sequences"] == 72
+    assert 0.15 * 72 <= trained["test_sequences"] <= 0.25 * 72
+    model = load_model(model_path)
+    assert list(model.classes_) == ["box", "ring", "spoon"]
+
+    assert main(["evaluate", "--model", str(model_path), "--store", str(store), "--json",
+                 "--figure", str(tmp_path / "c.png")]) == 0
+    evaluated = json.loads(capsys.readouterr().out)
+    assert evaluated["subset"].startswith("held-out sequence split")
+    assert evaluated["decisions"] == trained["test_sequences"]
+    # The same held-out sequences, the same predictions: the same accuracy as train reported.
+    assert evaluated["accuracy"]["value"] == pytest.approx(trained["test_accuracy"]["value"])
+    assert (tmp_path / "c.png").stat().st_size > 1000
+
+    # Independent check of that accuracy with the library.
+    data = open_dataset(store)
+    _, test = data.split_by_sequence(test_fraction=0.2, seed=0, index=data.indices(None))
+    batch = data.load(test)
+    truth = np.asarray(batch.class_names)[batch.labels]
+    assert evaluated["accuracy"]["value"] == pytest.approx(np.mean(model.predict(batch) == truth))
+
+
+def test_evaluate_with_touches_groups_sequences_of_one_object(store, tmp_path, capsys):
+    model_path = tmp_path / "knn.pkl"
+    main(["train", "--store", str(store), "--model", "knn", "--out", str(model_path), "--split", "none"])
+    capsys.readouterr()
+    assert main(["evaluate", "--model", str(model_path), "--store", str(store), "--touches", "3", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["subset"] == "all sequences" and result["decisions"] == 6 * 12 // 3
+
+
+def test_bad_inputs_end_with_one_line_and_exit_2(store, tmp_path, capsys):
+    assert main(["evaluate", "--model", str(tmp_path / "missing.pkl"), "--store", str(store)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no such model file" in err[0]
+    assert main(["train", "--store", str(tmp_path / "nothing.zarr"), "--model", "svm", "--out", str(tmp_path / "m")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
