@@ -144,17 +144,17 @@ def recognise(
     Raises:
         VisuotactileError subclasses: bad source, no device, no object, unreadable model.
     """
+    timings = {}
+    start = time.perf_counter()
+    frames, truth, target, true_class = acquire(source, views, distance_mm, seed)
+    timings["capture_s"] = time.perf_counter() - start
+    # Only now the geometry stack: without a device the user hears so before Open3D has loaded.
     from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
     from perception.reconstruct import reconstruct_frames, surface_error
     from tactile.contours import make_contour
     from tactile.explore import SequenceBatch
     from tactile.sampling import explore_object
     from tactile.sensor import FSRSensor
-
-    timings = {}
-    start = time.perf_counter()
-    frames, truth, target, true_class = acquire(source, views, distance_mm, seed)
-    timings["capture_s"] = time.perf_counter() - start
     virtual = truth is not None
     start = time.perf_counter()
     rec = reconstruct_frames(
