@@ -36,22 +36,32 @@ class RawMesh:
     vertex_colors: np.ndarray | None = None
 
 
+def check_file(path: str | Path, kind: str, suffixes) -> tuple[Path, str]:
+    """``path`` as a Path and its lower-case suffix, after checking it names a non-empty file of a known type.
+
+    Raises:
+        MeshLoadError: missing, a directory, an unknown suffix, or empty; the message names ``kind``.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise MeshLoadError(f"{path}: no such file")
+    if path.is_dir():
+        raise MeshLoadError(f"{path}: is a directory, not a {kind} file")
+    suffix = path.suffix.lower()
+    if suffix not in suffixes:
+        raise MeshLoadError(f"{path}: unknown {kind} type {suffix!r} (expected one of {sorted(suffixes)})")
+    if path.stat().st_size == 0:
+        raise MeshLoadError(f"{path}: file is empty")
+    return path, suffix
+
+
 def read_mesh(path: Path) -> RawMesh:
     """Read a mesh file into arrays; polygon faces are fan-triangulated.
 
     Raises:
         MeshLoadError: missing file, directory, unknown suffix, or a file that cannot be parsed.
     """
-    path = Path(path)
-    if not path.exists():
-        raise MeshLoadError(f"{path}: no such file")
-    if path.is_dir():
-        raise MeshLoadError(f"{path}: is a directory, not a mesh file")
-    suffix = path.suffix.lower()
-    if suffix not in MESH_SUFFIXES:
-        raise MeshLoadError(f"{path}: unknown mesh type {suffix!r} (expected one of {sorted(MESH_SUFFIXES)})")
-    if path.stat().st_size == 0:
-        raise MeshLoadError(f"{path}: file is empty")
+    path, suffix = check_file(path, "mesh", MESH_SUFFIXES)
     if suffix == ".off":
         return read_off(path)
     _check_header_counts(path, suffix)

@@ -130,16 +130,7 @@ def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.nda
     Raises:
         MeshLoadError: missing, empty, unknown type, or unparseable file.
     """
-    path = Path(path)
-    if not path.exists():
-        raise MeshLoadError(f"{path}: no such file")
-    if path.is_dir():
-        raise MeshLoadError(f"{path}: is a directory, not a point-cloud file")
-    suffix = path.suffix.lower()
-    if suffix not in POINT_SUFFIXES:
-        raise MeshLoadError(f"{path}: unknown point-cloud type {suffix!r} (expected one of {sorted(POINT_SUFFIXES)})")
-    if path.stat().st_size == 0:
-        raise MeshLoadError(f"{path}: file is empty")
+    path, suffix = meshio.check_file(path, "point-cloud", POINT_SUFFIXES)
     if suffix in (".npy", ".npz"):
         return _read_arrays(path)
     data = path.read_bytes()
