@@ -24,6 +24,13 @@ ON_PLANE_TOLERANCE = 1e-9
 MAX_PLANE_POINT_MM = 1e150
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of (..., 3) arrays (same formula, same bits) without its set-up cost, which dominates
+    on the 3-vectors and short batches of a contour."""
+    i, j = [1, 2, 0], [2, 0, 1]
+    return a[..., i] * b[..., j] - a[..., j] * b[..., i]
+
+
 @dataclass(frozen=True, eq=False)
 class Plane:
     """A cutting plane: a ``point`` on it (3,) mm and a unit ``normal`` (3,).
@@ -60,10 +67,12 @@ class Plane:
 
     def basis(self) -> tuple[np.ndarray, np.ndarray]:
         """Two unit in-plane axes (u, v) with u x v = normal; u is fixed by the normal alone."""
-        axis = np.eye(3)[np.argmin(np.abs(self.normal))]
-        u = np.cross(self.normal, axis)
-        u /= np.linalg.norm(u)
-        return u, np.cross(self.normal, u)
+        if "_basis" not in self.__dict__:  # computed once: every loop of a section asks for it
+            axis = np.eye(3)[np.argmin(np.abs(self.normal))]
+            u = _cross(self.normal, axis)
+            u /= np.linalg.norm(u)
+            object.__setattr__(self, "_basis", (u, _cross(self.normal, u)))
+        return self._basis
 
     def to_dict(self) -> dict:
         """JSON-able form (lists of floats, mm)."""
@@ -86,7 +95,7 @@ def plane_through(center, p1, p2, *, min_sine: float = 1e-3) -> Plane:
         raise ContourError(f"a point given to plane_through coincides with the centre {c}: no plane")
     ua, ub = (x / np.abs(x).max() for x in (da, db))
     ua, ub = ua / np.linalg.norm(ua), ub / np.linalg.norm(ub)
-    cross = np.cross(ua, ub)
+    cross = _cross(ua, ub)
     sine = np.linalg.norm(cross)
     if not sine >= min_sine:
         raise ContourError(
@@ -122,8 +131,9 @@ def _signed_distances(model: ObjectModel, plane: Plane) -> np.ndarray:
     return d
 
 
-def _segments(model: ObjectModel, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique section segments as pairs of point ids, and the triangle of each.
+def _segments(model: ObjectModel, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The section's points as sorted point ids (P,), its unique segments as (S, 2) indices into them, and
+    the triangle of each segment (S,).
 
     Point id v < V is vertex v (on the plane); id V + a * V + b (a < b) is the crossing on edge (a, b).
     A triangle gives a segment when exactly two of its vertices/edges meet the plane: two crossed edges,
@@ -132,23 +142,27 @@ def _segments(model: ObjectModel, d: np.ndarray) -> tuple[np.ndarray, np.ndarray
     triangles, is kept once.
     """
     n_vertices = len(model.vertices)
-    side = np.sign(d).astype(np.int8)[model.triangles]
-    n_zero = (side == 0).sum(axis=1)
-    straddles = ~((side > 0).all(axis=1) | (side < 0).all(axis=1)) & (n_zero < 3)
-    tri_ids = np.flatnonzero(straddles)
+    dt = np.take(d, model.triangles)
+    # One pass over all triangles keeps those touching the plane; the rest of the work is on those few.
+    lo = np.minimum(np.minimum(dt[:, 0], dt[:, 1]), dt[:, 2])
+    hi = np.maximum(np.maximum(dt[:, 0], dt[:, 1]), dt[:, 2])
+    tri_ids = np.flatnonzero((lo <= 0) & (hi >= 0) & ((lo < 0) | (hi > 0)))
     tri = model.triangles[tri_ids].astype(np.int64)
-    side = side[tri_ids]
+    side = np.sign(dt[tri_ids]).astype(np.int8)
     ids = np.full((len(tri_ids), 6), -1, dtype=np.int64)
     ids[:, :3] = np.where(side == 0, tri, -1)
     for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
-        lo, hi = np.minimum(tri[:, i], tri[:, j]), np.maximum(tri[:, i], tri[:, j])
-        crossed = side[:, i].astype(np.int16) * side[:, j] < 0
-        ids[:, 3 + k] = np.where(crossed, n_vertices + lo * n_vertices + hi, -1)
+        lo_v, hi_v = np.minimum(tri[:, i], tri[:, j]), np.maximum(tri[:, i], tri[:, j])
+        crossed = side[:, i] * side[:, j] < 0
+        ids[:, 3 + k] = np.where(crossed, n_vertices + lo_v * n_vertices + hi_v, -1)
     keep = (ids >= 0).sum(axis=1) == 2
     # The two valid ids are the two largest in the row (invalid ones are -1).
     pairs = np.sort(ids[keep], axis=1)[:, -2:]
-    pairs, first = np.unique(pairs, axis=0, return_index=True)
-    return pairs, tri_ids[keep][first]
+    # Rows as 1-D keys of compact ids: np.unique on keys is far cheaper than on rows (axis=0).
+    nodes, compact = np.unique(pairs, return_inverse=True)
+    compact = compact.reshape(-1, 2)
+    _, first = np.unique(compact[:, 0] * len(nodes) + compact[:, 1], return_index=True)
+    return nodes, compact[first], tri_ids[keep][first]
 
 
 def _point_coordinates(model: ObjectModel, d: np.ndarray, ids: np.ndarray) -> np.ndarray:
@@ -166,6 +180,9 @@ def _point_coordinates(model: ObjectModel, d: np.ndarray, ids: np.ndarray) -> np
 
 def _walk(edges: np.ndarray, n_nodes: int) -> list[tuple[list[int], list[int], bool]]:
     """Chain undirected edges into (node list, edge list, closed) walks, open chains first."""
+    degree = np.bincount(edges.ravel(), minlength=n_nodes)
+    if (degree == 2).all():
+        return _walk_loops(edges, n_nodes)
     adjacency: list[list[int]] = [[] for _ in range(n_nodes)]
     for e, (a, b) in enumerate(edges.tolist()):
         adjacency[a].append(e)
@@ -180,7 +197,7 @@ def _walk(edges: np.ndarray, n_nodes: int) -> list[tuple[list[int], list[int], b
             cursor[node] += 1
         return incident[cursor[node]] if cursor[node] < len(incident) else -1
 
-    odd = [n for n in range(n_nodes) if len(adjacency[n]) % 2]
+    odd = np.flatnonzero(degree % 2).tolist()
     walks = []
     for start in odd + list(range(n_nodes)):
         while (edge := next_edge(start)) >= 0:
@@ -197,6 +214,31 @@ def _walk(edges: np.ndarray, n_nodes: int) -> list[tuple[list[int], list[int], b
     return walks
 
 
+def _walk_loops(edges: np.ndarray, n_nodes: int) -> list[tuple[list[int], list[int], bool]]:
+    """:func:`_walk` when every node has two edges (the section of a closed manifold): disjoint loops,
+    followed with flat lists only (the usual case, so it is kept lean)."""
+    incident = (np.argsort(edges.ravel(), kind="stable") // 2).reshape(n_nodes, 2).tolist()
+    endpoints = edges.tolist()
+    used = [False] * len(edges)
+    walks = []
+    for first in range(len(edges)):
+        if used[first]:
+            continue
+        start, node = endpoints[first]
+        nodes, path, edge = [start], [first], first
+        used[first] = True
+        while node != start:
+            nodes.append(node)
+            a, b = incident[node]
+            edge = b if a == edge else a
+            used[edge] = True
+            path.append(edge)
+            u, v = endpoints[edge]
+            node = v if u == node else u
+        walks.append((nodes, path, True))  # segments are unique, so a loop has >= 3
+    return walks
+
+
 def section_chains(model: ObjectModel, plane: Plane) -> list[Chain]:
     """The exact section of ``model`` by ``plane`` as chained polylines (see :class:`Chain`).
 
@@ -204,11 +246,9 @@ def section_chains(model: ObjectModel, plane: Plane) -> list[Chain]:
     boundary). A plane that only touches the mesh at isolated vertices gives nothing.
     """
     d = _signed_distances(model, plane)
-    pairs, seg_tris = _segments(model, d)
-    if len(pairs) == 0:
+    ids, edges, seg_tris = _segments(model, d)
+    if len(edges) == 0:
         return []
-    ids, edges = np.unique(pairs, return_inverse=True)
-    edges = edges.reshape(-1, 2)
     points = _point_coordinates(model, d, ids)
     chains = []
     for nodes, path, closed in _walk(edges, len(ids)):
@@ -390,7 +430,7 @@ def make_contour(model: ObjectModel, plane: Plane, n_probes: int = 25, *, start=
     triangle_ids = tris[k]
     normals = interpolate_normals(model, positions, triangle_ids)
     # Along the segment where it has length, else along the plane: n_plane x normal is tangent to the cut.
-    directions = np.where(seg_len[k, None] > 0, seg[k], np.cross(plane.normal, normals))
+    directions = np.where(seg_len[k, None] > 0, seg[k], _cross(plane.normal, normals))
     tangents = orthonormal_tangents(normals, directions, plane.normal)
     return Contour(plane, points, chain.closed, positions, normals, tangents, triangle_ids)
 
