@@ -16,8 +16,9 @@ One run measures, on the same objects and cores:
 
 Modes: ``--quick`` (4 catalogue objects, 20 contours, both strategies), default (SHREC 2007: 8 classes x 1
 object, 100 contours), ``--paper`` (SHREC 2007: 8 classes x 3 objects, 950 contours, both strategies =
-45,600 sequences). Classes: all but Glasses and Octopus, whose thin frames and tentacles are narrower
-than the 20 mm pad, so touches there read mostly empty pads; objects: the first 3 files of each class.
+45,600 sequences). Objects: those ``visuotactile reproduce`` uses for the paper protocol
+(:func:`fusion.experiments.data.folder_objects`: the first 8 classes in sorted order, the first 3 files of each),
+so this store and the one the experiment generates are the same.
 
     .venv/bin/python -m benchmarks.dataset [--quick | --paper] [--workers N] [--out DIR] [--keep] [--json]
 """
@@ -40,7 +41,6 @@ import numpy as np
 
 from benchmarks._common import DATA, machine
 
-PAPER_CLASSES = ("Airplane", "Bird", "Chair", "Cup", "Fish", "Hand", "Plier", "Teddy")
 RAYS_PER_CAST = 1 << 20
 
 
@@ -212,13 +212,13 @@ def loader_epoch(store: Path, workers: int, batch_size: int = 64) -> dict:
 
 # ------------------------------------------------------------------------------------------ main
 def _objects(mode: str) -> tuple[list, dict]:
-    from perception.geometry import load_dataset
+    from fusion.experiments.config import FULL
+    from fusion.experiments.data import folder_objects
 
     if mode == "quick":
         return [("box", 0), ("mug", 0), ("can", 0), ("bottle", 0)], {"contours_per_object": 20}
-    per_class, contours = (3, 950) if mode == "paper" else (1, 100)
-    items = [item for item in load_dataset(DATA / "shrec07") if item[1] in PAPER_CLASSES]
-    objects = [item for c in PAPER_CLASSES for item in [i for i in items if i[1] == c][:per_class]]
+    per_class, contours = (FULL.objects_per_class, FULL.paper_contours) if mode == "paper" else (1, 100)
+    objects = folder_objects(DATA / "shrec07", per_class=per_class, max_classes=FULL.paper_classes)
     return objects, {"contours_per_object": contours}
 
 

@@ -246,3 +246,33 @@ def test_tangent_plane_touching_one_vertex_is_a_miss(sphere):
 def test_too_few_probes(sphere, n):
     with pytest.raises(ContourError):
         make_contour(sphere, Plane([0, 0, 0], [0, 0, 1]), n_probes=n)
+
+
+def test_loop_walk_and_general_walk_find_the_same_loops():
+    """Two independent chainers (the degree-2 fast path and the general walk, forced by an extra open chain)
+    give the same cycles: a triangle and a square, edges shuffled."""
+    from tactile.contours import _walk
+
+    loops = [[0, 1, 2], [3, 4, 5, 6]]
+    edges = [(c[i], c[(i + 1) % len(c)]) for c in loops for i in range(len(c))]
+    order = np.random.default_rng(0).permutation(len(edges))
+    closed_only = np.array(edges)[order]
+    with_chain = np.concatenate([closed_only, [[7, 8], [8, 9]]])  # nodes 7 and 9 have degree 1
+
+    def cycles(walks):
+        out = set()
+        for nodes, path, closed in walks:
+            if closed:
+                k = nodes.index(min(nodes))
+                ring = nodes[k:] + nodes[:k]
+                out.add(tuple(min(ring, [ring[0]] + ring[1:][::-1])))  # one direction per cycle
+        return out
+
+    expected = {(0, 1, 2), (3, 4, 5, 6)}
+    fast = _walk(closed_only, 7)
+    general = _walk(with_chain, 10)
+    assert cycles(fast) == expected == cycles(general)
+    assert [w for w in general if not w[2]] in ([([7, 8, 9], [7, 8], False)], [([9, 8, 7], [8, 7], False)])
+    for nodes, path, _ in fast:  # each loop's edges join its consecutive nodes
+        for k, e in enumerate(path):
+            assert set(closed_only[e]) == {nodes[k], nodes[(k + 1) % len(nodes)]}
