@@ -7,6 +7,7 @@ resumes and a finished one is cheap to re-report. Predictions are cached the sam
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -83,9 +84,11 @@ def digest(*parts) -> str:
 NOT_MODEL_CODE = {"cli.py", "demo.py", "evaluate.py", "decide.py", "__init__.py"}
 
 
+@functools.cache
 def model_code_version() -> str:
     """A hash of the classifier code (``fusion/*.py`` but :data:`NOT_MODEL_CODE`): a cached model trained by
-    other code is trained again (an old pickle may not even run with the new code)."""
+    other code is trained again (an old pickle may not even run with the new code). Read once per process:
+    the code that runs is the code that was imported, whatever happens to the files during a long run."""
     folder = Path(__file__).resolve().parents[1]
     files = sorted(p for p in folder.glob("*.py") if p.name not in NOT_MODEL_CODE)
     return digest(*[f"{p.name}:{p.read_text(encoding='utf-8')}" for p in files])
