@@ -12,8 +12,10 @@ truth ships with the data:
   |mean curvature|); the fraction of the surface area within 5 mm of one is given as ``chance``.
 
 Mesh saliency is built on mean curvature, so its agreement is partly by construction; ISS and multiview
-are not. With ``--peers``, the PCL keypoint detectors (``benchmarks/peers``, built with ``make -C
-benchmarks/peers pcl``) run on the same vertices; they are skipped, saying why, when the binary is absent.
+are not. With ``--peers``, the PCL keypoint detectors (``benchmarks/peers``, built with ``make peers``) run
+on the same vertices (detection time inside the program, keypoint counts); they are skipped, saying why, when
+the binary is absent. ``--methods ...,pcl_harris,pcl_iss`` scores PCL's keypoints as saliency methods
+(``perception.saliency.PCL_METHODS``, with the mesh normals; time includes starting the program).
 
     .venv/bin/python -m benchmarks.saliency [--limit N] [--json] [--methods multiview,mesh,iss] [--peers]
 """
@@ -36,7 +38,7 @@ from tqdm import tqdm
 from benchmarks._common import DATA, machine
 from perception.curvature import quiet_stdout
 from perception.geometry import ObjectModel, load_dataset, load_object
-from perception.saliency import METHODS, saliency
+from perception.saliency import METHODS, PCL_METHODS, saliency
 
 PEER_BINARY = Path(__file__).resolve().parent / "peers" / "pcl_keypoints"
 N_INTEREST = 10
@@ -111,7 +113,7 @@ def measure(folder: Path, limit: int | None, methods: list[str], peers: bool) ->
     peer_note = None
     if peers and not PEER_BINARY.exists():
         peer_note = (
-            f"PCL peer skipped: {PEER_BINARY} is absent (build it with `make -C benchmarks/peers pcl`)"
+            f"PCL peer skipped: {PEER_BINARY} is absent (build it with `make peers`)"
         )
     for path, label in tqdm(items, desc="saliency", disable=None):
         with quiet_stdout():
@@ -172,7 +174,8 @@ def _print_table(result: dict) -> None:
     for s in result["summary"]:
         if "spearman_median" not in s:
             print(
-                f"{s['method']:<10} {s['median_s']:>9.3f} {s['max_s']:>8.3f}  (keypoints median {s['keypoints_median']})"
+                f"{s['method']:<10} {s['median_s']:>9.3f} {s['max_s']:>8.3f}  (--peers: detection inside the program "
+                f"only; keypoints median {s['keypoints_median']})"
             )
             continue
         print(
@@ -195,9 +198,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peers", action="store_true", help="also run the PCL peer (benchmarks/peers)")
     args = parser.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
-    unknown = sorted(set(methods) - set(METHODS))
+    unknown = sorted(set(methods) - set(METHODS + PCL_METHODS))
     if unknown:
-        parser.error(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
+        parser.error(f"unknown methods {unknown}; choose from {', '.join(METHODS + PCL_METHODS)}")
     if args.limit is not None and args.limit < 1:
         parser.error("--limit must be at least 1")
     if not args.data.is_dir():

@@ -12,6 +12,15 @@
   the exact surface point of their hit triangle (barycentric, no depth re-projection).
 - ``"mesh"``: mesh saliency of Lee, Varshney & Jacobs (2005) (:mod:`perception.mesh_saliency`).
 - ``"iss"``: Open3D ISS keypoints spread by a small Gaussian.
+- ``"pcl_harris"``, ``"pcl_iss"`` (:data:`PCL_METHODS`): PCL's Harris 3D and ISS 3D keypoints, from the peer
+  program ``benchmarks/peers/pcl_keypoints`` (built by ``make peers``; path overridable with
+  ``$VISUOTACTILE_PCL_KEYPOINTS``), run in a subprocess with a time limit on the vertices and vertex
+  normals (Harris uses the normals). A keypoint set, not a per-vertex map: :attr:`Saliency.keypoints` lists
+  the keypoint vertices strongest first (by the detector's response); the keypoint of rank r among K scores
+  1 - r / (2K), in (0.5, 1], and every other vertex 0.5 exp(-d^2 / 2 s^2), d its distance to the nearest
+  keypoint, s 2 % of the diagonal (as ``"iss"``), so any keypoint outranks any other vertex. With at least
+  n keypoints, ``interest_points(n)`` picks among the keypoints only (by response, spaced as usual); with
+  fewer, among all vertices (the keypoints first). All zero when the detector finds no keypoint.
 
 Channel weights are uniform unless given; :func:`fit_channel_weights` learns them from human-marked points.
 """
@@ -19,6 +28,9 @@ Channel weights are uniform unless given; :func:`fit_channel_weights` learns the
 from __future__ import annotations
 
 import logging
+import os
+import subprocess
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,6 +58,13 @@ from perception.validate import check_count, check_seed
 log = logging.getLogger(__name__)
 
 METHODS = ("multiview", "mesh", "iss")
+#: Methods run by the PCL keypoint peer program (not in METHODS: they need `make peers`).
+PCL_METHODS = ("pcl_harris", "pcl_iss")
+#: Environment variable naming the PCL peer program; default :data:`PCL_DEFAULT_BINARY`.
+PCL_BINARY_ENV = "VISUOTACTILE_PCL_KEYPOINTS"
+PCL_DEFAULT_BINARY = Path(__file__).resolve().parents[1] / "benchmarks" / "peers" / "pcl_keypoints"
+#: Time limit (s) of one run of the peer program.
+PCL_TIMEOUT_S = 300.0
 #: Default separation of interest points, as a fraction of the bounding-box diagonal (15 mm at 150 mm).
 DEFAULT_SEPARATION_FRACTION = 0.1
 #: Marked points label vertices within this fraction of the diagonal as "salient" (3 mm at 150 mm).
@@ -61,12 +80,13 @@ class Saliency:
     Attributes:
         model: the object scored.
         scores: (V,) float64 in [0, 1].
-        method: "multiview", "mesh" or "iss".
+        method: one of :data:`METHODS` or :data:`PCL_METHODS`.
         channels_computed: channel names evaluated (multiview only; empty otherwise).
         channels_skipped: channels not evaluated and why, e.g. ``{"dkl": "mesh has no colours"}``.
         channel_maps: per-channel (V,) pooled conspicuity, multiview only.
         weights: the channel weights used (multiview only).
         fixations: (K, 3) surface points (mm) of the per-view non-maximum-suppressed peaks (multiview only).
+        keypoints: (K,) int64 vertex indices of the detector's keypoints, strongest first (PCL methods only).
     """
 
     model: ObjectModel = field(repr=False)
@@ -77,9 +97,13 @@ class Saliency:
     channel_maps: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     weights: dict[str, float] = field(default_factory=dict)
     fixations: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+    keypoints: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
 
-    def _candidates(self) -> tuple[np.ndarray, np.ndarray]:
-        """Candidate surface points and their scores: the vertices, then the fixations (scores interpolated)."""
+    def _candidates(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Candidate surface points and their scores: the keypoints if there are at least ``n``, else the
+        vertices, then the fixations (scores interpolated)."""
+        if len(self.keypoints) >= n:
+            return self.model.vertices[self.keypoints], self.scores[self.keypoints]
         points, scores = self.model.vertices, self.scores
         if len(self.fixations):
             closest, _ = self.model.closest_points(self.fixations)
@@ -91,12 +115,13 @@ class Saliency:
     def interest_points(self, n: int, *, min_distance_mm: float | None = None) -> np.ndarray:
         """(n, 3) surface points (mm), greedily picked by decreasing score, at least ``min_distance_mm`` apart
         (Euclidean; default 10 % of the diagonal). Where fewer than n fit, the distance is halved and the
-        search continues, so the n points always come back. Deterministic (ties broken by index).
+        search continues, so the n points always come back. Deterministic (ties broken by index). The
+        candidates are the vertices and fixations, or the keypoints when there are at least n of them.
 
         Raises:
             SaliencyError: n < 1, n larger than the number of candidate points, or a negative distance.
         """
-        points, scores = self._candidates()
+        points, scores = self._candidates(n)
         if n < 1 or n > len(points):
             raise SaliencyError(
                 f"{self.model.name}: cannot pick {n} interest points from {len(points)} candidates"
@@ -238,19 +263,22 @@ def saliency(
 
     Args:
         model: the object.
-        method: "multiview", "mesh" or "iss".
+        method: one of :data:`METHODS` or :data:`PCL_METHODS`.
         weights: multiview channel weights (missing channels weigh 0); uniform when None.
         n_views, size_px: multiview views and image side (defaults 20 and 128).
         seed: turns the multiview view sphere; the 3D methods do not use it.
 
     Raises:
-        SaliencyError: unknown method, bad weights or view settings, a seed that is not a non-negative integer.
+        SaliencyError: unknown method, bad weights or view settings, a seed that is not a non-negative integer;
+            for a PCL method, the peer program absent, failing or past its time limit.
     """
     seed = check_seed(seed, model.name, SaliencyError, allow_none=False)
-    if method not in METHODS:
+    if method not in METHODS + PCL_METHODS:
         raise SaliencyError(
-            f"{model.name}: unknown saliency method {method!r}; choose one of {', '.join(METHODS)}"
+            f"{model.name}: unknown saliency method {method!r}; choose one of {', '.join(METHODS + PCL_METHODS)}"
         )
+    if method in PCL_METHODS:
+        return _pcl_saliency(model, method)
     if method == "mesh":
         return Saliency(model, _unit_max(mesh_saliency.mesh_saliency(model)), method)
     if method == "iss":
@@ -274,6 +302,77 @@ def saliency(
         weights=_check_weights(weights, channels, model.name),
         fixations=fixations,
     )
+
+
+# ------------------------------------------------------------------------------------ PCL keypoint peer
+def pcl_binary() -> Path:
+    """The PCL peer program: ``$VISUOTACTILE_PCL_KEYPOINTS`` when set, else :data:`PCL_DEFAULT_BINARY`."""
+    return Path(os.environ.get(PCL_BINARY_ENV) or PCL_DEFAULT_BINARY)
+
+
+def pcl_available() -> bool:
+    """Whether the PCL peer program exists and is executable (the PCL methods can run)."""
+    path = pcl_binary()
+    return path.is_file() and os.access(path, os.X_OK)
+
+
+def pcl_keypoints(
+    model: ObjectModel, detector: str, *, timeout_s: float = PCL_TIMEOUT_S
+) -> tuple[np.ndarray, np.ndarray]:
+    """PCL's ``detector`` ("harris" or "iss") on the vertices and vertex normals of ``model``: (K,) int64
+    vertex indices and (K,) float64 responses, strongest first (ties by index). Deterministic.
+
+    Raises:
+        SaliencyError: unknown detector, the program absent, failing (a crash included) or past ``timeout_s``,
+            or output that does not match the input.
+    """
+    if detector not in ("harris", "iss"):
+        raise SaliencyError(f"{model.name}: unknown PCL detector {detector!r}; choose harris or iss")
+    binary = pcl_binary()
+    if not pcl_available():
+        raise SaliencyError(
+            f"PCL keypoints unavailable: {binary} is not an executable file; build it with `make peers` "
+            f"(installs libpcl-dev with apt-get when root), or set ${PCL_BINARY_ENV} to the program"
+        )
+    normals = np.nan_to_num(model.vertex_normals, nan=0.0, posinf=0.0, neginf=0.0)
+    with tempfile.TemporaryDirectory(prefix="visuotactile-pcl-") as tmp:
+        cloud, keys, resp = (Path(tmp) / name for name in ("cloud.xyz", "keys.txt", "responses.txt"))
+        np.savetxt(cloud, np.hstack([model.vertices, normals]), fmt="%.9g")
+        try:
+            done = subprocess.run([str(binary), detector, str(cloud), str(keys), str(resp)],
+                                  capture_output=True, text=True, timeout=timeout_s, check=False)
+        except subprocess.TimeoutExpired as exc:
+            raise SaliencyError(f"{model.name}: PCL {detector} ran past its time limit ({timeout_s:g} s)") from exc
+        except OSError as exc:
+            raise SaliencyError(f"{model.name}: cannot run {binary} ({exc})") from exc
+        if done.returncode != 0:
+            why = (done.stderr.strip().splitlines() or [f"exit status {done.returncode}"])[-1]
+            raise SaliencyError(f"{model.name}: PCL {detector} failed ({why}; exit status {done.returncode})")
+        try:
+            index = np.loadtxt(keys, dtype=np.int64, ndmin=1) if keys.stat().st_size else np.zeros(0, np.int64)
+            response = np.loadtxt(resp, dtype=np.float64, ndmin=1) if resp.stat().st_size else np.zeros(0)
+        except (OSError, ValueError) as exc:
+            raise SaliencyError(f"{model.name}: unreadable PCL {detector} output ({exc})") from exc
+    if (len(index) != len(response) or len(np.unique(index)) != len(index)
+            or (len(index) and (index.min() < 0 or index.max() >= model.n_vertices))):
+        raise SaliencyError(f"{model.name}: PCL {detector} output does not match the {model.n_vertices} vertices")
+    response = np.nan_to_num(response, nan=-np.inf)
+    order = np.lexsort((index, -response))
+    return index[order], response[order]
+
+
+def _pcl_saliency(model: ObjectModel, method: str) -> Saliency:
+    """A PCL method's :class:`Saliency`: ranked keypoints and the tiered spread map (module docstring)."""
+    index, _ = pcl_keypoints(model, method.removeprefix("pcl_"))
+    scores = np.zeros(model.n_vertices)
+    if len(index):
+        d, _ = cKDTree(model.vertices[index]).query(model.vertices)
+        s = mesh_saliency.ISS_SPREAD_FRACTION * model.diagonal
+        scores = 0.5 * np.exp(-(d * d) / (2 * s * s))
+        scores[index] = 1.0 - np.arange(len(index)) / (2 * len(index))
+    else:
+        log.warning("%s: PCL %s found no keypoints; interest points fall back to vertex order", model.name, method)
+    return Saliency(model, scores, method, keypoints=index)
 
 
 # ------------------------------------------------------------------------------------ learned weights

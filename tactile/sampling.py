@@ -5,6 +5,9 @@ Every contour plane passes through the object centre and two points (normal (p1 
 - ``"blind"``: two distinct random vertices. Never computes saliency.
 - ``"guided"``: two distinct random points of the multiview saliency's interest points (the paper's method).
 - ``"mesh"``, ``"iss"``: the same with the interest points of mesh saliency or ISS keypoints.
+- ``"pcl_harris"``, ``"pcl_iss"``: the same with PCL's Harris 3D or ISS 3D keypoints, strongest first
+  (:data:`perception.saliency.PCL_METHODS`; they need the peer program that ``make peers`` builds, and
+  raise :class:`~perception.errors.SaliencyError` naming it when it is absent).
 
 Interest points come from ``Saliency.interest_points(INTEREST_POOL)``. Draws whose points are near-collinear
 with the centre (:func:`tactile.contours.plane_through` refuses them) are re-drawn up to ``MAX_DRAWS`` times.
@@ -28,7 +31,8 @@ from tactile.sensor import FSRSensor
 log = logging.getLogger(__name__)
 
 #: Strategy -> the saliency method whose interest points it draws from (None: random vertices).
-STRATEGIES: dict[str, str | None] = {"blind": None, "guided": "multiview", "mesh": "mesh", "iss": "iss"}
+STRATEGIES: dict[str, str | None] = {"blind": None, "guided": "multiview", "mesh": "mesh", "iss": "iss",
+                                     "pcl_harris": "pcl_harris", "pcl_iss": "pcl_iss"}
 #: Number of interest points the guided strategies draw pairs from.
 INTEREST_POOL = 10
 #: Draws per plane (near-collinear pairs) or per contour (planes that miss) before giving up.

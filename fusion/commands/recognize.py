@@ -8,7 +8,7 @@ from pathlib import Path
 
 DEFAULT_MODEL = "out/demo/models/cnn.pkl"
 #: tactile.sampling.STRATEGIES, spelled out so that the command line starts without importing Open3D.
-STRATEGIES = ("blind", "guided", "mesh", "iss")
+STRATEGIES = ("blind", "guided", "mesh", "iss", "pcl_harris", "pcl_iss")
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
@@ -53,7 +53,8 @@ def register(sub) -> None:
                         help=f"a model from `visuotactile train` or the demo (default: {DEFAULT_MODEL})")
     parser.add_argument("--touches", "-k", type=int, default=4, help="contours per decision K (default 4)")
     parser.add_argument("--strategy", choices=STRATEGIES, default="guided",
-                        help="where to touch: blind, guided (multiview saliency), mesh, iss (default: guided)")
+                        help="where to touch: blind, guided (multiview saliency), mesh, iss, pcl_harris, pcl_iss "
+                             "(PCL keypoints: `make peers` first) (default: guided)")
     parser.add_argument("--rule", choices=("log", "sum"), default="log",
                         help="fusion of the K touches (default log: sum of log probabilities)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the contour choice (default 0)")

@@ -144,10 +144,10 @@ def reproduce(
                             "figure": "accuracy_vs_noise.png"}
         _write(out, results)  # a partial report after every part
     if "attention" in parts:
-        from fusion.experiments.attention import attention_rows
+        from fusion.experiments.attention import attention_rows, pcl_available
 
         record = {"objects": [str(p) for p, _ in paper_objects], "sizes": sizes.to_dict(), "seed": ctx.seed,
-                  "classifier": _describe_first(ctx, sizes)}
+                  "classifier": _describe_first(ctx, sizes), "pcl": pcl_available()}
         rows = timed("attention", lambda: ctx.cached_part("attention", record, lambda: {
             "rows": attention_rows(ctx, paper_objects)}))["rows"]
         results["attention"] = {"rows": rows, "contours": sizes.attention_contours, "folds": sizes.attention_folds}
