@@ -122,7 +122,7 @@ def _raw_cast(job: tuple) -> tuple[int, float]:
         frames = np.zeros((len(n), 3, 6), dtype=np.float32)
         frames[:, 0, :3] = t * sides[sl, None]
         frames[:, 1, :3] = np.cross(n, t) * sides[sl, None]
-        frames[:, 2, :3] = p + sensor.standoff_mm * n
+        frames[:, 2, :3] = p - model.scene_origin + sensor.standoff_mm * n  # as the sensor casts
         frames[:, 2, 3:] = -n
         tensor = o3d.core.Tensor(np.matmul(grid, frames).reshape(-1, 6))
         start = time.perf_counter()

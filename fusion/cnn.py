@@ -120,8 +120,11 @@ def pool_frames(frames: np.ndarray, frame_size: int, chunk: int = 256) -> torch.
     if size == (rows, cols):
         return torch.tensor(np.asarray(frames), dtype=torch.float32)  # a copy: callers modify it in place
     out = torch.empty((s, p) + size, dtype=torch.float32)
+    limit = float(np.finfo(np.float32).max) / (rows * cols)  # no window sums more than a whole frame
     for start in range(0, s, chunk):  # chunks: never a float32 copy of a whole paper-scale store
         block = torch.from_numpy(np.asarray(frames[start:start + chunk], dtype=np.float32))
+        if block.abs().max() > limit:  # float32 window sums of such readings overflow to Inf: use float64
+            block = block.double()
         out[start:start + chunk] = F.adaptive_avg_pool2d(block.flatten(0, 1), size).view(len(block), p, *size)
     return out
 

@@ -200,13 +200,30 @@ def contourlet(frames, levels: tuple[int, ...] = DEFAULT_LEVELS) -> Contourlet:
     levels = tuple(int(lv) for lv in levels)
     x = _check_frames(frames, levels).astype(np.float64, copy=False)
     shape = x.shape[-2:]
+    # The transform is linear: frames beyond 2**256 in magnitude (or all below 2**-256) go through it scaled by a
+    # power of two (exact), so that its FFTs cannot overflow (Inf from 1e307 on) or underflow.
+    exponent = rescale_exponent(np.abs(x).max(initial=0.0))
+    x = np.ldexp(x, -exponent) if exponent else x
     bands = []
     for lv in reversed(levels):  # fine to coarse
         x, band = lp_analysis(x)
         w = dfb_windows(band.shape[-2], band.shape[-1], lv)
         spectrum = np.fft.fft2(band)[..., None, :, :]
         bands.append(np.fft.ifft2(spectrum * w).real)
+    if exponent:
+        with np.errstate(over="ignore"):  # overflow is caught just below
+            x, bands = np.ldexp(x, exponent), [np.ldexp(b, exponent) for b in bands]
+        if not (np.isfinite(x).all() and all(np.isfinite(b).all() for b in bands)):
+            raise DatasetError("contourlet: the coefficients of frames this large exceed float64; rescale the frames")
     return Contourlet(lowpass=x, bands=bands[::-1], levels=levels, shape=shape)
+
+
+def rescale_exponent(peak):
+    """The power of two to divide by that brings magnitudes ``peak`` into [0.5, 1); 0 (leave alone) where they lie
+    within [2**-256, 2**256] (squares, cubes and FFT sums stay far from overflow and underflow) or are 0, so that
+    ordinary data keeps its exact bytes."""
+    exponent = np.frexp(peak)[1]
+    return np.where(np.abs(exponent) > 256, exponent, 0)
 
 
 def icontourlet(coeffs: Contourlet) -> np.ndarray:
@@ -251,16 +268,30 @@ def subband_std(frames, levels: int = 4, chunk: int = CHUNK) -> np.ndarray:
     energy = _energy_matrix(rows, cols, levels)
     dc_gain = dfb_windows(rows, cols, levels)[:, 0, 0]
     out = np.empty((len(x), k_dirs))
+    exponents = np.zeros(len(x), dtype=np.int64)
     for start in range(0, len(x), chunk):
         block = x[start : start + chunk].astype(np.float64)
-        if not np.isfinite(block).all():
+        peak = np.abs(block).max(axis=(1, 2))
+        if not np.isfinite(peak).all():
             raise DatasetError(f"subband_std: frames {start}..{start + len(block) - 1} contain NaN or Inf")
+        # Energies square the readings: frames beyond 2**256 (or below 2**-256) are scaled by a power of two
+        # (exact) so the squares neither overflow (NaN from 1e154 on) nor underflow; the std scales back below.
+        exponent = rescale_exponent(peak)
+        if exponent.any():
+            block = np.ldexp(block, -exponent[:, None, None])
+            exponents[start : start + chunk] = exponent
         _, band = lp_analysis(block)
         spectrum = np.fft.rfft2(band)
         power = (spectrum.real**2 + spectrum.imag**2).reshape(len(band), -1)
         mean = spectrum[:, 0, 0].real[:, None] * dc_gain / (rows * cols)
         out[start : start + chunk] = power @ energy - mean**2
-    return np.sqrt(np.maximum(out, 0.0)).reshape(*lead, k_dirs)  # rounding can dip a zero variance below 0
+    std = np.sqrt(np.maximum(out, 0.0))  # rounding can dip a zero variance below 0
+    if exponents.any():
+        with np.errstate(over="ignore"):  # overflow is caught just below
+            std = np.ldexp(std, exponents[:, None])
+        if not np.isfinite(std).all():
+            raise DatasetError("subband_std: the subband std of frames this large exceeds float64; rescale the frames")
+    return std.reshape(*lead, k_dirs)
 
 
 __all__ = [
@@ -274,5 +305,6 @@ __all__ = [
     "lp_filters",
     "lp_matrices",
     "lp_synthesis",
+    "rescale_exponent",
     "subband_std",
 ]

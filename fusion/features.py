@@ -35,7 +35,7 @@ from sklearn.feature_selection import SelectorMixin, mutual_info_classif
 from sklearn.utils.validation import check_is_fitted, validate_data
 from threadpoolctl import threadpool_limits
 
-from fusion.contourlet import subband_std
+from fusion.contourlet import rescale_exponent, subband_std
 from fusion.cues import check_cue, cue_width, kinesthetic_cues
 from perception.errors import DatasetError
 from tactile.explore import SequenceBatch
@@ -118,6 +118,10 @@ class SequenceSeries(TransformerMixin, BaseEstimator):
 def safe_skew(a: np.ndarray, axis: int = -1) -> np.ndarray:
     """Sample skewness (biased, as ``scipy.stats.skew``) along ``axis``; 0 for a constant series, never NaN."""
     a = np.asarray(a, dtype=np.float64)
+    if a.shape[axis]:
+        # Skewness does not depend on scale: series beyond 2**256 (or below 2**-256) are scaled by a power of two
+        # (exact), so that their cubes cannot overflow (NaN from 1e103 on) or underflow.
+        a = np.ldexp(a, -rescale_exponent(np.max(np.abs(a), axis=axis, keepdims=True)))
     centred = a - a.mean(axis=axis, keepdims=True)
     m2 = np.mean(centred**2, axis=axis)
     m3 = np.mean(centred**3, axis=axis)
@@ -169,11 +173,19 @@ class WaveletStatistics(TransformerMixin, BaseEstimator):
         check_is_fitted(self)
         X = validate_data(self, X, dtype=np.float64, reset=False)
         series = X.reshape(len(X), int(self.n_series), -1)
+        # Series beyond 2**256 (or below 2**-256) scaled by a power of two (exact): squares of values beyond 1e154
+        # overflowed to Inf / NaN. rms and std scale back; skewness does not depend on scale.
+        exponent = rescale_exponent(np.max(np.abs(series), axis=-1, keepdims=True))
+        unit = np.ldexp(series, -exponent)
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Level value of", category=UserWarning)
-            coefficients = pywt.wavedec(series, self.wavelet, level=int(self.level), axis=-1)
-        blocks = [_statistics(a) for a in [series, *coefficients]]  # each (n, F, 3)
-        return np.stack(blocks, axis=2).reshape(len(X), -1)  # per series: [series, cA, cD...] x stats
+            coefficients = pywt.wavedec(unit, self.wavelet, level=int(self.level), axis=-1)
+        stats = np.stack([_statistics(a) for a in [unit, *coefficients]], axis=2)  # (n, F, arrays, 3)
+        with np.errstate(over="ignore"):  # overflow is caught just below
+            stats[..., :2] = np.ldexp(stats[..., :2], exponent[..., None])
+        if not np.isfinite(stats).all():
+            raise ValueError("WaveletStatistics: the rms of series this large exceeds float64; rescale the input")
+        return stats.reshape(len(X), -1)  # per series: [series, cA, cD...] x stats
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         check_is_fitted(self)

@@ -151,6 +151,9 @@ class ObjectModel:
     def triangle_normals(self) -> np.ndarray:
         """(F, 3) unit face normals (zero for degenerate faces)."""
         cross = self._face_cross
+        # Scaled to a largest component of 1 first: the squares of a cross product of 1e-200 underflow.
+        top = np.abs(cross).max(axis=1, keepdims=True)
+        cross = np.divide(cross, top, out=np.zeros_like(cross), where=top > 0)
         norm = np.linalg.norm(cross, axis=1, keepdims=True)
         return np.divide(cross, norm, out=np.zeros_like(cross), where=norm > 0)
 
@@ -214,26 +217,32 @@ class ObjectModel:
 
     @cached_property
     def float32_resolution_mm(self) -> float:
-        """Spacing of float32 numbers at the coordinate furthest from the origin, mm: how finely ray casting
-        (float32) resolves positions on this mesh."""
+        """Spacing of float32 numbers at the coordinate furthest from the origin, mm: how finely a float32
+        copy of the vertices in world coordinates resolves positions on this mesh."""
         return float(np.spacing(np.float32(np.abs(self.vertices).max())))
 
     @cached_property
-    def scene(self) -> o3d.t.geometry.RaycastingScene:
-        """An Open3D ``RaycastingScene`` holding this mesh (geometry id 0), float32, mm.
-
-        Logs a warning where float32 loses precision: a mesh far from the origin relative to its size.
-        """
+    def scene_origin(self) -> np.ndarray:
+        """(3,) float64 point the ray-casting scene is built around, mm: the origin, or the bounding-box centre
+        where the mesh lies so far from the origin that float32 world coordinates would resolve less than
+        ``FLOAT32_TOLERANCE_FRACTION`` of its diagonal. Subtract it (in float64) from ray origins and query
+        points given to :attr:`scene`; directions are unchanged."""
         if self.float32_resolution_mm > FLOAT32_TOLERANCE_FRACTION * self.diagonal:
-            log.warning(
-                "%s: lies %.3g mm from the origin; float32 ray casting resolves only %.3g mm on this %.3g mm "
-                "object, so tactile frames and renders lose precision: re-centre it (load_object with size_mm, "
-                "or subtract its centre)",
-                self.name, float(np.abs(self.vertices).max()), self.float32_resolution_mm, self.diagonal,
+            return self.center.copy()
+        return np.zeros(3)
+
+    @cached_property
+    def scene(self) -> o3d.t.geometry.RaycastingScene:
+        """An Open3D ``RaycastingScene`` holding this mesh (geometry id 0), float32, mm, in coordinates
+        relative to :attr:`scene_origin` (so a mesh far from the origin keeps its float32 precision)."""
+        if self.scene_origin.any():
+            log.info(
+                "%s: lies %.3g mm from the origin; ray casting around its centre to keep float32 precision",
+                self.name, float(np.abs(self.vertices).max()),
             )
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(
-            o3d.core.Tensor(self.vertices.astype(np.float32)),
+            o3d.core.Tensor((self.vertices - self.scene_origin).astype(np.float32)),
             o3d.core.Tensor(self.triangles.astype(np.uint32)),
         )
         return scene
@@ -250,10 +259,11 @@ class ObjectModel:
 
     def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points and unsigned distances (mm) for (N, 3) query points."""
-        query = o3d.core.Tensor(np.asarray(points, dtype=np.float32).reshape(-1, 3))
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        query = o3d.core.Tensor((points - self.scene_origin).astype(np.float32))
         result = self.scene.compute_closest_points(query)
-        closest = result["points"].numpy().astype(np.float64)
-        return closest, np.linalg.norm(closest - np.asarray(points, dtype=np.float64).reshape(-1, 3), axis=1)
+        closest = result["points"].numpy().astype(np.float64) + self.scene_origin
+        return closest, np.linalg.norm(closest - points, axis=1)
 
     def __repr__(self) -> str:
         return (

@@ -197,7 +197,8 @@ def _walk(edges: np.ndarray, n_nodes: int) -> list[tuple[list[int], list[int], b
             cursor[node] += 1
         return incident[cursor[node]] if cursor[node] < len(incident) else -1
 
-    odd = np.flatnonzero(degree % 2).tolist()
+    # True ends (one edge) first: a walk from an end runs on through a branch node instead of stopping there.
+    odd = sorted(np.flatnonzero(degree % 2).tolist(), key=lambda n: degree[n] != 1)
     walks = []
     for start in odd + list(range(n_nodes)):
         while (edge := next_edge(start)) >= 0:
@@ -251,7 +252,10 @@ def section_chains(model: ObjectModel, plane: Plane) -> list[Chain]:
         return []
     points = _point_coordinates(model, d, ids)
     chains = []
+    tolerance = ON_PLANE_TOLERANCE * max(model.diagonal, 1e-12)
     for nodes, path, closed in _walk(edges, len(ids)):
+        if not closed and len(path) >= 3 and np.linalg.norm(points[nodes[-1]] - points[nodes[0]]) <= tolerance:
+            nodes, closed = nodes[:-1], True  # both ends on one spot: a loop cut open by a crack (T-junction)
         chains.append(Chain(points[nodes], closed, seg_tris[path]))
     return chains
 

@@ -14,6 +14,7 @@ the pad y axis, both increasing with the index.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import asdict, dataclass
 from numbers import Integral, Real
 
@@ -39,6 +40,14 @@ MIN_LENGTH_MM, MAX_LENGTH_MM = 1e-6, 1e4
 MIN_PRESSURE, MAX_PRESSURE = 1e-30, 1e30
 
 
+def _finite(value: Real) -> bool:
+    """True for a finite real number; an integer too large for a float (np.isfinite raises on it) is not."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 def unit_taxel_grid(rows: int, cols: int) -> np.ndarray:
     """(rows * cols, 2) taxel-centre (x, y) on a pad of unit side centred at 0, row-major (x along cols)."""
     x = (np.arange(cols) + 0.5) / cols - 0.5
@@ -57,8 +66,8 @@ class FSRSensor:
         min_side_mm: smallest side the adaptive pad shrinks to, mm.
         mode: ``"gap"``: the distance image (mm from each taxel to the surface, clipped to
             [0, ``range_mm``]; a flat surface reads all zeros). ``"contact"``: pressure
-            ``stiffness * max(0, indent_mm - gap)``, saturated at ``saturation`` and quantised to
-            ``adc_bits``.
+            ``stiffness * max(0, indent_mm - gap)`` (0 where the gap reads the range: nothing sensed),
+            saturated at ``saturation`` and quantised to ``adc_bits``.
         range_mm: sensing range: the reading where a ray misses or the surface is further away.
         standoff_mm: height above the pad where taxel rays start. Surface poking through the pad by
             more than this reads as exactly ``-standoff_mm`` on watertight meshes (the ray starts inside).
@@ -121,7 +130,7 @@ class FSRSensor:
         non_negative = ("indent_mm", "noise_std", "dead_taxel_rate", "penetration_eps_mm")
         for name in (*positive, *non_negative, "shrink_factor"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, Real) or not np.isfinite(value):
+            if isinstance(value, bool) or not isinstance(value, Real) or not _finite(value):
                 raise SensorSpecError(f"FSRSensor.{name} must be a finite number, got {value!r}")
         for name in positive:
             if getattr(self, name) <= 0:
@@ -152,6 +161,11 @@ class FSRSensor:
             raise SensorSpecError(f"FSRSensor.shrink_factor must be in (0, 1), got {self.shrink_factor}")
         if self.dead_taxel_rate >= 1:
             raise SensorSpecError(f"FSRSensor.dead_taxel_rate must be < 1, got {self.dead_taxel_rate}")
+        # Plain Python numbers: numpy scalars (np.int64, np.float32) would make spec() not JSON-able.
+        for name in ("rows", "cols", "adc_bits", "survey_taxels"):
+            object.__setattr__(self, name, int(getattr(self, name)))
+        for name in (*positive, *non_negative, "shrink_factor"):
+            object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, "_unit_grid", unit_taxel_grid(self.rows, self.cols))
         # Chebyshev distance of each taxel centre from the pad centre on the unit pad.
         object.__setattr__(self, "_unit_chebyshev", np.abs(self._unit_grid).max(axis=1))
@@ -211,6 +225,8 @@ class FSRSensor:
             normals[:, [1, 2, 0]] * tangents[:, [2, 0, 1]] - normals[:, [2, 0, 1]] * tangents[:, [1, 2, 0]]
         )
         standoff = np.float32(self.standoff_mm)
+        # Positions relative to the scene's origin, in float64, before anything is rounded to float32.
+        positions = positions - model.scene_origin
         for lo in range(0, n_probes, per_cast):
             sl = slice(lo, lo + per_cast)
             # Grid rows (x, y, 1) times the frame rows (side * tangent, 0), (side * binormal, 0) and
@@ -361,6 +377,8 @@ class FSRSensor:
                 frames[:, dead] = self.range_mm
             return frames.astype(np.float32, copy=False)
         pressure = self.stiffness * np.maximum(0.0, self.indent_mm - gaps.astype(np.float64))
+        # A gap at the range means nothing within it (a miss): no contact, even where indent_mm > range_mm.
+        pressure[gaps >= np.float32(self.range_mm)] = 0.0
         if self.noise_std > 0:
             pressure = pressure + rng.normal(0.0, self.noise_std, pressure.shape)
         pressure = np.clip(pressure, 0.0, self.saturation)

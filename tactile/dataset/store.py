@@ -26,6 +26,7 @@ import hashlib
 import json
 import logging
 import os
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -178,25 +179,27 @@ def create_store(path: Path, settings: dict, meta: dict) -> None:
     rows, cols = int(settings["sensor"]["rows"]), int(settings["sensor"]["cols"])
     tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
     if tmp.exists():
-        import shutil
-
         shutil.rmtree(tmp)
-    compressor = BloscCodec(**COMPRESSOR)
-    group = zarr.open_group(tmp, mode="w")
-    n = max(layout.n_rows, 1)
-    group.create_array(
-        "frames", shape=(n, probes, rows, cols), dtype="uint16", shards=(layout.shard, probes, rows, cols),
-        chunks=(1, probes, rows, cols), compressors=[compressor], fill_value=0,
-    )
-    for name, (dtype, trailing) in SEQUENCE_ARRAYS.items():
-        shape = trailing(probes, rows, cols)
+    try:
+        compressor = BloscCodec(**COMPRESSOR)
+        group = zarr.open_group(tmp, mode="w")
+        n = max(layout.n_rows, 1)
         group.create_array(
-            name, shape=(n, *shape), dtype=dtype, chunks=(layout.contours, *shape), compressors=[compressor],
-            fill_value=0,
+            "frames", shape=(n, probes, rows, cols), dtype="uint16", shards=(layout.shard, probes, rows, cols),
+            chunks=(1, probes, rows, cols), compressors=[compressor], fill_value=0,
         )
-    group.attrs[ATTRS_KEY] = {"format": FORMAT_VERSION, "settings": settings, **meta}
-    (tmp / RECORDS).mkdir()
-    os.replace(tmp, path)
+        for name, (dtype, trailing) in SEQUENCE_ARRAYS.items():
+            shape = trailing(probes, rows, cols)
+            group.create_array(
+                name, shape=(n, *shape), dtype=dtype, chunks=(layout.contours, *shape), compressors=[compressor],
+                fill_value=0,
+            )
+        group.attrs[ATTRS_KEY] = {"format": FORMAT_VERSION, "settings": settings, **meta}
+        (tmp / RECORDS).mkdir()
+        os.replace(tmp, path)
+    except BaseException:  # an interrupted or failed creation leaves nothing behind
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 def read_attrs(path: Path) -> dict:

@@ -16,6 +16,7 @@ import pytest
 from perception import curvature, primitives
 from perception.errors import InvalidArgumentError, InvalidMeshError, VisuotactileError
 from perception.geometry import ObjectModel, load_object, normalize
+from perception.render import render_views
 from perception.saliency import saliency
 
 R_MM = 43.0
@@ -304,15 +305,19 @@ def test_the_model_owns_its_arrays():
 
 
 # --------------------------------------------------------------------------------- extreme coordinates
-def test_far_from_the_origin_warns_about_float32(caplog):
+def test_far_from_the_origin_casts_rays_around_the_centre():
     s = primitives.sphere(R_MM, 2)
     near = ObjectModel(s.vertices, s.triangles, name="near")
     far = ObjectModel(s.vertices + 1e7, s.triangles, name="far")
-    with caplog.at_level(logging.WARNING, logger="perception.geometry"):
-        near.scene, far.scene  # noqa: B018 - building the scenes is what warns
-    messages = [r.getMessage() for r in caplog.records]
-    assert any("far" in m and "float32" in m for m in messages)
-    assert not any(m.startswith("near") for m in messages)
+    assert not near.scene_origin.any()  # near the origin: world coordinates, bytes as before
+    np.testing.assert_array_equal(far.scene_origin, far.center)
+    queries = np.array([[60.0, 0.0, 0.0], [0.0, -70.0, 10.0], [5.0, 5.0, 5.0]])
+    (near_points, near_d), (far_points, far_d) = near.closest_points(queries), far.closest_points(queries + 1e7)
+    np.testing.assert_allclose(far_points - 1e7, near_points, atol=1e-5)  # float32 at 1e7 would be 1 mm off
+    np.testing.assert_allclose(far_d, near_d, atol=1e-5)
+    near_view, far_view = render_views(near, 2, 24, 24)[0], render_views(far, 2, 24, 24)[0]
+    np.testing.assert_array_equal(far_view.mask, near_view.mask)
+    np.testing.assert_allclose(far_view.depth, near_view.depth, atol=1e-3)
 
 
 @pytest.mark.parametrize("radius", [1e160, 1e-160])
