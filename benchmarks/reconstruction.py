@@ -4,8 +4,13 @@
     :func:`perception.reconstruct.reconstruct_frames`: surface error (distance from 20k points drawn on the
     reconstruction to the true mesh, mm: mean and 95th percentile) against the number of views (at 500 mm,
     Poisson depth 7), the camera distance (4 views) and the Poisson depth (4 views at 500 mm), plus the
-    same capture without ICP refinement. Completeness ("cover p95"): the 95th percentile distance from
-    the true surface to the reconstruction (the unseen bottom counts). Times: capture (ray casting +
+    same capture without ICP refinement, and the open surface of the seen points alone (``close=False``,
+    trimmed by density, as before the closure). Completeness ("cover p95"): the 95th percentile distance
+    from the true surface to the reconstruction (the unseen bottom counts). "Seen": the error of the
+    surface within 2 mm of a captured point (left out: what the closure adds where no camera looked).
+    Closure: the fraction of
+    watertight reconstructions, their volume over the true volume, and the distance between the
+    bounding-box centres (the point contour planes pass through), mm. Times: capture (ray casting +
     stereo model) and reconstruction, median over the objects.
 (b) Point-cloud files: 15k points sampled on each object, written as PCD / XYZ / PLY (no faces) / NPZ,
     loaded back with :func:`perception.reconstruct.load_points` (estimated normals, Poisson depth 7):
@@ -58,7 +63,25 @@ def _settings(quick: bool, sweep: str = "all") -> list[dict]:
     rows += [{"sweep": "distance", "views": 4, "distance_mm": d, "depth": 7, "icp": True} for d in distances]
     rows += [{"sweep": "depth", "views": 4, "distance_mm": 500.0, "depth": d, "icp": True} for d in depths]
     rows.append({"sweep": "no icp", "views": 4, "distance_mm": 500.0, "depth": 7, "icp": False})
+    rows.append({"sweep": "open", "views": 4, "distance_mm": 500.0, "depth": 7, "icp": True, "close": False})
     return rows
+
+
+def _seen_error(rec, truth, seed: int) -> dict:
+    """Error where the cameras saw the object: 20k surface samples within 2 mm of a captured point, mm."""
+    from scipy.spatial import cKDTree
+
+    samples = _sample(rec.model, 20000, seed)
+    seen = samples[cKDTree(rec.points).query(samples, distance_upper_bound=2.0)[0] <= 2.0]
+    _, distance = truth.closest_points(seen)
+    return {"seen_mean_mm": float(distance.mean()), "seen_p95_mm": float(np.quantile(distance, 0.95)),
+            "seen_fraction": len(seen) / len(samples)}
+
+
+def _volume(model) -> float:
+    """Enclosed volume (divergence theorem), mm^3; meaningful for closed surfaces only."""
+    a, b, c = (model.vertices[model.triangles[:, i]] for i in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
 def views_sweep(classes: list[str], quick: bool, seed: int, sweep: str = "all") -> list[dict]:
@@ -71,18 +94,26 @@ def views_sweep(classes: list[str], quick: bool, seed: int, sweep: str = "all") 
             frames = camera.capture_views(setting["views"], setting["distance_mm"])
             t_capture = time.perf_counter() - start
             start = time.perf_counter()
+            close = setting.get("close", True)
             rec = reconstruct_frames(frames, target=camera.target, poisson_depth=setting["depth"], icp=setting["icp"],
-                                     seed=seed)
+                                     seed=seed, close=close, density_trim=None if close else 1.0)
             t_rec = time.perf_counter() - start
             err = surface_error(rec.model, camera.truth)
-            per_object.append({"object": name, **err, "capture_s": t_capture, "reconstruct_s": t_rec,
-                               "points": len(rec.points), "triangles": rec.model.n_triangles})
+            closed = rec.model.is_watertight
+            per_object.append({"object": name, **err, **_seen_error(rec, camera.truth, seed), "capture_s": t_capture, "reconstruct_s": t_rec,
+                               "points": len(rec.points), "triangles": rec.model.n_triangles, "watertight": closed,
+                               "volume_ratio": _volume(rec.model) / _volume(camera.truth) if closed else float("nan"),
+                               "centre_mm": float(np.linalg.norm(rec.model.center - camera.truth.center))})
         rows.append({
             **setting,
             "mean_mm": statistics.fmean(r["mean_mm"] for r in per_object),
             "p95_mm": statistics.fmean(r["p95_mm"] for r in per_object),
             "worst_p95_mm": max(r["p95_mm"] for r in per_object),
             "coverage_p95_mm": statistics.fmean(r["coverage_p95_mm"] for r in per_object),
+            "seen_mean_mm": statistics.fmean(r["seen_mean_mm"] for r in per_object),
+            "seen_p95_mm": statistics.fmean(r["seen_p95_mm"] for r in per_object),
+            "watertight": statistics.fmean(r["watertight"] for r in per_object),
+            "centre_mm": statistics.fmean(r["centre_mm"] for r in per_object),
             "capture_s": statistics.median(r["capture_s"] for r in per_object),
             "reconstruct_s": statistics.median(r["reconstruct_s"] for r in per_object),
             "points": int(statistics.median(r["points"] for r in per_object)),
@@ -227,8 +258,9 @@ def _part_a(result: dict, classes: list[str], args) -> None:
         f"(a) virtual OAK-D 400p -> reconstruction, surface error to the true mesh (mean over {', '.join(classes)})",
         result["views"],
         [("sweep", "sweep"), ("views", "views"), ("dist mm", "distance_mm"), ("depth", "depth"), ("icp", "icp"),
-         ("mean mm", "mean_mm"), ("p95 mm", "p95_mm"), ("worst p95", "worst_p95_mm"), ("cover p95", "coverage_p95_mm"), ("points", "points"),
-         ("capture s", "capture_s"), ("recon s", "reconstruct_s")],
+         ("mean mm", "mean_mm"), ("p95 mm", "p95_mm"), ("worst p95", "worst_p95_mm"), ("cover p95", "coverage_p95_mm"),
+         ("seen mean", "seen_mean_mm"), ("seen p95", "seen_p95_mm"), ("closed", "watertight"), ("centre mm", "centre_mm"), ("points", "points"), ("capture s", "capture_s"),
+         ("recon s", "reconstruct_s")],
     )
     if args.per_object:
         _print_table(
@@ -237,7 +269,7 @@ def _part_a(result: dict, classes: list[str], args) -> None:
              for r in result["views"] for o in r["objects"]],
             [("object", "object"), ("views", "views"), ("dist mm", "distance_mm"), ("depth", "depth"),
              ("icp", "icp"), ("mean mm", "mean_mm"), ("p95 mm", "p95_mm"), ("cover p95", "coverage_p95_mm"),
-             ("recon s", "reconstruct_s")],
+             ("seen p95", "seen_p95_mm"), ("closed", "watertight"), ("volume", "volume_ratio"), ("centre mm", "centre_mm"), ("recon s", "reconstruct_s")],
         )
 
 

@@ -7,7 +7,9 @@ Two entry points:
   (screened Poisson trimmed by density; ball pivoting or alpha shapes as alternatives) -> ``ObjectModel``.
 - :func:`reconstruct_frames`: RGB-D frames (:mod:`perception.camera`) -> points in the world frame ->
   table plane removed (RANSAC) -> objects clustered (DBSCAN) -> the chosen object's views fused (known poses,
-  ICP refinement) -> the same surface step.
+  ICP refinement) -> the same surface step, closed where no camera saw it (the bottom on the table) from
+  the space the frames carved (:func:`carve`), so the model stands in for a CAD mesh: watertight, with the
+  CAD mesh's centre and size.
 
 Units are millimetres. Every random choice (RANSAC) is seeded and Poisson runs on one thread, so the same
 input and seed give the same bytes.
@@ -16,7 +18,8 @@ input and seed give the same bytes.
 from __future__ import annotations
 
 import logging
-import re
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,29 +44,103 @@ METHODS = ("poisson", "ball_pivoting", "alpha")
 MIN_PIECE = 0.05
 #: Default alpha of alpha shapes, as a fraction of the cloud's bounding-box diagonal.
 ALPHA_FRACTION = 0.2
+#: A closed reconstruction with more than this fraction of its vertices outside the carved space (grown
+#: by two voxels) has leaked: Poisson extrapolated a thin shell seen on one side (:func:`reconstruct_frames`).
+LEAK_FRACTION = 0.01
 #: Normals are oriented consistently on at most this many points, then copied to their neighbours. The
 #: subsample must be denser than thin walls are thick: at 4,000 points (spacing ~4 mm) the 3 mm wall of a
 #: catalogue mug got 43 % of its normals flipped; at 15,000 none (1.7 s CPU).
 _ORIENT_POINTS = 20000
-#: Smallest bytes of one point in each text / binary format (bounded-resources check before parsing).
-_MIN_POINT_BYTES = {"ascii": 6, "binary": 12}
 
 
 # ------------------------------------------------------------------------------------------- files
-def _check_counts(path: Path, data: bytes) -> None:
-    """PCD / PLY headers announce a point count: refuse counts the file size cannot hold."""
-    head = data[:4096].decode("latin-1", errors="replace")
-    if path.suffix.lower() == ".pcd":
-        match = re.search(r"^POINTS\s+(\d+)", head, re.MULTILINE)
-        binary = re.search(r"^DATA\s+binary", head, re.MULTILINE) is not None
+# PCD and PLY are parsed here, not by Open3D: on a short or malformed file its readers return the declared
+# number of points, the unread ones zero or uninitialised (a truncated ASCII PCD "loads"), and its PLY
+# reader can segfault. Only compressed binary PCD (LZF) still goes to Open3D, which checks its sizes.
+_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
+              ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
+
+
+def _too_many(path: Path, count: int, size: int) -> MeshLoadError:
+    return MeshLoadError(f"{path}: header announces {count} points, more than the {size}-byte file holds")
+
+
+def _read_pcd(path: Path, data: bytes) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    header: dict[str, list[str]] = {}
+    pos = 0
+    while "DATA" not in header:
+        end = data.find(b"\n", pos)
+        if end < 0:
+            raise MeshLoadError(f"{path}: no points could be read (not a PCD file: no DATA line)")
+        words = data[pos:end].decode("latin-1").split()
+        pos = end + 1
+        if words and not words[0].startswith("#"):
+            header[words[0].upper()] = words[1:]
+    try:
+        fields, types = header["FIELDS"], [t.upper() for t in header["TYPE"]]
+        sizes = [int(s) for s in header["SIZE"]]
+        counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
+        n = int(header["POINTS"][0]) if "POINTS" in header else int(header["WIDTH"][0]) * int(header["HEIGHT"][0])
+        dtypes = [_PCD_TYPES[t, s] for t, s in zip(types, sizes, strict=True)]
+        mode = header["DATA"][0].lower()
+        if len(counts) != len(fields) or min(counts) < 1 or n < 0 or not {"x", "y", "z"} <= set(fields):
+            raise ValueError
+    except (KeyError, ValueError, IndexError):
+        raise MeshLoadError(f"{path}: no points could be read (bad PCD header: FIELDS with x y z, SIZE, TYPE, "
+                            "COUNT, POINTS and DATA expected)") from None
+    starts = [int(s) for s in np.cumsum([0, *counts])]
+    if mode == "ascii":
+        if n * 2 * starts[-1] > len(data) - pos:  # a value takes a character and a separator at least
+            raise _too_many(path, n, len(data))
+        try:
+            rows = [ln.split() for ln in data[pos:].decode("ascii").splitlines() if ln.strip()]
+            if len(rows) != n or any(len(r) != starts[-1] for r in rows):
+                raise ValueError
+            table = np.array(rows, dtype=np.float64).reshape(n, starts[-1])
+        except (UnicodeDecodeError, ValueError):
+            raise MeshLoadError(f"{path}: PCD data must be {n} lines of {starts[-1]} numbers (truncated or corrupt)") from None
+        columns = {f: table[:, a:b] for f, a, b in zip(fields, starts, starts[1:])}
+    elif mode == "binary":
+        layout = np.dtype([(f"f{i}", "<" + d, (c,)) for i, (d, c) in enumerate(zip(dtypes, counts))])
+        if n * layout.itemsize > len(data) - pos:
+            raise _too_many(path, n, len(data))
+        rows = np.frombuffer(data, layout, n, pos)
+        columns = {f: rows[f"f{i}"] for i, f in enumerate(fields)}
     else:
-        match = re.search(r"^element\s+vertex\s+(\d+)", head, re.MULTILINE)
-        binary = re.search(r"^format\s+binary", head, re.MULTILINE) is not None
-    if match:
-        count = int(match.group(1))
-        need = count * _MIN_POINT_BYTES["binary" if binary else "ascii"]
-        if need > len(data):
-            raise MeshLoadError(f"{path}: header announces {count} points, more than the {len(data)}-byte file holds")
+        cloud = o3d.io.read_point_cloud(str(path), format="pcd")
+        points = np.asarray(cloud.points, dtype=np.float64)
+        if len(points) != n or n == 0:
+            raise MeshLoadError(f"{path}: no points could be read ({mode} PCD, {len(points)} of {n} points)")
+        return (points, np.asarray(cloud.normals, dtype=np.float64) if cloud.has_normals() else None,
+                np.asarray(cloud.colors, dtype=np.float64) if cloud.has_colors() else None)
+    points = np.column_stack([columns[c][:, 0] for c in "xyz"]).astype(np.float64)
+    normals = colors = None
+    if {"normal_x", "normal_y", "normal_z"} <= set(columns):
+        normals = np.column_stack([columns[f"normal_{c}"][:, 0] for c in "xyz"]).astype(np.float64)
+    for name in ("rgb", "rgba"):  # PCL packs 8-bit R, G, B into the bits of one float (or an unsigned int)
+        if name in columns:
+            value = columns[name][:, 0]
+            with np.errstate(invalid="ignore", over="ignore"):
+                bits = value.astype(np.float32).view(np.uint32) if types[fields.index(name)] == "F" else value.astype(np.uint32)
+            colors = np.column_stack([(bits >> s) & 255 for s in (16, 8, 0)]).astype(np.float64) / 255.0
+            break
+    return points, normals, colors
+
+
+def _read_ply_points(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    vertex = meshio.read_ply(path).get("vertex", {})
+    if not {"x", "y", "z"} <= set(vertex):
+        raise MeshLoadError(f"{path}: no points could be read (no vertex element with x, y, z)")
+    points = np.column_stack([np.asarray(vertex[c], dtype=np.float64) for c in "xyz"])
+    normals = colors = None
+    if {"nx", "ny", "nz"} <= set(vertex):
+        normals = np.column_stack([np.asarray(vertex[c], dtype=np.float64) for c in ("nx", "ny", "nz")])
+    if {"red", "green", "blue"} <= set(vertex):
+        rgb = [np.asarray(vertex[c]) for c in ("red", "green", "blue")]
+        colors = np.column_stack(rgb).astype(np.float64)
+        if rgb[0].dtype.kind in "iu":
+            colors /= float(np.iinfo(rgb[0].dtype).max)
+    return points, normals, colors
 
 
 def _read_text(path: Path, text: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -95,35 +172,64 @@ def _read_text(path: Path, text: str) -> tuple[np.ndarray, np.ndarray | None, np
     return points, normals, colors
 
 
+def _npy(stream, available: int, where: str) -> np.ndarray:
+    """An array from an NPY stream, after checking that its header's shape fits the ``available`` bytes
+    (``np.load`` allocates the declared shape first: a doctored header asks for terabytes)."""
+    version = np.lib.format.read_magic(stream)
+    start = stream.tell()
+    read_header = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+    if version not in read_header:
+        raise ValueError(f"{where}: NPY format version {version} is not supported")
+    shape, fortran, dtype = read_header[version](stream)
+    if dtype.hasobject or not np.issubdtype(dtype, np.number):
+        raise ValueError(f"{where}: {dtype} is not a numeric array")
+    count = 1
+    for d in shape:  # Python integers: no overflow
+        count *= d
+    if min(shape, default=0) < 0 or count * dtype.itemsize > available - (stream.tell() - start) - 8:
+        raise ValueError(f"{where}: header declares shape {shape}, more than the file holds")
+    data = stream.read(count * dtype.itemsize)
+    if len(data) != count * dtype.itemsize:
+        raise ValueError(f"{where}: truncated")
+    return np.frombuffer(data, dtype, count).reshape(shape, order="F" if fortran else "C")
+
+
 def _read_arrays(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    normals = colors = None
     try:
-        content = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise MeshLoadError(f"{path}: not a numpy file ({exc})") from None
-    if isinstance(content, np.ndarray):
-        table = content
-        normals = colors = None
-    else:
-        with content:
-            keys = list(content.keys())
-            key = next((k for k in ("points", "xyz", "vertices") if k in keys), keys[0] if len(keys) == 1 else None)
-            if key is None:
-                raise MeshLoadError(f"{path}: no 'points' array among {keys}")
-            table = content[key]
-            normals = content["normals"] if "normals" in keys else None
-            colors = content["colors"] if "colors" in keys else None
-    if not np.issubdtype(table.dtype, np.number) or table.ndim != 2 or table.shape[1] < 3:
+        if path.suffix.lower() == ".npy":
+            with path.open("rb") as f:
+                table = _npy(f, path.stat().st_size, "array")
+            if table.ndim == 2 and table.shape[1] >= 6:
+                normals = table[:, 3:6]
+        else:
+            with zipfile.ZipFile(path) as archive:
+                infos = {i.filename.removesuffix(".npy"): i for i in archive.infolist()}
+                keys = list(infos)
+                key = next((k for k in ("points", "xyz", "vertices") if k in keys), keys[0] if len(keys) == 1 else None)
+                if key is None:
+                    raise MeshLoadError(f"{path}: no 'points' array among {keys}")
+
+                def member(name: str) -> np.ndarray:
+                    with archive.open(infos[name]) as f:
+                        return _npy(f, infos[name].file_size, name)
+
+                table = member(key)
+                normals = member("normals") if "normals" in keys else None
+                colors = member("colors") if "colors" in keys else None
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError) as exc:
+        raise MeshLoadError(f"{path}: not a numpy file, or a corrupt one ({type(exc).__name__}: {exc})") from None
+    if table.ndim != 2 or table.shape[1] < 3:
         raise MeshLoadError(f"{path}: points must be a numeric (N, 3) array, got {table.dtype} {table.shape}")
-    if table.shape[1] >= 6 and normals is None and not isinstance(content, np.lib.npyio.NpzFile):
-        normals = table[:, 3:6]
     return table[:, :3].astype(np.float64), normals, colors
 
 
 def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Read a point-cloud file: (N, 3) points and optional (N, 3) normals and RGB colours in [0, 1].
 
-    PCD and PLY go through Open3D (a PLY's faces, if any, are ignored: the vertices are the points); the
-    text formats are parsed here, strictly (Open3D skips bad lines silently): ``.xyz``/``.txt``/``.pts``
+    Every format is parsed here, strictly (Open3D's readers skip bad lines and return unread points as
+    zeros; only LZF-compressed PCD goes to Open3D); a PLY's faces, if any, are ignored (the vertices are
+    the points). ``.xyz``/``.txt``/``.pts``
     take the first three columns, ``.xyzn`` adds normals, ``.xyzrgb`` colours. NPY holds an (N, 3) or
     (N, 6: points, normals) array; NPZ a ``points`` (or ``xyz``) array with optional ``normals``/``colors``.
 
@@ -140,13 +246,9 @@ def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.nda
         except UnicodeDecodeError:
             raise MeshLoadError(f"{path}: not an ASCII point file (binary or corrupt content)") from None
         return _read_text(path, text)
-    _check_counts(path, data)
-    cloud = o3d.io.read_point_cloud(str(path))
-    points = np.asarray(cloud.points, dtype=np.float64)
+    points, normals, colors = _read_pcd(path, data) if suffix == ".pcd" else _read_ply_points(path)
     if len(points) == 0:
-        raise MeshLoadError(f"{path}: no points could be read (corrupt or empty {suffix[1:].upper()} file)")
-    normals = np.asarray(cloud.normals, dtype=np.float64) if cloud.has_normals() else None
-    colors = np.asarray(cloud.colors, dtype=np.float64) if cloud.has_colors() else None
+        raise MeshLoadError(f"{path}: no points could be read (an empty {suffix[1:].upper()} file)")
     return points, normals, colors
 
 
@@ -327,6 +429,12 @@ def surface_from_points(
         density = np.asarray(density)
         if density_trim is not None and len(density):
             mesh.remove_vertices_by_mask(density < np.quantile(density, 0.9) - density_trim)
+        # Open3D's Poisson can emit a face twice (both windings) where two sheets meet in a thin wall:
+        # four faces on each of its edges. The pair encloses nothing; dropping both keeps the rest closed.
+        faces = np.sort(np.asarray(mesh.triangles), axis=1)
+        if len(faces):
+            _, inverse, counts = np.unique(faces, axis=0, return_inverse=True, return_counts=True)
+            mesh.remove_triangles_by_mask(counts[inverse.ravel()] > 1)
     elif method == "ball_pivoting":
         radii = o3d.utility.DoubleVector([spacing, 2 * spacing, 4 * spacing])
         mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(cloud, radii)
@@ -348,7 +456,44 @@ def surface_from_points(
         mesh = mesh.simplify_quadric_decimation(int(max_triangles))
         mesh.remove_degenerate_triangles()
         mesh.remove_unreferenced_vertices()
+    if method == "poisson" and not mesh.is_edge_manifold():
+        # Marching cubes and decimation leave an edge with four faces here and there: drop those faces and
+        # close the few-edge holes they leave.
+        mesh.remove_non_manifold_edges()
+        mesh.remove_unreferenced_vertices()
+        return _close_small_holes(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles))
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)
+
+
+def _close_small_holes(
+    vertices: np.ndarray, triangles: np.ndarray, max_edges: int = 16
+) -> tuple[np.ndarray, np.ndarray]:
+    """Close each hole of at most ``max_edges`` boundary edges with a fan around its centroid (a new
+    vertex), wound like the faces beside it."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    triangles = np.asarray(triangles, dtype=np.int64)
+    directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    keys = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    border = directed[counts[inverse.ravel()] == 1]
+    if not len(border):
+        return vertices, triangles
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(border)), (border[:, 0], border[:, 1])), shape=(n, n))
+    _, hole = connected_components(graph, directed=False)
+    hole = hole[border[:, 0]]
+    ids, size = np.unique(hole, return_counts=True)
+    small = ids[size <= max_edges]
+    pick = np.isin(hole, small)
+    border, hole = border[pick], hole[pick]
+    if not len(border):
+        return vertices, triangles
+    index = {h: n + i for i, h in enumerate(small)}
+    centres = np.array([vertices[border[hole == h, 0]].mean(axis=0) for h in small])
+    fan = np.stack([border[:, 1], border[:, 0], np.array([index[h] for h in hole])], axis=1)
+    return np.concatenate([vertices, centres]), np.concatenate([triangles, fan])
 
 
 def _to_model(vertices, triangles, *, name, label, size_mm, source, pre_transform=None) -> ObjectModel:
@@ -498,6 +643,8 @@ class TableScene:
         clusters: the objects, largest first.
         points, colors, labels: the points after down-sampling (mm), their RGB in [0, 1] and their labels
             (-2 table, -1 noise or off the table, k cluster k).
+        floor_mm: the table's own noise: points lower than this above the plane cannot be told from it
+            (three robust standard deviations of the inliers' heights, at most the plane tolerance), mm.
     """
 
     plane: np.ndarray
@@ -506,6 +653,7 @@ class TableScene:
     points: np.ndarray | None = None
     colors: np.ndarray | None = None
     labels: np.ndarray | None = None
+    floor_mm: float = 0.0
 
 
 def frames_to_points(frames, *, max_depth_mm: float = 1500.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -547,7 +695,10 @@ def segment_table(
     ``plane_tolerance_mm`` is the table, refined by least squares on its inliers; its normal points
     towards ``up_hint`` (default: the mean viewpoint, or -y in camera coordinates, i.e. image up). Points
     more than ``plane_tolerance_mm`` and at most ``max_height_mm`` above it are clustered with DBSCAN
-    (``cluster_eps_mm``); clusters under ``min_cluster_points`` are dropped.
+    (``cluster_eps_mm``); clusters under ``min_cluster_points`` are dropped. Each cluster then grows down
+    into the points between the table's noise floor (:attr:`TableScene.floor_mm`) and
+    ``plane_tolerance_mm`` that join it within ``cluster_eps_mm`` and lie under its footprint: the lowest
+    millimetres of an object (a glass's foot, the base of a wall) are not table.
 
     ``method="euclidean"`` clusters by distance alone (DBSCAN), right for one object or objects apart.
     ``method="smooth"`` separates objects that touch: neighbours (within ``cluster_eps_mm``) are joined
@@ -591,6 +742,8 @@ def segment_table(
         normal = -normal
     plane = np.r_[normal, -normal @ centre]
     height = pts @ normal + plane[3]
+    # The table's noise, robustly (MAD): above 3 sigma a point stands out of the plane.
+    floor = min(plane_tolerance_mm, 3 * 1.4826 * float(np.median(np.abs(height[inliers]))))
     labels = np.full(len(pts), -1, dtype=np.int64)
     on_table = np.abs(height) <= plane_tolerance_mm
     labels[on_table] = -2
@@ -616,15 +769,59 @@ def segment_table(
                 found.append(idx)
         # Order by size, then by first index: independent of DBSCAN's label numbering.
         found.sort(key=lambda idx: (-len(idx), int(idx[0])))
+        low = np.nonzero(on_table & (height > floor))[0]
+        if len(low):
+            low = low[_inside_table(pts[low], pts[on_table], normal)]
+        taken = np.zeros(len(low), dtype=bool)
         for k, idx in enumerate(found):
+            grown = _grow_down(pts, idx, low, taken, cluster_eps_mm, normal)
+            idx = found[k] = np.sort(np.concatenate([idx, grown]))
             labels[idx] = k
             top = float(height[idx].max())
             mean = pts[idx].mean(axis=0)
             # Prism centre: the mean's foot on the table, raised by half the height.
             center = mean - (height[idx].mean() - 0.5 * top) * normal
             clusters.append(Cluster(pts[idx], cols[idx], views[idx], mean, center, top))
-    log.info("scene: table %d points, %d clusters", int(on_table.sum()), len(clusters))
-    return TableScene(plane, int(on_table.sum()), clusters, pts, cols, labels)
+    log.info("scene: table %d points (floor %.1f mm), %d clusters", int(on_table.sum()), floor, len(clusters))
+    return TableScene(plane, int(on_table.sum()), clusters, pts, cols, labels, floor)
+
+
+def _plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit axes (u, v) spanning the plane with unit ``normal``."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(normal, helper)
+    u /= np.linalg.norm(u)
+    return u, np.cross(normal, u)
+
+
+def _grow_down(
+    pts: np.ndarray, idx: np.ndarray, low: np.ndarray, taken: np.ndarray, eps: float, normal: np.ndarray
+) -> np.ndarray:
+    """The points ``low`` (indices into ``pts``, not yet ``taken``) reachable from cluster ``idx`` in steps
+    of at most ``eps`` mm, each within ``eps`` of the cluster's footprint (the convex hull of its points
+    seen from above the table: growth cannot creep along the table). Marks them in ``taken``."""
+    from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+    if not len(low):
+        return low
+    u, v = _plane_axes(normal)
+    flat = lambda p: np.stack([p @ u, p @ v], axis=1)
+    try:
+        hull = ConvexHull(flat(pts[idx])).equations
+    except (QhullError, ValueError):
+        return low[:0]
+    allowed = np.all(flat(pts[low]) @ hull[:, :2].T + hull[:, 2] <= eps, axis=1) & ~taken
+    tree = cKDTree(pts[low])
+    frontier = pts[idx]
+    grown = np.zeros(len(low), dtype=bool)
+    while len(frontier):
+        hits = tree.query_ball_point(frontier, eps)
+        hits = np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits]))
+        new = hits[allowed[hits] & ~grown[hits]]
+        grown[new] = True
+        frontier = pts[low[new]]
+    taken |= grown
+    return low[grown]
 
 
 def _smooth_components(
@@ -755,6 +952,154 @@ def refine_views(
     return corrections
 
 
+def _fill_row_gaps(depth: np.ndarray, max_gap: int, keep: int = 2) -> np.ndarray:
+    """Depth with each gap of at most ``max_gap`` pixels along a row (the stereo baseline) filled with the
+    farther of its two ends: stereo occlusion leaves such gaps beside every near edge, and what the
+    occluded pixels see is the background continuing behind it (the fill of semi-global matching). The
+    ``keep`` pixels next to either end stay empty: there the edge itself was dropped, which may be near."""
+    width = depth.shape[1]
+    valid = depth > 0
+    cols = np.broadcast_to(np.arange(width), depth.shape)
+    left = np.maximum.accumulate(np.where(valid, cols, -1), axis=1)
+    right = np.fliplr(np.minimum.accumulate(np.fliplr(np.where(valid, cols, width)), axis=1))
+    fill = ~valid & (left >= 0) & (right < width) & (right - left - 1 <= max_gap)
+    fill &= (cols - left > keep) & (right - cols > keep)
+    r = np.nonzero(fill)[0]
+    out = depth.copy()
+    out[fill] = np.maximum(depth[r, left[fill]], depth[r, right[fill]])
+    return out
+
+
+@dataclass
+class Carving:
+    """The space RGB-D frames leave for an object on a table (:func:`carve`): voxels no ray showed empty.
+
+    Attributes:
+        solid: (I, J, K) bool, the voxels kept: the object and whatever no camera saw.
+        origin: (3,) the grid's corner in table coordinates (along ``axes[0]``, ``axes[1]``, height), mm.
+        axes: (3, 3) rows: two unit axes in the table plane and its upward unit normal.
+        offset: the plane's d (height of a point p is ``p @ axes[2] + offset``), mm.
+        voxel_mm: the voxel side, mm.
+    """
+
+    solid: np.ndarray
+    origin: np.ndarray
+    axes: np.ndarray
+    offset: float
+    voxel_mm: float
+
+    def _local(self, points: np.ndarray) -> np.ndarray:
+        return points @ self.axes.T + np.array([0.0, 0.0, self.offset])
+
+    def _world(self, local: np.ndarray) -> np.ndarray:
+        return (local - np.array([0.0, 0.0, self.offset])) @ self.axes
+
+    def contains(self, points: np.ndarray, dilation: int = 0) -> np.ndarray:
+        """(N,) True where a point lies in a solid voxel, the solid grown by ``dilation`` voxels first."""
+        from scipy import ndimage
+
+        solid = np.pad(self.solid, dilation)
+        if dilation:
+            solid = ndimage.binary_dilation(solid, iterations=dilation)
+        ijk = np.floor((self._local(points) - self.origin) / self.voxel_mm).astype(np.int64) + dilation
+        inside = np.all((ijk >= 0) & (ijk < np.array(solid.shape)), axis=1)
+        out = np.zeros(len(points), dtype=bool)
+        out[inside] = solid[tuple(ijk[inside].T)]
+        return out
+
+    def boundary(
+        self, points: np.ndarray | None = None, normals: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Centres (M, 3) and outward unit normals (M, 3) of the solid's faces that border empty space, mm.
+
+        With observed ``points`` and their outward unit ``normals``, the faces where the surface was seen
+        are left out: those within 1.75 voxels of an observed point and not behind its tangent plane (by
+        half a voxel; the far side of a thin wall stays). The rest is where the surface must close unseen.
+        """
+        from scipy.spatial import cKDTree
+
+        s = self.voxel_mm
+        padded = np.pad(self.solid, 1)
+        faces, outward = [], []
+        for axis in range(3):
+            for step in (-1, 1):
+                beside = np.roll(padded, -step, axis=axis)[1:-1, 1:-1, 1:-1]
+                ijk = np.argwhere(self.solid & ~beside)
+                direction = np.zeros(3)
+                direction[axis] = step
+                faces.append(self._world(self.origin + (ijk + 0.5 + 0.5 * direction) * s))
+                outward.append(np.broadcast_to(direction @ self.axes, (len(ijk), 3)))
+        faces, outward = np.concatenate(faces), np.concatenate(outward)
+        if points is None or not len(points) or not len(faces):
+            return faces, outward
+        dist, near = cKDTree(points).query(faces, k=8, distance_upper_bound=1.75 * s)
+        found = np.isfinite(dist)
+        near = np.where(found, near, 0)
+        ahead = np.einsum("mkd,mkd->mk", faces[:, None, :] - points[near], normals[near]) > -0.5 * s
+        keep = ~np.any(found & ahead, axis=1)
+        return faces[keep], outward[keep]
+
+
+def carve(
+    frames,
+    plane: np.ndarray,
+    points: np.ndarray,
+    *,
+    voxel_mm: float = 2.0,
+    table_mm: float = 2.0,
+    margin_mm: float | None = None,
+    max_gap_px: int = 48,
+) -> Carving:
+    """Space carving around an object's ``points`` (world mm) standing on the table ``plane``.
+
+    A ``voxel_mm`` grid covers the points (``margin_mm`` around them, default two voxels; its layers
+    below the plane are empty). A voxel is empty if some frame's ray passes through it to a surface more than half a voxel
+    further on, or to the table (a measured pixel whose point lies within ``table_mm`` of the plane, or
+    below it); below the plane all is empty. Gaps in a depth row up to ``max_gap_px`` wide count as the
+    farther of their ends (:func:`_fill_row_gaps`). What stays is the object together with what the
+    cameras could not see: where it rests on the table, the inside of a mug below the sight lines, the
+    back of a one-view capture; solid pieces that hold no observed point (specks no ray reached) go.
+    """
+    from scipy import ndimage
+
+    normal = np.asarray(plane[:3], dtype=np.float64)
+    s = float(voxel_mm)
+    margin = 2 * s if margin_mm is None else float(margin_mm)
+    u, v = _plane_axes(normal)
+    empty = Carving(np.zeros((0, 0, 0), dtype=bool), np.zeros(3), np.stack([u, v, normal]), float(plane[3]), s)
+    local = empty._local(points)
+    lo, hi = local.min(axis=0) - margin, local.max(axis=0) + margin
+    lo[2] = -s * np.ceil(margin / s)  # a few layers below the table: empty, so the bottom is a boundary
+    shape = tuple(int(n) for n in np.ceil((hi - lo) / s).astype(int))
+    grid = np.stack(np.meshgrid(*(np.arange(n) for n in shape), indexing="ij"), axis=-1).reshape(-1, 3)
+    centres = lo + (grid + 0.5) * s
+    world = empty._world(centres)
+    free = centres[:, 2] < 0
+    for frame in frames:
+        k, rot, eye = frame.intrinsics, frame.pose[:3, :3], frame.pose[:3, 3]
+        cam = (world - eye) @ rot
+        z = cam[:, 2]
+        front = z > 0
+        col = np.full(len(z), -1)
+        row = np.full(len(z), -1)
+        col[front] = np.rint(k.fx * cam[front, 0] / z[front] + k.cx)
+        row[front] = np.rint(k.fy * cam[front, 1] / z[front] + k.cy)
+        ok = front & (col >= 0) & (col < k.width) & (row >= 0) & (row < k.height)
+        depth = np.zeros(len(z))
+        depth[ok] = _fill_row_gaps(frame.depth_mm, max_gap_px)[row[ok], col[ok]]
+        measured = np.zeros(len(z), dtype=bool)
+        measured[ok] = frame.depth_mm[row[ok], col[ok]] > 0
+        ok &= depth > 0
+        hit = (cam[ok] * (depth[ok] / z[ok])[:, None]) @ rot.T + eye  # the point this pixel saw
+        on_table = measured[ok] & (hit @ normal + plane[3] <= table_mm)
+        free[np.nonzero(ok)[0]] |= on_table | (z[ok] < depth[ok] - 0.5 * s)
+    solid = ~free.reshape(shape)
+    pieces, _ = ndimage.label(solid)
+    cells = np.clip(np.floor((local - lo) / s).astype(int), 0, np.array(shape) - 1)
+    held = np.unique(pieces[tuple(cells.T)])
+    return Carving(np.isin(pieces, held[held > 0]), lo, empty.axes, empty.offset, s)
+
+
 @dataclass
 class Reconstruction:
     """What :func:`reconstruct_frames` built: the model and the intermediate data (for figures and checks).
@@ -764,6 +1109,7 @@ class Reconstruction:
         points, normals: (N, 3) the fused object points and their oriented normals, world mm.
         scenes: the segmented scene of each frame.
         corrections: the ICP correction (4 x 4) applied to each view.
+        support: (M, 3) the points added where no camera saw the surface (:meth:`Carving.boundary`), mm.
     """
 
     model: ObjectModel
@@ -771,6 +1117,7 @@ class Reconstruction:
     normals: np.ndarray
     scenes: list[TableScene]
     corrections: list[np.ndarray]
+    support: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def reconstruct_frames(
@@ -783,11 +1130,12 @@ def reconstruct_frames(
     icp: bool = True,
     voxel_mm: float = 2.0,
     poisson_depth: int = 7,
-    density_trim: float | None = 1.0,
+    density_trim: float | None = None,
     max_depth_mm: float = 1500.0,
     roi_mm: float | None = 400.0,
     cluster_eps_mm: float = 8.0,
     method: str = "euclidean",
+    close: bool = True,
     seed: int = 0,
     **surface_kwargs,
 ) -> Reconstruction:
@@ -795,9 +1143,18 @@ def reconstruct_frames(
 
     Per frame: points in the world frame, table removed, the cluster nearest ``target`` (world mm;
     default: the first frame's largest cluster, then the nearest to it) kept, with the pieces stacked
-    above its footprint (:func:`merge_stacked`). The views are ICP-refined
-    onto each other, outliers removed, normals estimated and turned towards the camera that saw each point,
-    and a Poisson surface (``poisson_depth``) built; ``size_mm=None`` keeps world millimetres.
+    above its footprint (:func:`merge_stacked`). Normals are estimated in each view and turned towards its
+    camera, the views ICP-refined onto each other, outliers removed, and a Poisson surface
+    (``poisson_depth``) built; ``size_mm=None`` keeps world millimetres, else the model is scaled like
+    ``load_object``'s.
+
+    ``close``: the surface is closed where no camera saw it, as the object is: the faces of the space
+    the frames left uncarved (:func:`carve`) that no observed point explains (the bottom on the table,
+    the inside of a mug below the sight lines) join the points (:attr:`Reconstruction.support`). Should
+    Poisson still leak (a thin shell, a spoon, whose two sides lie within a few Poisson cells: phantom
+    sheets outside the carved space), the surface is built from the faces of the carved space alone,
+    closed by construction and a voxel coarser. ``close=False`` keeps the seen points alone; pass
+    ``density_trim=1.0`` then to cut away Poisson's extrapolation (an open surface, as before).
     ``method`` is the segmentation of :func:`segment_table` (``"smooth"`` for cluttered real scenes).
     With a ``target``, only points within ``roi_mm`` of it are segmented (speed; ``None``: all).
 
@@ -825,13 +1182,39 @@ def reconstruct_frames(
     clouds = [c.points for c in picked]
     corrections = refine_views(clouds) if icp and len(clouds) > 1 else [np.eye(4)] * len(clouds)
     points = np.concatenate([p @ t[:3, :3].T + t[:3, 3] for p, t in zip(clouds, corrections)])
-    viewpoints = np.concatenate([c.viewpoints @ t[:3, :3].T + t[:3, 3] for c, t in zip(picked, corrections)])
-    model = points_to_model(
-        points, None, name=name, label=label, size_mm=size_mm, poisson_depth=poisson_depth,
-        density_trim=density_trim, viewpoints=viewpoints, seed=seed, **surface_kwargs,
+    # Normals per view, then fused: one view sees one side of a thin wall, the fused cloud both sides
+    # within a few millimetres, where a shared neighbourhood would mix them.
+    normals = np.concatenate(
+        [estimate_normals(c.points, viewpoints=c.viewpoints) @ t[:3, :3].T for c, t in zip(picked, corrections)]
     )
-    normals = estimate_normals(points, viewpoints=viewpoints)
-    return Reconstruction(model, points, normals, scenes, corrections)
+    support, outward = np.zeros((0, 3)), np.zeros((0, 3))
+    build = lambda pts, nrm: points_to_model(
+        pts, nrm, name=name, label=label, size_mm=None, poisson_depth=poisson_depth, density_trim=density_trim,
+        seed=seed, **surface_kwargs,
+    )
+    if close:
+        carving = carve(frames, scenes[0].plane, points, voxel_mm=max(voxel_mm, 1.0),
+                        table_mm=max(s.floor_mm for s in scenes))
+        support, outward = carving.boundary(points, normals)
+        model = build(np.concatenate([points, support]), np.concatenate([normals, outward]))
+        outside = ~carving.contains(model.vertices, dilation=2)
+        if not model.is_watertight or outside.mean() > LEAK_FRACTION:
+            log.info("%s: Poisson leaked (%.1f %% of the surface outside the carved space); surface of the "
+                     "carved space instead", name, 100 * outside.mean())
+            support, outward = carving.boundary()
+            model = build(support, outward)
+        # Nothing of the object lies below the table: a Poisson sheet that does is pressed onto it.
+        plane = scenes[0].plane
+        height = model.vertices @ plane[:3] + plane[3]
+        if (height < 0).any():
+            vertices = model.vertices - np.minimum(height, 0.0)[:, None] * plane[:3]
+            model = ObjectModel(vertices, model.triangles, name=name, label=label)
+    else:
+        model = build(points, normals)
+    if size_mm is not None:
+        vertices, scale = normalize(model.vertices, size_mm)
+        model = ObjectModel(vertices, model.triangles, name=name, label=label, transform=scale)
+    return Reconstruction(model, points, normals, scenes, corrections, support)
 
 
 def _sample_surface(model: ObjectModel, n: int, rng: np.random.Generator) -> np.ndarray:

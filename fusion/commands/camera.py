@@ -1,7 +1,8 @@
 """``visuotactile camera``: recognise an object from an RGB-D capture (virtual OAK, live OAK or a recording).
 
-capture -> table removed, object segmented, views fused -> surface (Poisson) -> scaled like the training
-objects -> contours -> virtual FSR sequences -> classifier (``--model``) -> touches fused -> class.
+capture -> table removed, object segmented, views fused -> surface (Poisson), closed where no camera saw it
+(the bottom on the table) from the carved space -> scaled like the training objects (150 mm diagonal) ->
+contours -> virtual FSR sequences -> classifier (``--model``) -> touches fused -> class.
 Without ``--model`` everything up to the tactile sequences runs and is reported. A figure (capture, cloud,
 reconstructed mesh with the explored contours) and ``summary.json`` go to ``--out``.
 """
@@ -105,9 +106,11 @@ def _figure(frames, rec, model, contours, path: Path) -> Path:
     centers = np.array([c.center for c in scene.clusters]).reshape(-1, 3)
     axes[1].plot(*to_image(centers), "k+", ms=8)
     axes[1].set_title(f"view 0: table + {len(scene.clusters)} objects")
+    if len(rec.support):  # where the surface is closed unseen (the bottom on the table), under the seen points
+        axes[2].scatter(*to_image(rec.support), s=0.3, c="0.75", rasterized=True)
     u, v = to_image(rec.points)
     axes[2].scatter(u, v, s=0.3, c=rec.points @ first.pose[:3, 2], cmap="viridis", rasterized=True)
-    axes[2].set_title(f"fused object cloud ({len(rec.points)} points)")
+    axes[2].set_title(f"fused object cloud ({len(rec.points)} points, {len(rec.support)} unseen)")
     axes[1].set_xlim(0, k.width)
     axes[1].set_ylim(k.height, 0)
     pad = 0.1 * max(np.nanmax(u) - np.nanmin(u), np.nanmax(v) - np.nanmin(v), 1.0)
@@ -176,6 +179,7 @@ def recognise(
             "triangles": rec.model.n_triangles,
             "diagonal_mm": rec.model.diagonal,
             "watertight": rec.model.is_watertight,
+            "unseen_points": len(rec.support),  # added where no camera saw the surface (the carved space)
         },
     }
     if virtual:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
@@ -138,6 +139,15 @@ def read_recording(folder: str | Path) -> list[RGBDFrame]:
     )
 
 
+def _listed_frames(folder: Path) -> list[str]:
+    """The frame names the recording index in ``folder`` lists (none if there is no readable index)."""
+    try:
+        names = json.loads((folder / INDEX).read_text(encoding="utf-8")).get("frames", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [n for n in names if isinstance(n, str)] if isinstance(names, list) else []
+
+
 def write_recording(
     folder: str | Path, frames: list[RGBDFrame], *, depth_scale: float = 1000.0, source: str = ""
 ) -> Path:
@@ -157,24 +167,40 @@ def write_recording(
         raise DatasetError(f"{folder}: no frames to record")
     if not np.isfinite(depth_scale) or depth_scale <= 0:
         raise DatasetError(f"{folder}: depth_scale must be positive (units per metre), got {depth_scale}")
-    names = []
-    for i, frame in enumerate(frames):
-        name = f"frame_{i:06d}"
-        units = np.rint(frame.depth_mm.astype(np.float64) * (depth_scale / 1000.0))
-        if units.max(initial=0) > _MAX_DEPTH_UNITS:
-            raise DatasetError(
-                f"{folder}: frame {i} has depth {frame.depth_mm.max():.0f} mm, beyond 16 bits at depth_scale "
-                f"{depth_scale}; use a smaller depth_scale"
-            )
-        with atomic_path(folder / f"{name}.color.png") as tmp:
-            Image.fromarray(np.ascontiguousarray(frame.color), mode="RGB").save(tmp, format="PNG")
-        with atomic_path(folder / f"{name}.depth.png") as tmp:
-            Image.fromarray(units.astype(np.uint16)).save(tmp, format="PNG")
-        meta = {**frame.intrinsics.to_dict(), "pose": frame.pose.tolist(), "timestamp_s": frame.timestamp_s,
-                "name": frame.name}
-        write_text(folder / f"{name}.json", json.dumps(meta, indent=1))
-        names.append(name)
-    index = {"format": FORMAT, "frames": names, "depth_scale": depth_scale, "source": source}
-    write_text(folder / INDEX, json.dumps(index, indent=1))
+    # Overwriting a recording: the new frames get names the old index does not list, and the index, written
+    # last, switches from the old set to the new; an interrupted write leaves the old recording whole.
+    old = _listed_frames(folder)
+    prefix = next(p for p in ("frame", *(f"frame{k}" for k in range(1, len(old) + 2)))
+                  if not any(n.startswith(f"{p}_") for n in old))
+    names: list[str] = []
+    try:
+        for i, frame in enumerate(frames):
+            name = f"{prefix}_{i:06d}"
+            names.append(name)
+            units = np.rint(frame.depth_mm.astype(np.float64) * (depth_scale / 1000.0))
+            if units.max(initial=0) > _MAX_DEPTH_UNITS:
+                raise DatasetError(
+                    f"{folder}: frame {i} has depth {frame.depth_mm.max():.0f} mm, beyond 16 bits at depth_scale "
+                    f"{depth_scale}; use a smaller depth_scale"
+                )
+            with atomic_path(folder / f"{name}.color.png") as tmp:
+                Image.fromarray(np.ascontiguousarray(frame.color), mode="RGB").save(tmp, format="PNG")
+            with atomic_path(folder / f"{name}.depth.png") as tmp:
+                Image.fromarray(units.astype(np.uint16)).save(tmp, format="PNG")
+            meta = {**frame.intrinsics.to_dict(), "pose": frame.pose.tolist(), "timestamp_s": frame.timestamp_s,
+                    "name": frame.name}
+            write_text(folder / f"{name}.json", json.dumps(meta, indent=1))
+        index = {"format": FORMAT, "frames": names, "depth_scale": depth_scale, "source": source}
+        write_text(folder / INDEX, json.dumps(index, indent=1))
+    except BaseException:
+        if _listed_frames(folder) != names:  # the new index is not in place: remove what this call wrote
+            for name in names:
+                for part in (".color.png", ".depth.png", ".json"):
+                    (folder / f"{name}{part}").unlink(missing_ok=True)
+        raise
+    for file in folder.glob("frame*_*.*"):  # the replaced recording's frames, and those of interrupted writes
+        stem = file.name.split(".", 1)[0]
+        if re.fullmatch(r"frame\d*_\d{6}", stem) and stem not in names:
+            file.unlink(missing_ok=True)
     log.info("%s: wrote %d frames", folder, len(frames))
     return folder

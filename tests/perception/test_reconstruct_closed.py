@@ -1,0 +1,165 @@
+"""Closed reconstructions: what no camera sees (the bottom on the table, a mug's inside below the sight lines)
+is closed from the carved space, so a reconstruction stands in for its CAD mesh: same centre, size, volume
+and contours. Each check compares with the true mesh (the catalogue object) or a hand-built case."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+import trimesh
+
+from perception.camera import VirtualOakCamera
+from perception.geometry import ObjectModel, normalize
+from perception.reconstruct import (
+    _close_small_holes,
+    _fill_row_gaps,
+    carve,
+    reconstruct_frames,
+    segment_table,
+    surface_error,
+)
+from perception.shapes import CLASSES, make_object
+from tactile.contours import make_contour, plane_through
+
+
+def _volume(model: ObjectModel) -> float:
+    return trimesh.Trimesh(model.vertices, model.triangles, process=False).volume
+
+
+@pytest.fixture(scope="module")
+def can():
+    """A catalogue can, 4 virtual OAK views at 0.5 m, and its (closed) reconstruction."""
+    camera = VirtualOakCamera(make_object("can", 3), seed=3)
+    frames = camera.capture_views(4, 500.0)
+    closed = reconstruct_frames(frames, target=camera.target, seed=3)
+    return camera, frames, closed
+
+
+# ------------------------------------------------------------------------------------------- helpers
+def test_row_gaps_take_the_farther_end_but_not_next_to_the_edges():
+    depth = np.zeros((3, 70), dtype=np.float32)
+    depth[0, :5], depth[0, 15:20] = 500.0, 700.0  # a 10-pixel gap between a near and a far surface
+    depth[1, 10:] = 600.0  # a gap at the image border: one end only
+    depth[2, :2], depth[2, 62:] = 500.0, 700.0  # a 60-pixel gap: longer than max_gap
+    out = _fill_row_gaps(depth, max_gap=48, keep=2)
+    expected = depth.copy()
+    expected[0, 7:13] = 700.0  # columns 5, 6 and 13, 14 (next to either end) stay empty
+    assert np.array_equal(out, expected)
+
+
+def test_small_holes_close_with_the_winding_of_their_neighbours():
+    box = trimesh.creation.box()  # unit cube, 12 triangles, outward
+    top = np.nonzero(box.triangles_center[:, 2] > 0.49)[0]
+    keep = np.setdiff1d(np.arange(len(box.faces)), top)  # a square hole of 4 edges
+    vertices, triangles = _close_small_holes(box.vertices, box.faces[keep])
+    closed = trimesh.Trimesh(vertices, triangles, process=False)
+    assert closed.is_watertight and closed.is_winding_consistent
+    assert closed.volume == pytest.approx(1.0, abs=1e-12)  # the fan lies in the missing face's plane
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    cap = sphere.faces[sphere.triangles_center[:, 2] < 0.8]  # a hole of more than 16 edges is an opening
+    vertices, triangles = _close_small_holes(sphere.vertices, cap, max_edges=16)
+    assert len(triangles) == len(cap) and len(vertices) == len(sphere.vertices)
+
+
+# ------------------------------------------------------------------------------------- segmentation
+def test_a_bowl_keeps_its_inner_bottom_below_the_plane_tolerance():
+    """The bowl's inner bottom stands 4 mm above the table, under the 6 mm RANSAC tolerance: it is grown
+    back into the object (above the table's noise floor), and nothing of the table comes with it."""
+    bowl = make_object("bowl", 5)
+    camera = VirtualOakCamera(bowl, seed=5)
+    frame = camera.capture(camera.orbit_poses(1)[0])
+    points, colors = frame.points()
+    scene = segment_table(points, colors, np.broadcast_to(frame.camera_position, points.shape), voxel_mm=2.0)
+    cluster = scene.clusters[0]
+    height = cluster.points[:, 2]
+    low = cluster.points[height < 6.0]
+    assert 1.0 < scene.floor_mm < 3.0  # 3 sigma of 0.5-0.6 mm depth noise at 0.5 m
+    # Measured: 1700 of 3900 points below 6 mm, the inner bottom (radius < 25 mm) among them.
+    assert len(low) > 0.2 * len(cluster.points) and (np.hypot(low[:, 0], low[:, 1]) < 25.0).sum() > 200
+    _, distance = camera.truth.closest_points(cluster.points)
+    assert np.quantile(distance, 0.99) < 2.0  # object points, not table
+
+
+# ------------------------------------------------------------------------------------------ carving
+def test_carving_keeps_a_box_and_empties_the_space_around_and_under_it():
+    box = make_object("box", 2)
+    camera = VirtualOakCamera(box, seed=2)
+    frames = camera.capture_views(4, 500.0)
+    truth = camera.truth
+    carving = carve(frames, np.array([0.0, 0.0, 1.0, 0.0]), truth.vertices, voxel_mm=2.0, table_mm=2.0)
+    lo, hi = truth.bounds
+    grid = np.stack(np.meshgrid(*(np.linspace(a + 12, b - 12, 6) for a, b in zip(lo, hi)), indexing="ij"), -1)
+    grid = grid.reshape(-1, 3)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(truth.vertices, o3d.core.float32), o3d.core.Tensor(truth.triangles, o3d.core.uint32))
+    assert scene.compute_occupancy(o3d.core.Tensor(grid, o3d.core.float32)).numpy().all()  # inside the bevelled box
+    assert carving.contains(grid).all()  # nothing of it carved
+    mid = 0.5 * (lo + hi)
+    around = [mid + np.array([dx, dy, 0.0]) for dx, dy in ((hi[0] - mid[0] + 10, 0), (0, lo[1] - mid[1] - 10))]
+    around.append(np.array([mid[0], mid[1], hi[2] + 10]))  # above the top
+    around.append(np.array([mid[0], mid[1], -1.0]))  # under the table
+    assert not carving.contains(np.array(around)).any()
+    # Given the surface the cameras see (all but the bottom face), what is left to close is the bottom.
+    seen = truth.vertices[:, 2] > 0.5
+    faces, outward = carving.boundary(truth.vertices[seen], truth.vertex_normals[seen])
+    assert len(faces) > 0 and np.quantile(faces[:, 2], 0.95) < 2.5
+    assert (outward[:, 2] < -0.99).mean() > 0.9
+
+
+# ------------------------------------------------------------------------------------ the closed can
+def test_reconstructed_can_is_closed_with_the_cad_volume_centre_and_size(can):
+    camera, _, rec = can
+    truth = camera.truth
+    model = rec.model
+    assert model.is_watertight
+    assert trimesh.Trimesh(model.vertices, model.triangles, process=False).is_watertight  # a peer's check
+    # Measured: volume +1 %, centre 0.3 mm off, diagonal +1 %. Open (close=False): no volume, centre 3.4 mm
+    # higher, diagonal -2 % (the bottom 6 mm missing).
+    assert _volume(model) == pytest.approx(_volume(truth), rel=0.03)
+    assert np.linalg.norm(model.center - truth.center) < 1.0
+    assert model.diagonal == pytest.approx(truth.diagonal, rel=0.02)
+    # The bottom was closed from the carved space, at the table.
+    assert len(rec.support) > 0 and np.median(rec.support[:, 2]) < 2.0
+
+
+def test_contours_of_the_reconstruction_follow_the_cad_contours(can):
+    """Blind planes through the centre cut one closed loop of the CAD perimeter on the (normalised)
+    reconstruction, as on the CAD mesh: the cue the classifiers were trained on."""
+    camera, _, rec = can
+    scaled = lambda m: ObjectModel(normalize(m.vertices)[0], m.triangles, name=m.name)
+    cad, ours = scaled(camera.truth), scaled(rec.model)
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        a, b = rng.normal(size=(2, 3))
+        plane = plane_through(np.zeros(3), a, b)
+        mine, theirs = make_contour(ours, plane, 50), make_contour(cad, plane, 50)
+        assert mine.closed and theirs.closed
+        length = lambda c: np.linalg.norm(np.diff(c.polyline, axis=0, append=c.polyline[:1]), axis=1).sum()
+        assert length(mine) == pytest.approx(length(theirs), rel=0.05)
+
+
+def test_open_reconstruction_misses_the_bottom(can):
+    """``close=False`` (the surface of the seen points, trimmed): the gap the closure removes."""
+    camera, frames, closed = can
+    rec = reconstruct_frames(frames, target=camera.target, seed=3, close=False, density_trim=1.0, poisson_depth=6)
+    assert not rec.model.is_watertight and len(rec.support) == 0
+    # Measured: 5 % of the can (its bottom) further than 13 mm from the open surface, against 1.3 mm closed.
+    assert surface_error(rec.model, camera.truth)["coverage_p95_mm"] > 8.0
+    assert surface_error(closed.model, camera.truth)["coverage_p95_mm"] < 2.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("class_name", CLASSES)
+def test_every_class_reconstructs_closed_at_its_cad_centre_and_size(class_name):
+    camera = VirtualOakCamera(make_object(class_name, 5), seed=5)
+    rec = reconstruct_frames(camera.capture_views(4, 500.0), target=camera.target, seed=5)
+    truth, model = camera.truth, rec.model
+    assert model.is_watertight
+    assert model.bounds[0, 2] > -0.5  # nothing below the table (its plane is estimated to a tenth of a mm)
+    # Measured over the classes (seed 5): centre within 0.8 mm, diagonal +0.5 to +4 %.
+    assert np.linalg.norm(model.center - truth.center) < 2.0
+    assert 0.99 < model.diagonal / truth.diagonal < 1.06
+    # Solids keep their volume; hollow objects gain the inside no camera saw (a mug x2.4), never lose.
+    ratio = _volume(model) / _volume(truth)
+    assert 0.95 < ratio < (1.05 if class_name in ("bottle", "box", "can", "hammer", "ring") else 3.0)
