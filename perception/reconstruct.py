@@ -732,9 +732,12 @@ def segment_table(
     inliers = np.asarray(inliers, dtype=np.int64)
     if len(inliers) < 3:
         raise InvalidMeshError("scene: no table plane found")
-    # Least-squares refinement on the inliers (deterministic given them).
-    centre = pts[inliers].mean(axis=0)
-    normal = np.linalg.svd(pts[inliers] - centre, full_matrices=False)[2][2]
+    # Least-squares refinement on the inliers, twice, re-selecting them: Open3D's RANSAC runs on several
+    # threads and may return another of equally good candidates under load; the refit plane does not.
+    for _ in range(2):
+        centre = pts[inliers].mean(axis=0)
+        normal = np.linalg.svd(pts[inliers] - centre, full_matrices=False)[2][2]
+        inliers = np.nonzero(np.abs((pts - centre) @ normal) <= plane_tolerance_mm)[0]
     up = np.asarray(up_hint, dtype=np.float64) if up_hint is not None else views.mean(axis=0) - centre
     if np.linalg.norm(up) < 1e-9:
         up = np.array([0.0, -1.0, 0.0])
@@ -947,6 +950,8 @@ def refine_views(
             log.info("view %d: ICP correction refused (fitness %.2f, %.2f mm, %.2f deg)", i, result.fitness,
                      np.linalg.norm(t[:3, 3]), angle)
             t = np.eye(4)
+        # Open3D sums over threads in no fixed order: the last bits of t vary from run to run.
+        t = np.round(t, 9)
         corrections.append(t)
         reference.points.extend(o3d.utility.Vector3dVector(pts @ t[:3, :3].T + t[:3, 3]))
     return corrections
