@@ -5,7 +5,11 @@ probe. Each taxel casts one ray from a stand-off ``h`` above the pad along the o
 towards the surface; ``gap = t_hit - h`` is the distance from the pad plane to the surface (0 where they
 touch, negative where the surface pokes through the pad). All taxels of a batch of probes go into one
 ``RaycastingScene.cast_rays`` call. Where the pad penetrates (a concave spot) it shrinks, keeping its
-taxel count (finer pitch), and only those probes are cast again.
+taxel count (finer pitch), and only those probes are cast again. Before shrinking, a penetrating pad
+first tries to settle: a rigid pad pressed on a rough surface (a camera reconstruction's millimetre
+ripples, a coarse mesh's blended vertex normal at an edge) tilts onto the surface's mean plane under it
+and rests on the highest point; it keeps that pose when the rise stays within ``settle_mm`` and nothing
+then pokes through. A real concavity needs a larger rise, so the pad shrinks into it as before.
 
 Frames are indexed ``[row, col]``: columns run along the pad x axis (the contour tangent), rows along
 the pad y axis, both increasing with the index.
@@ -83,6 +87,10 @@ class FSRSensor:
             through by a fraction of a millimetre on coarse meshes) and stands for the skin's give.
         shrink_factor: the adaptive pad's sides form the ladder side_mm * shrink_factor**k (k >= 0),
             never below min_side_mm; in (0, 1).
+        settle_mm: how far above its probe a penetrating pad may come to rest when it settles on the
+            least-squares plane of the surface under it (see the module docstring), mm; 0 turns settling
+            off. It stands for the pad's compliance to roughness, not to shape: a concavity deeper than
+            this still shrinks the pad.
         survey_taxels: before the full-resolution cast, an adaptive press surveys the pad with a
             survey_taxels x survey_taxels subset of its taxels (shrinking on that cheap grid first), so
             most probes are cast at full resolution once, and that cast skips the survey's taxels (read
@@ -108,6 +116,7 @@ class FSRSensor:
     dead_taxel_rate: float = 0.0
     penetration_eps_mm: float = 0.2
     shrink_factor: float = 0.8
+    settle_mm: float = 1.0
     survey_taxels: int = 8
 
     def __post_init__(self) -> None:
@@ -127,7 +136,7 @@ class FSRSensor:
         if self.mode not in MODES:
             raise SensorSpecError(f"FSRSensor.mode must be one of {MODES}, got {self.mode!r}")
         positive = ("side_mm", "min_side_mm", "range_mm", "standoff_mm", "stiffness", "saturation")
-        non_negative = ("indent_mm", "noise_std", "dead_taxel_rate", "penetration_eps_mm")
+        non_negative = ("indent_mm", "noise_std", "dead_taxel_rate", "penetration_eps_mm", "settle_mm")
         for name in (*positive, *non_negative, "shrink_factor"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, Real) or not _finite(value):
@@ -138,7 +147,7 @@ class FSRSensor:
         for name in non_negative:
             if getattr(self, name) < 0:
                 raise SensorSpecError(f"FSRSensor.{name} must be >= 0, got {getattr(self, name)}")
-        lengths = ["side_mm", "min_side_mm", "range_mm", "standoff_mm", "indent_mm", "penetration_eps_mm"]
+        lengths = ["side_mm", "min_side_mm", "range_mm", "standoff_mm", "indent_mm", "penetration_eps_mm", "settle_mm"]
         pressures = ["stiffness", "saturation"]
         (lengths if self.mode == "gap" else pressures).append("noise_std")
         for name in lengths:
@@ -287,18 +296,75 @@ class FSRSensor:
         poses = (model, positions, normals, tangents)
         steps = np.zeros(len(positions), dtype=np.int64)
         if adaptive and self.survey_taxels and self.survey_taxels < max(self.rows, self.cols):
-            # A coarse survey of the full pad picks each probe's side before the one full-resolution cast.
+            # A coarse survey of the full pad picks each probe's pose and side before the one
+            # full-resolution cast.
             coarse = self._gaps(*poses, self._ladder(steps), self._survey_index)
+            poses, coarse = self._settle(poses, coarse, self._survey_index, steps)
             self._shrink(poses, coarse, steps, self._survey_index)
-            # The survey's last cast was at the final side, so its taxels need no second cast.
+            # The survey's last cast was at the final pose and side, so its taxels need no second cast.
             rest = self._gaps(*poses, self._ladder(steps), self._rest_index)
             gaps = np.take(np.concatenate([coarse, rest], axis=1), self._survey_order, axis=1)
         else:
             gaps = self._gaps(*poses, self._ladder(steps)).reshape(len(positions), -1)
         if adaptive:
+            # Ripples finer than the survey's taxel pitch show only now.
+            poses, gaps = self._settle(poses, gaps, None, steps)
             self._shrink(poses, gaps, steps)
         sides = self._ladder(steps)
         return self._read(gaps.reshape(-1, self.rows, self.cols), np.random.default_rng(seed)), sides
+
+    def _settle(self, poses, gaps: np.ndarray, taxels, steps: np.ndarray):
+        """Settle the penetrating pads on the surface under them (``gaps`` (N, T) seen on the ``taxels``,
+        None: all, on pads of ``_ladder(steps)``); returns the poses and gaps with the settled probes
+        replaced.
+
+        Per penetrating probe, the surface heights under the pad (-gap where a ray found the surface
+        from outside) get a least-squares plane z = a x + b y + c in pad coordinates (mm); the pad turns
+        to that plane's normal and rises to its highest point, lift = max(z - a x - b y). The new pose
+        is kept where 0 <= lift <= settle_mm and its re-cast finds nothing poking through.
+        """
+        model, positions, normals, tangents = poses
+        candidates = np.flatnonzero((gaps < -self.penetration_eps_mm).any(axis=1))
+        if self.settle_mm <= 0 or not candidates.size:
+            return poses, gaps
+        sides = self._ladder(steps[candidates])
+        unit_xy = self._unit_grid if taxels is None else self._unit_grid[taxels]  # (T, 2) on the unit pad
+        g = gaps[candidates].astype(np.float64)
+        # Rays that started inside the solid (-standoff) or found nothing (range) give no height.
+        found = (g > -self.standoff_mm) & (g < self.range_mm)
+        weights = found.astype(np.float64)
+        # The fit runs on the unit pad, so its conditioning does not depend on the units or the side.
+        design = np.concatenate([unit_xy, np.ones((len(unit_xy), 1))], axis=1)  # (T, 3) rows (u, v, 1)
+        normal_matrix = np.einsum("pt,ti,tj->pij", weights, design, design)
+        rhs = np.einsum("pt,ti,pt->pi", weights, design, -g)
+        # Three points not on a line make the 3 x 3 system well posed; others keep their pose.
+        well_posed = np.linalg.cond(normal_matrix) < 1e8
+        coef = np.zeros((len(candidates), 3))
+        coef[well_posed] = np.linalg.solve(normal_matrix[well_posed], rhs[well_posed][:, :, None])[..., 0]
+        residual = np.where(found, -g - coef[:, :2] @ unit_xy.T, -np.inf)
+        slope = coef[:, :2] / sides[:, None]  # mm of height per mm across the pad
+        lift = residual.max(axis=1)
+        ok = well_posed & (lift >= 0) & (lift <= self.settle_mm)
+        if not ok.any():
+            return poses, gaps
+        candidates, slope, lift, sides = candidates[ok], slope[ok], lift[ok], sides[ok]
+        n, t = normals[candidates], tangents[candidates]
+        binormals = np.cross(n, t)
+        # The plane z = a x + b y has normal (-a, -b, 1) in pad coordinates (x tangent, y binormal, z normal).
+        settled_n = n - slope[:, :1] * t - slope[:, 1:] * binormals
+        settled_n /= np.linalg.norm(settled_n, axis=1, keepdims=True)
+        settled_t = orthonormal_tangents(settled_n, t, np.array([0.0, 0.0, 1.0]))
+        settled_p = positions[candidates] + lift[:, None] * n
+        settled_g = self._gaps(model, settled_p, settled_n, settled_t, sides, taxels)
+        settled_g = settled_g.reshape(len(candidates), -1)
+        fits = (settled_g >= -self.penetration_eps_mm).all(axis=1)
+        if not fits.any():
+            return poses, gaps
+        keep = candidates[fits]
+        positions, normals, tangents, gaps = positions.copy(), normals.copy(), tangents.copy(), gaps.copy()
+        positions[keep], normals[keep], tangents[keep] = settled_p[fits], settled_n[fits], settled_t[fits]
+        gaps[keep] = settled_g[fits]
+        return (model, positions, normals, tangents), gaps
 
     def _survey_indices(self) -> np.ndarray:
         """Row-major taxel indices of a survey_taxels x survey_taxels subset of the taxel grid, outermost

@@ -148,6 +148,7 @@ def sensors(draw, max_taxels: int = 12) -> FSRSensor:
         noise_std=draw(st.one_of(st.just(0.0), noise)),
         dead_taxel_rate=draw(st.one_of(st.just(0.0), st.floats(0.0, 0.999))),
         penetration_eps_mm=draw(st.floats(0.0, 5.0)),
+        settle_mm=draw(st.one_of(st.just(0.0), log_uniform(-3, 2))),
         shrink_factor=draw(st.floats(0.05, 0.95)),
         survey_taxels=draw(st.integers(0, 16)),
     )

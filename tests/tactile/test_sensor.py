@@ -312,6 +312,7 @@ def test_spec_is_json_and_rebuilds_the_sensor():
         ("adc_bits", 0),
         ("survey_taxels", -1),
         ("penetration_eps_mm", float("inf")),
+        ("settle_mm", -0.5),
         ("side_mm", "20"),
     ],
 )
