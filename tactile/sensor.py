@@ -335,8 +335,9 @@ class FSRSensor:
         weights = found.astype(np.float64)
         # The fit runs on the unit pad, so its conditioning does not depend on the units or the side.
         design = np.concatenate([unit_xy, np.ones((len(unit_xy), 1))], axis=1)  # (T, 3) rows (u, v, 1)
-        normal_matrix = np.einsum("pt,ti,tj->pij", weights, design, design)
-        rhs = np.einsum("pt,ti,pt->pi", weights, design, -g)
+        # Weighted normal equations as two matrix products (BLAS), not einsum over (P, T, 3, 3).
+        normal_matrix = (weights @ (design[:, :, None] * design[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)
+        rhs = (weights * -g) @ design
         # Three points not on a line make the 3 x 3 system well posed; others keep their pose.
         well_posed = np.linalg.cond(normal_matrix) < 1e8
         coef = np.zeros((len(candidates), 3))
