@@ -3,8 +3,8 @@
 Training: built-in catalogue objects (every class x ``--train-objects`` seeds 0, 1, ...), blind contours,
 one store per sensor setting. Test: other instances of every class (seeds 1000, 1001, ...), each touched
 ``--touches`` times (blind contours, sum of log-probabilities) twice: on its CAD mesh, and on its reconstruction
-from a virtual OAK-D (4 views at 500 mm, stereo noise, closed against the table,
-:func:`fusion.commands.camera.recognise` without the classifier) scaled to the training size.
+from a virtual OAK-D (4 views at 500 mm, stereo noise, :func:`perception.reconstruct.reconstruct_frames` closed
+against the table, as ``visuotactile camera`` does) scaled to the training size.
 ``--settle`` compares sensor settings: ``settle_mm`` 0 (the pad never settles; it shrinks wherever the surface
 pokes through) against the default, each with its own store and models. Timings: reconstruction per object,
 touching per object and one decision, median.
