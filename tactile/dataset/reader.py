@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from perception.errors import DatasetError
-from tactile.dataset.store import decode_frames, layout_of, read_attrs, read_records
+from tactile.dataset.store import ZARR_READ, decode_frames, layout_of, read_attrs, read_records
 from tactile.explore import SequenceBatch
 
 log = logging.getLogger(__name__)
@@ -25,16 +25,19 @@ PROBE_ARRAYS = ("normals", "positions", "tangents", "pad_sides_mm")
 def _read_rows(array, rows: np.ndarray, block: int) -> np.ndarray:
     """``array[rows]`` for sorted or unsorted ``rows``, reading one contiguous range per ``block`` of rows
     (zarr's point selection on sharded arrays decodes a shard per point; ranges decode each chunk once)."""
+    import zarr
+
     out = np.empty((len(rows), *array.shape[1:]), dtype=array.dtype)
     if not len(rows):
         return out
     order = np.argsort(rows, kind="stable")
     sorted_rows = rows[order]
     blocks = sorted_rows // block
-    for b in np.unique(blocks):
-        pick = np.flatnonzero(blocks == b)
-        lo, hi = int(sorted_rows[pick[0]]), int(sorted_rows[pick[-1]]) + 1
-        out[order[pick]] = array[lo:hi][sorted_rows[pick] - lo]
+    with zarr.config.set(ZARR_READ):
+        for b in np.unique(blocks):
+            pick = np.flatnonzero(blocks == b)
+            lo, hi = int(sorted_rows[pick[0]]), int(sorted_rows[pick[-1]]) + 1
+            out[order[pick]] = array[lo:hi][sorted_rows[pick] - lo]
     return out
 
 

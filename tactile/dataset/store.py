@@ -47,6 +47,12 @@ RECORDS = "records"
 MAX_SHARD_SEQUENCES = 2048
 #: Blosc settings of every array: zstd level 1 with byte shuffle, measured best size-for-speed on frames.
 COMPRESSOR = {"cname": "zstd", "clevel": 1, "shuffle": "shuffle"}
+#: zarr settings around bulk reads and writes: chunks go through the codec pipeline 64 at a time (the
+#: default, one at a time, spends more in Python than in Blosc on these 51 KB chunks); a writing worker keeps
+#: to its own thread (the workers already fill the cores). Measured on 1,900 SHREC sequences: writes 1.96 ->
+#: 1.11 s, range reads 1.30 -> 0.67 s; the same bytes.
+ZARR_WRITE = {"threading.max_workers": 1, "codec_pipeline.batch_size": 64}
+ZARR_READ = {"codec_pipeline.batch_size": 64}
 #: Quantisation codes of the frames (uint16).
 CODE_MAX = np.iinfo(np.uint16).max
 

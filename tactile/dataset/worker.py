@@ -22,7 +22,14 @@ from perception.geometry import ObjectModel
 from tactile import sampling
 from tactile.contours import Contour
 from tactile.dataset.objects import ObjectSpec
-from tactile.dataset.store import SEQUENCE_ARRAYS, contour_seed, encode_frames, layout_of, write_record
+from tactile.dataset.store import (
+    SEQUENCE_ARRAYS,
+    ZARR_WRITE,
+    contour_seed,
+    encode_frames,
+    layout_of,
+    write_record,
+)
 from tactile.sensor import FSRSensor
 
 log = logging.getLogger(__name__)
@@ -122,8 +129,9 @@ def explore_into_store(
                 np.isfinite(values).all()
             ):
                 raise ContourError(f"{spec.name} ({strategy}): {name} contain NaN or Inf; nothing was written")
-        for name, values in out.items():
-            arrays[name][rows] = values
+        with zarr.config.set(ZARR_WRITE):
+            for name, values in out.items():
+                arrays[name][rows] = values
     record = {
         "index": index,
         "name": spec.name,
