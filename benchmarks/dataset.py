@@ -111,7 +111,7 @@ def _raw_cast(job: tuple) -> tuple[int, float]:
     if "catalogue" in source:
         source["catalogue"] = tuple(source["catalogue"])
     model = ObjectSpec(spec_dict["name"], spec_dict["label"], **source).load()
-    sensor = FSRSensor(**{k: v for k, v in sensor_spec.items() if k != "sensor"})
+    sensor = FSRSensor.from_spec(sensor_spec)
     grid = np.concatenate([sensor._unit_grid, np.ones((len(sensor._unit_grid), 1))], axis=1).astype(np.float32)
     per_cast = max(1, RAYS_PER_CAST // len(grid))
     scene = model.scene

@@ -158,8 +158,7 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
 
     def sensor(self) -> FSRSensor:
         """The :class:`FSRSensor` the model was trained with (to record new data for it)."""
-        spec = {k: v for k, v in self.sensor_spec_.items() if k != "sensor"}
-        return FSRSensor(**spec)
+        return FSRSensor.from_spec(self.sensor_spec_)
 
     @property
     def probes(self) -> int:

@@ -191,6 +191,21 @@ class FSRSensor:
         """JSON-able specification (for dataset metadata and model compatibility checks)."""
         return {"sensor": "FSRSensor", **asdict(self)}
 
+    @classmethod
+    def from_spec(cls, spec: dict) -> FSRSensor:
+        """The sensor a :meth:`spec` describes. Specs written before settling existed (no ``settle_mm``)
+        describe a rigid pad: ``settle_mm=0``.
+
+        Raises:
+            SensorSpecError: unknown fields or bad values.
+        """
+        fields = {k: v for k, v in spec.items() if k != "sensor"}
+        fields.setdefault("settle_mm", 0.0)
+        try:
+            return cls(**fields)
+        except TypeError as exc:
+            raise SensorSpecError(f"sensor spec has unknown fields: {exc}") from exc
+
     def taxel_coordinates(self, side_mm: float | None = None) -> np.ndarray:
         """(rows, cols, 2) pad (x, y) coordinates of the taxel centres, mm, for a pad of ``side_mm``."""
         side = self.side_mm if side_mm is None else float(side_mm)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from perception import primitives
+from perception.errors import SensorSpecError
 from perception.geometry import ObjectModel
 from tactile.sensor import FSRSensor
 
@@ -101,3 +102,12 @@ def test_convex_surfaces_read_the_same_bytes_with_or_without_settling():
     settling = FSRSensor().press(sphere, positions, normals, tangents)
     assert rigid[0].tobytes() == settling[0].tobytes()
     np.testing.assert_array_equal(settling[1], 20.0)
+
+
+def test_specs_from_before_settling_describe_a_rigid_pad():
+    spec = FSRSensor().spec()
+    assert FSRSensor.from_spec(spec) == FSRSensor()
+    del spec["settle_mm"]  # as written by versions without settling
+    assert FSRSensor.from_spec(spec).settle_mm == 0.0
+    with pytest.raises(SensorSpecError, match="unknown fields"):
+        FSRSensor.from_spec({**spec, "stickiness": 1.0})
