@@ -30,3 +30,16 @@ def psb_open() -> Path:
 @pytest.fixture
 def ycb() -> Path:
     return data_folder("ycb")
+
+
+@pytest.fixture
+def no_oak() -> None:
+    """Skip where an OAK camera is attached (the test checks what happens without one)."""
+    from perception.camera import find_oak_devices
+    from perception.errors import DeviceNotFoundError
+
+    try:
+        if find_oak_devices():
+            pytest.skip("an OAK is connected")
+    except DeviceNotFoundError:
+        pass
