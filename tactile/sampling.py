@@ -115,19 +115,33 @@ def sample_planes(
     return [_draw_plane(model, points, rng) for _ in range(n)]
 
 
-def draw_contour(model: ObjectModel, points: np.ndarray, rng: np.random.Generator, probes: int = 25) -> Contour:
+def draw_contour(
+    model: ObjectModel, points: np.ndarray, rng: np.random.Generator, probes: int = 25, cache: dict | None = None
+) -> Contour:
     """One contour through ``model.center`` and two of ``points`` drawn with ``rng``; planes that miss the
     object (or cut a zero-length contour) are re-drawn, up to ``MAX_DRAWS`` times.
+
+    ``cache`` (a dict kept by the caller for one model and ``probes``) maps planes already cut to their
+    contour or failure: guided strategies draw from 10 interest points, so a few hundred draws repeat the
+    same 90 ordered pairs, and a repeated plane is cut once. The draws from ``rng`` are the same either way.
 
     Raises:
         ContourError: ``MAX_DRAWS`` planes in a row missed the object.
     """
     for _ in range(MAX_DRAWS):
         plane = _draw_plane(model, points, rng)
-        try:
-            return make_contour(model, plane, probes)
-        except ContourError as exc:
-            log.debug("%s: re-drawing a plane (%s)", model.name, exc)
+        key = (plane.point.tobytes(), plane.normal.tobytes())
+        found = cache.get(key) if cache is not None else None
+        if found is None:
+            try:
+                found = make_contour(model, plane, probes)
+            except ContourError as exc:
+                found = exc
+            if cache is not None:
+                cache[key] = found
+        if isinstance(found, Contour):
+            return found
+        log.debug("%s: re-drawing a plane (%s)", model.name, found)
     raise ContourError(f"{model.name}: {MAX_DRAWS} planes in a row missed the object")
 
 
@@ -161,9 +175,9 @@ def explore_object(
     _check_not_flat(model)
     rng = np.random.default_rng(seed)
     points = _candidates(model, strategy, saliency)
-    sequences = []
+    sequences, cache = [], {}
     for _ in tqdm(range(n_contours), desc=f"explore {model.name}", disable=not progress):
-        contour = draw_contour(model, points, rng, probes)
+        contour = draw_contour(model, points, rng, probes, cache)
         contour_seed = int(rng.integers(2**31 - 1))
         sequences.append(explore(model, contour, sensor, seed=contour_seed, strategy=strategy))
     return sequences

@@ -3,9 +3,11 @@
 Sequence k of strategy s of an object is, by construction, what
 ``explore_object(model, s, 1, sensor, probes, seed=contour_seed(seed, name, s, k), saliency=...)`` returns:
 the plane-drawing loop of :func:`tactile.sampling.explore_object` runs with that contour's own generator.
-The contours of one strategy are then pressed in large batches (one ray-casting call per ~1,000 probes);
-when the sensor has no noise and no dead taxels its read-out does not use the seed, and a batched press
-gives the same frames as one press per contour. With noise, each contour is pressed alone with its seed.
+All contours of one strategy are drawn first (a plane drawn again is cut once: guided strategies draw pairs
+of 10 interest points, so 950 draws hold at most 90 distinct planes), then pressed in large batches (one
+ray-casting call per ~1,000 probes). When the sensor has no noise and no dead taxels its read-out does not
+use the seed, so a batched press gives the same frames as one press per contour and a repeated contour is
+pressed once. With noise, each contour is pressed alone with its seed.
 """
 
 from __future__ import annotations
@@ -38,25 +40,47 @@ log = logging.getLogger(__name__)
 PRESS_BATCH = 256
 
 
-def draw_contour(model: ObjectModel, points: np.ndarray, probes: int, seed: int) -> tuple[Contour, int]:
-    """The contour and sensor-noise seed that ``explore_object`` draws for one contour from ``seed``.
+def draw_contour(
+    model: ObjectModel, points: np.ndarray, probes: int, seed: int, cache: dict | None = None
+) -> tuple[Contour, int]:
+    """The contour and sensor-noise seed that ``explore_object`` draws for one contour from ``seed``
+    (``cache``: see :func:`tactile.sampling.draw_contour`).
 
     Raises:
         ContourError: MAX_DRAWS planes in a row missed the object.
     """
     rng = np.random.default_rng(seed)
-    contour = sampling.draw_contour(model, points, rng, probes)
+    contour = sampling.draw_contour(model, points, rng, probes, cache)
     return contour, int(rng.integers(2**31 - 1))
 
 
-def _press(sensor: FSRSensor, model: ObjectModel, contours: list[Contour], noise_seeds: list[int]) -> tuple:
-    """Frames (N, P, R, C) float32 and pad sides (N, P) of the contours, as ``explore`` gives them."""
+def _distinct(sensor: FSRSensor, contours: list[Contour]) -> tuple[list[Contour], np.ndarray]:
+    """The contours to press and, per row, which of them gives its frames.
+
+    Without noise or dead taxels the read-out does not depend on the seed, so a contour drawn several
+    times (the same Contour object, from the cut cache) is pressed once. With them every row is pressed
+    with its own seed.
+    """
+    if sensor.noise_std > 0 or sensor.dead_taxel_rate > 0:
+        return contours, np.arange(len(contours))
+    first: dict[int, int] = {}
+    which = np.array([first.setdefault(id(c), len(first)) for c in contours], dtype=np.int64)
+    return list({id(c): c for c in contours}.values()), which
+
+
+def _press(sensor: FSRSensor, model: ObjectModel, contours: list[Contour], noise_seeds) -> tuple:
+    """Frames (N, P, R, C) float32 and pad sides (N, P) of the contours, as ``explore`` gives them.
+
+    When the sensor has no noise and no dead taxels its read-out does not use the seed, and one batched
+    press gives the same frames as one press per contour; otherwise each contour is pressed with its seed.
+    """
     n, p = len(contours), contours[0].n_probes
     if sensor.noise_std == 0 and sensor.dead_taxel_rate == 0:
         stack = [np.concatenate([getattr(c, a) for c in contours]) for a in ("positions", "normals", "tangents")]
         frames, sides = sensor.press(model, *stack)
         return frames.reshape(n, p, sensor.rows, sensor.cols), sides.reshape(n, p)
-    pressed = [sensor.press(model, c.positions, c.normals, c.tangents, seed=s) for c, s in zip(contours, noise_seeds)]
+    pressed = [sensor.press(model, c.positions, c.normals, c.tangents, seed=int(s))
+               for c, s in zip(contours, noise_seeds)]
     return np.stack([f for f, _ in pressed]), np.stack([s for _, s in pressed])
 
 
@@ -97,6 +121,7 @@ def explore_into_store(
             interest[strategy] = points.tolist()
         rows = layout.rows(index, s)
         n = layout.contours
+        cuts: dict = {}  # plane -> contour, for this object and strategy
         out = {
             "frames": np.empty((n, probes, sensor.rows, sensor.cols), np.uint16),
             "pad_sides_mm": np.empty((n, probes), np.float32),
@@ -104,23 +129,25 @@ def explore_into_store(
             "plane_points": np.empty((n, 3)), "plane_normals": np.empty((n, 3)),
             "contour_seeds": np.empty(n, np.int64), "noise_seeds": np.empty(n, np.int64),
         }
-        for lo in range(0, n, PRESS_BATCH):
-            hi = min(lo + PRESS_BATCH, n)
-            contours, noise_seeds = [], []
-            for k in range(lo, hi):
-                cseed = contour_seed(seed, spec.name, strategy, k)
-                contour, nseed = draw_contour(model, points, probes, cseed)
-                contours.append(contour)
-                noise_seeds.append(nseed)
-                out["contour_seeds"][k], out["noise_seeds"][k] = cseed, nseed
-                out["plane_points"][k], out["plane_normals"][k] = contour.plane.point, contour.plane.normal
-                for a in ("normals", "positions", "tangents"):
-                    out[a][k] = getattr(contour, a)
-            frames, sides = _press(sensor, model, contours, noise_seeds)
-            out["frames"][lo:hi] = encode_frames(frames, settings["encoding"], f"{spec.name} ({strategy})")
-            out["pad_sides_mm"][lo:hi] = sides
+        contours = []
+        for k in range(n):
+            cseed = contour_seed(seed, spec.name, strategy, k)
+            contour, nseed = draw_contour(model, points, probes, cseed, cuts)
+            contours.append(contour)
+            out["contour_seeds"][k], out["noise_seeds"][k] = cseed, nseed
+            out["plane_points"][k], out["plane_normals"][k] = contour.plane.point, contour.plane.normal
+            for a in ("normals", "positions", "tangents"):
+                out[a][k] = getattr(contour, a)
+        distinct, which = _distinct(sensor, contours)
+        for lo in range(0, len(distinct), PRESS_BATCH):
+            hi = min(lo + PRESS_BATCH, len(distinct))
+            frames, sides = _press(sensor, model, distinct[lo:hi], out["noise_seeds"][lo:hi])
+            done = np.flatnonzero((which >= lo) & (which < hi))
+            encoded = encode_frames(frames, settings["encoding"], f"{spec.name} ({strategy})")
+            out["frames"][done] = encoded[which[done] - lo]
+            out["pad_sides_mm"][done] = sides[which[done] - lo]
             if progress is not None:
-                progress(hi - lo)
+                progress(len(done))
         out["labels"] = np.full(n, label, np.int64)
         out["object_ids"] = np.full(n, index, np.int64)
         out["strategies"] = np.full(n, s, np.int8)

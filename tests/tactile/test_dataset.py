@@ -377,3 +377,22 @@ def test_torch_dataset_reads_the_same_sequences(blind_store):
 
     copy = pickle.loads(pickle.dumps(tds))
     np.testing.assert_array_equal(copy[2][0].numpy(), batch.frames[2])
+
+
+def test_repeated_guided_contours_are_stored_as_pressed_alone(tmp_path):
+    # 60 guided draws from 10 interest points (90 ordered pairs) repeat planes; a repeat is cut and pressed
+    # once in the worker. Every row must still be what explore_object gives for its own seed.
+    sensor = FSRSensor(rows=8, cols=8)
+    generate([("box", 4)], tmp_path / "s", strategies="guided", contours_per_object=60, sensor=sensor, probes=6,
+             seed=2, workers=1, progress=False)
+    ds = open_dataset(tmp_path / "s")
+    batch = ds.load()
+    distinct = np.unique(batch.plane_normals, axis=0)
+    assert len(distinct) < 60  # the case under test: some planes were drawn more than once
+    model = make_object("box", 4)
+    sal = attention.saliency(model, "multiview")
+    for k in range(60):
+        expected = explore_object(model, "guided", 1, sensor, 6, seed=contour_seed(2, "box/4", "guided", k),
+                                  saliency=sal)[0]
+        assert np.abs(batch.frames[k] - expected.frames).max() <= ds.max_frame_error * (1 + 1e-6)
+        np.testing.assert_array_equal(batch.pad_sides_mm[k], expected.pad_sides_mm.astype(np.float32))

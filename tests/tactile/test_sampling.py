@@ -9,6 +9,7 @@ import perception.saliency as attention
 from perception import primitives
 from perception.errors import ContourError, SaliencyError
 from perception.geometry import ObjectModel
+from perception.shapes import make_object
 from tactile import sampling
 from tactile.sampling import INTEREST_POOL, MAX_DRAWS, explore_object, sample_planes
 from tactile.sensor import FSRSensor
@@ -150,3 +151,20 @@ def test_guided_exploration_on_a_primitive_touches_the_object():
     (seq,) = explore_object(model, "guided", n_contours=1, probes=9, seed=0, sensor=FSRSensor(rows=8, cols=8))
     _, distance = model.closest_points(seq.positions)
     assert distance.max() < 1e-3 * model.diagonal and seq.strategy == "guided"
+
+
+def test_draw_contour_cache_cuts_a_repeated_plane_once_and_draws_the_same(monkeypatch):
+    model = make_object("mug", 2)
+    points = model.vertices[[0, 50, 100]]  # 3 points: 6 ordered pairs, so 40 draws must repeat planes
+    cuts = []
+    original = sampling.make_contour
+    monkeypatch.setattr(sampling, "make_contour", lambda *a, **k: cuts.append(a[1]) or original(*a, **k))
+    plain = [sampling.draw_contour(model, points, rng, 8) for rng in [np.random.default_rng(5)] for _ in range(40)]
+    assert len(cuts) == 40
+    cuts.clear()
+    cache = {}
+    cached = [sampling.draw_contour(model, points, rng, 8, cache) for rng in [np.random.default_rng(5)] for _ in range(40)]
+    assert len(cuts) == len(cache) <= 6
+    for a, b in zip(plain, cached):
+        np.testing.assert_array_equal(a.positions, b.positions)
+        np.testing.assert_array_equal(a.normals, b.normals)
