@@ -69,7 +69,17 @@ def _circular_probes(x: torch.Tensor, pad: int = 1) -> torch.Tensor:
     return torch.cat([x[:, :, -pad:], x, x[:, :, :pad]], dim=2)
 
 
-class CutaneousNet(nn.Module):
+class _TwoConvNet(nn.Module):
+    """Two convolutions with batch norm, circular over the probes, then two fully connected layers: the
+    shape both nets share. Subclasses build conv1, bn1, conv2, bn2, fc1, drop and fc2."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = F.relu(self.bn1(self.conv1(_circular_probes(x))))
+        x = F.relu(self.bn2(self.conv2(_circular_probes(x))))
+        return self.fc2(self.drop(F.relu(self.fc1(x.flatten(1)))))
+
+
+class CutaneousNet(_TwoConvNet):
     """3D CNN on a (B, 1, P, R, C) tactile video -> (B, n_classes) logits. Any P >= 1, R, C >= 1."""
 
     def __init__(self, n_probes: int, grid: tuple[int, int], n_classes: int, widths=(8, 16), hidden: int = 64,
@@ -86,13 +96,8 @@ class CutaneousNet(nn.Module):
         self.drop = nn.Dropout(dropout)
         self.fc2 = nn.Linear(hidden, n_classes)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = F.relu(self.bn1(self.conv1(_circular_probes(x))))
-        x = F.relu(self.bn2(self.conv2(_circular_probes(x))))
-        return self.fc2(self.drop(F.relu(self.fc1(x.flatten(1)))))
 
-
-class KinestheticNet(nn.Module):
+class KinestheticNet(_TwoConvNet):
     """2D CNN on a (B, 1, P, k) kinesthetic cue -> (B, n_classes) logits. Any P >= 1, k >= 1."""
 
     def __init__(self, n_probes: int, width: int, n_classes: int, widths=(16, 32), hidden: int = 64,
@@ -105,11 +110,6 @@ class KinestheticNet(nn.Module):
         self.fc1 = nn.Linear(widths[1] * n_probes * width, hidden)
         self.drop = nn.Dropout(dropout)
         self.fc2 = nn.Linear(hidden, n_classes)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = F.relu(self.bn1(self.conv1(_circular_probes(x))))
-        x = F.relu(self.bn2(self.conv2(_circular_probes(x))))
-        return self.fc2(self.drop(F.relu(self.fc1(x.flatten(1)))))
 
 
 # ----------------------------------------------------------------------------------------- preprocessing
