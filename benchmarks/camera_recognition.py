@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks._common import machine
+from fusion.evaluate import accuracy
 from perception.camera import VirtualOakCamera
 from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
 from perception.reconstruct import reconstruct_frames, surface_error
@@ -106,10 +107,13 @@ def run(classes, train_objects: int, test_objects: int, contours: int, touches: 
                         hits[source].append(predicted == cls)
                         per_object.append({"settle_mm": settle, "classifier": kind, "object": f"{cls}/{s}",
                                            "source": source, "predicted": predicted})
+                # One decision per object: bootstrap over the objects.
+                cad, rec = (accuracy(np.ones(len(hits[k]), bool), np.asarray(hits[k]), seed=seed)
+                            for k in ("cad", "reconstructed"))
                 rows.append({
                     "settle_mm": settle, "classifier": kind, "objects": len(tests),
-                    "cad_accuracy": float(np.mean(hits["cad"])),
-                    "reconstructed_accuracy": float(np.mean(hits["reconstructed"])),
+                    "cad_accuracy": cad.value, "cad_interval": [cad.low, cad.high],
+                    "reconstructed_accuracy": rec.value, "reconstructed_interval": [rec.low, rec.high],
                     "full_pads_cad": float(np.mean(full["cad"])),
                     "full_pads_reconstructed": float(np.mean(full["reconstructed"])),
                     "train_sequences": len(data), "generate_s": gen_s, "fit_s": fit_s,
@@ -151,10 +155,12 @@ def main(argv: list[str] | None = None) -> int:
     rec = result["reconstruction"]
     print(f"Reconstructions: {len(classes) * test_objects} objects, surface error median of means "
           f"{rec['mean_mm']:.2f} mm (p95 {rec['p95_mm']:.2f} mm), {rec['seconds']:.1f} s each")
-    print(f"{'settle mm':>9} {'classifier':>10} {'CAD acc':>8} {'rec acc':>8} {'full pads CAD':>13} "
+    print(f"{'settle mm':>9} {'classifier':>10} {'CAD acc [95 %]':>18} {'rec acc [95 %]':>18} {'full pads CAD':>13} "
           f"{'full pads rec':>13} {'fit s':>7} {'touch s':>8} {'decide ms':>9}")
     for r in result["rows"]:
-        print(f"{r['settle_mm']:>9g} {r['classifier']:>10} {r['cad_accuracy']:>8.2f} {r['reconstructed_accuracy']:>8.2f} "
+        cad = f"{r['cad_accuracy']:.2f} [{r['cad_interval'][0]:.2f}, {r['cad_interval'][1]:.2f}]"
+        rec = f"{r['reconstructed_accuracy']:.2f} [{r['reconstructed_interval'][0]:.2f}, {r['reconstructed_interval'][1]:.2f}]"
+        print(f"{r['settle_mm']:>9g} {r['classifier']:>10} {cad:>18} {rec:>18} "
               f"{r['full_pads_cad']:>13.2f} {r['full_pads_reconstructed']:>13.2f} {r['fit_s']:>7.1f} "
               f"{r['touch_s']:>8.2f} {1000 * r['decide_s']:>9.1f}")
     if args.json:
