@@ -15,6 +15,8 @@ from perception.errors import InvalidArgumentError
 NOISE_KINDS = {
     "taxel_noise": "Gaussian taxel noise, std in mm of gap",
     "dead_taxels": "fraction of dead taxels (read the sensing range)",
+    "dead_taxels_repaired": "the same dead taxels, found in each sequence and filled in from their live "
+                            "neighbours before classifying (tactile.dead_taxels)",
     "pose_jitter": "probe position jitter std in mm (tilt std: 2.5 degrees per mm)",
 }
 #: Pose jitter: normal tilt std (degrees) per mm of position jitter std.
@@ -64,6 +66,7 @@ class Sizes:
         default_factory=lambda: {
             "taxel_noise": (0.1, 0.3, 1.0),
             "dead_taxels": (0.05, 0.2, 0.5),
+            "dead_taxels_repaired": (0.05, 0.2, 0.5),
             "pose_jitter": (0.5, 1.0, 2.0),
         }
     )
@@ -119,7 +122,8 @@ QUICK = Sizes(
     unseen_folds=3,
     unseen_per_class=4,
     noise_contours=3,
-    noise_levels={"taxel_noise": (0.3, 1.0), "dead_taxels": (0.2, 0.5), "pose_jitter": (1.0, 2.0)},
+    noise_levels={"taxel_noise": (0.3, 1.0), "dead_taxels": (0.2, 0.5), "dead_taxels_repaired": (0.2, 0.5),
+                  "pose_jitter": (1.0, 2.0)},
     attention_contours=16,
     runtime_contours=16,
     runtime_probes=(5, 25),

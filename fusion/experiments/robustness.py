@@ -1,5 +1,7 @@
 """Noise: models trained on clean data (the paper protocol's), tested on held-out contours of the same objects
-read with taxel noise, dead taxels or jittered probe poses, at growing levels.
+read with taxel noise, dead taxels or jittered probe poses, at growing levels. ``dead_taxels_repaired`` reads the
+same frames as ``dead_taxels`` and repairs them (:func:`tactile.dead_taxels.repair_dead_taxels`) before the
+models see them; its level 0 is the clean reading repaired (what the repair costs where nothing is broken).
 
 Every level touches the same contours (planes and seeds from the run seed + ``TEST_SEED_OFFSET``, the object
 and the strategy, :func:`fusion.experiments.touch.touch_object`), so only the perturbation differs between
@@ -10,7 +12,7 @@ recorded for the object (no saliency is recomputed). Intervals: bootstrap over t
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -21,6 +23,7 @@ from fusion.experiments.models import DISPLAY, predict
 from fusion.experiments.touch import load_batch, save_batch, touch_objects
 from perception.errors import SaliencyError
 from perception.geometry import ObjectModel
+from tactile.dead_taxels import repair_dead_taxels
 from tactile.sampling import STRATEGIES as METHODS
 from tactile.sensor import FSRSensor
 
@@ -65,7 +68,7 @@ def _attention(ds, models: list, strategy: str, seed: int) -> dict | None:
 def _sensor_and_jitter(kind: str, level: float) -> tuple[FSRSensor, float]:
     if kind == "taxel_noise":
         return FSRSensor(noise_std=float(level)), 0.0
-    if kind == "dead_taxels":
+    if kind in ("dead_taxels", "dead_taxels_repaired"):
         return FSRSensor(dead_taxel_rate=float(level)), 0.0
     return FSRSensor(), float(level)
 
@@ -85,9 +88,10 @@ def noise_rows(ctx: Context, models: list, class_names: list[str], ds=None) -> l
                       for name in sizes.paper_classifiers}
         for kind, level in levels:
             sensor, jitter = _sensor_and_jitter(kind, level)
-            key = {"objects": [m.name for m in models], "strategy": strategy, "kind": kind, "level": level,
+            read = "dead_taxels" if kind == "dead_taxels_repaired" else kind  # the same frames, repaired below
+            key = {"objects": [m.name for m in models], "strategy": strategy, "kind": read, "level": level,
                    "contours": sizes.noise_contours, "seed": ctx.seed + TEST_SEED_OFFSET, "sensor": sensor.spec()}
-            path = ctx.path("noise", f"{strategy}-{kind}-{level:g}.npz")
+            path = ctx.path("noise", f"{strategy}-{read}-{level:g}.npz")
             batch = load_batch(path, key)
             if batch is None:
                 if strategy not in attention:
@@ -96,12 +100,17 @@ def noise_rows(ctx: Context, models: list, class_names: list[str], ds=None) -> l
                                       seed=ctx.seed + TEST_SEED_OFFSET, jitter_mm=jitter,
                                       attention=attention.get(strategy), progress=ctx.progress)
                 save_batch(batch, path, key)
+            kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
+            repaired = None
+            if any(k.endswith("_repaired") for k in kinds):
+                repaired = replace(batch, frames=repair_dead_taxels(batch.frames, sensor))
             for name, estimator in estimators.items():
-                acc = score(predict(estimator, batch), by="decision", seed=ctx.seed)
-                kinds = list(sizes.noise_levels) if kind == "clean" else [kind]
-                for k in kinds:  # the clean reading is level 0 of every kind
+                acc = {id(data): score(predict(estimator, data), by="decision", seed=ctx.seed)
+                       for data in (batch, repaired) if data is not None}
+                for k in kinds:
+                    data = repaired if k.endswith("_repaired") else batch
                     rows.append({"kind": k, "level": level, "strategy": strategy, "classifier": DISPLAY.get(name, name),
-                                 "name": name, "accuracy": acc.to_dict()})
+                                 "name": name, "accuracy": acc[id(data)].to_dict()})
     return rows
 
 

@@ -207,7 +207,8 @@ def test_reproduce_refuses_bad_parts(tmp_path):
 # ------------------------------------------------------------------------------------ end to end
 # Blind only: no saliency, so the fast tests stay fast (the slow test runs both strategies and every part).
 TINY = Sizes(strategies=("blind",), paper_contours=10, unseen_contours=10, unseen_folds=3, touches=(1, 2), noise_contours=2,
-             noise_levels={"taxel_noise": (0.5,), "dead_taxels": (0.5,), "pose_jitter": (2.0,)},
+             noise_levels={"taxel_noise": (0.5,), "dead_taxels": (0.5,), "dead_taxels_repaired": (0.5,),
+                           "pose_jitter": (2.0,)},
              paper_classifiers=("nm", "nm-soft"), unseen_classifiers=("nm",))
 FAST_PARTS = ("paper", "unseen", "touches", "noise")
 
@@ -244,7 +245,11 @@ def test_reproduce_writes_a_complete_report(tiny_run):
     assert len(list((out / "stores").glob("*.zarr"))) == 1  # the same data: one shared store
     accs = list(_accuracies(saved))
     assert accs and all(0 <= a["low"] <= a["value"] <= a["high"] <= 1 for a in accs)
-    assert {r["kind"] for r in saved["noise"]["rows"]} == {"taxel_noise", "dead_taxels", "pose_jitter"}
+    assert {r["kind"] for r in saved["noise"]["rows"]} == {"taxel_noise", "dead_taxels", "dead_taxels_repaired",
+                                                          "pose_jitter"}
+    # The repaired rows read the dead-taxel frames already touched: no batch of their own.
+    assert sorted(p.name for p in (out / "noise").glob("*.npz")) == [
+        "blind-clean-0.npz", "blind-dead_taxels-0.5.npz", "blind-pose_jitter-2.npz", "blind-taxel_noise-0.5.npz"]
     report = (out / "report.md").read_text()
     for name in ["accuracy_vs_k.png", "accuracy_vs_noise.png", *saved["paper"]["figures"]]:
         assert f"]({name})" in report
