@@ -2,6 +2,7 @@
 
 from tactile.contours import Contour, Plane, make_contour, plane_through, section
 from tactile.dataset import TactileDataset, generate, open_dataset
+from tactile.dead_taxels import find_dead_taxels, repair_dead_taxels
 from tactile.explore import SequenceBatch, TactileSequence, explore
 from tactile.sampling import explore_object, sample_planes
 from tactile.sensor import FSRSensor
@@ -15,10 +16,12 @@ __all__ = [
     "TactileSequence",
     "explore",
     "explore_object",
+    "find_dead_taxels",
     "generate",
     "make_contour",
     "open_dataset",
     "plane_through",
+    "repair_dead_taxels",
     "sample_planes",
     "section",
 ]
