@@ -93,7 +93,7 @@ def run(classes, train_objects: int, test_objects: int, contours: int, touches: 
                 start = time.perf_counter()
                 clf = _classifier(kind, seed).fit(data)
                 fit_s = time.perf_counter() - start
-                hits = {"cad": [], "reconstructed": []}
+                predictions = {"cad": [], "reconstructed": []}
                 touch_times, decide_times, full = [], [], {"cad": [], "reconstructed": []}
                 for cls, s in tests:
                     for source, model in (("cad", make_object(cls, s)), ("reconstructed", recs[cls, s])):
@@ -104,12 +104,12 @@ def run(classes, train_objects: int, test_objects: int, contours: int, touches: 
                         start = time.perf_counter()
                         predicted = _decide(clf, sequences, sensor)
                         decide_times.append(time.perf_counter() - start)
-                        hits[source].append(predicted == cls)
+                        predictions[source].append(predicted)
                         per_object.append({"settle_mm": settle, "classifier": kind, "object": f"{cls}/{s}",
                                            "source": source, "predicted": predicted})
                 # One decision per object: bootstrap over the objects.
-                cad, rec = (accuracy(np.ones(len(hits[k]), bool), np.asarray(hits[k]), seed=seed)
-                            for k in ("cad", "reconstructed"))
+                truth = [cls for cls, _ in tests]
+                cad, rec = (accuracy(truth, predictions[k], seed=seed) for k in ("cad", "reconstructed"))
                 rows.append({
                     "settle_mm": settle, "classifier": kind, "objects": len(tests),
                     "cad_accuracy": cad.value, "cad_interval": [cad.low, cad.high],

@@ -82,9 +82,7 @@ def repair_dead_taxels(frames, sensor: FSRSensor, *, max_dead_neighbours: int = 
     sums = _neighbour_sum(frames * live)
     counts = _neighbour_sum(np.broadcast_to(live, frames.shape))
     fill = dead[..., None, :, :] & (counts > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        repaired = np.where(fill, sums / np.maximum(counts, 1), frames)
-    return repaired.astype(frames.dtype)
+    return np.where(fill, sums / np.maximum(counts, 1), frames).astype(frames.dtype)
 
 
 __all__ = ["dead_value", "find_dead_taxels", "repair_dead_taxels"]

@@ -73,6 +73,11 @@ def _sensor_and_jitter(kind: str, level: float) -> tuple[FSRSensor, float]:
     return FSRSensor(), float(level)
 
 
+def _view(kind: str) -> str:
+    """Which frames a noise kind's models read: "repaired" or "raw" (as touched)."""
+    return "repaired" if kind.endswith("_repaired") else "raw"
+
+
 def noise_rows(ctx: Context, models: list, class_names: list[str], ds=None) -> list[dict]:
     """Accuracy rows {kind, level, strategy, classifier, accuracy} for every noise kind and level (0 included).
 
@@ -101,16 +106,16 @@ def noise_rows(ctx: Context, models: list, class_names: list[str], ds=None) -> l
                                       attention=attention.get(strategy), progress=ctx.progress)
                 save_batch(batch, path, key)
             kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
-            repaired = None
-            if any(k.endswith("_repaired") for k in kinds):
-                repaired = replace(batch, frames=repair_dead_taxels(batch.frames, sensor))
+            # The frames each kind's models read: as touched, or repaired; each predicted once.
+            views = {_view(k) for k in kinds}
+            inputs = {"raw": batch} if "raw" in views else {}
+            if "repaired" in views:
+                inputs["repaired"] = replace(batch, frames=repair_dead_taxels(batch.frames, sensor))
             for name, estimator in estimators.items():
-                acc = {id(data): score(predict(estimator, data), by="decision", seed=ctx.seed)
-                       for data in (batch, repaired) if data is not None}
+                acc = {v: score(predict(estimator, data), by="decision", seed=ctx.seed) for v, data in inputs.items()}
                 for k in kinds:
-                    data = repaired if k.endswith("_repaired") else batch
                     rows.append({"kind": k, "level": level, "strategy": strategy, "classifier": DISPLAY.get(name, name),
-                                 "name": name, "accuracy": acc[id(data)].to_dict()})
+                                 "name": name, "accuracy": acc[_view(k)].to_dict()})
     return rows
 
 

@@ -54,28 +54,29 @@ def draw_contour(
     return contour, int(rng.integers(2**31 - 1))
 
 
-def _distinct(sensor: FSRSensor, contours: list[Contour]) -> tuple[list[Contour], np.ndarray]:
-    """The contours to press and, per row, which of them gives its frames.
+def _seed_free(sensor: FSRSensor) -> bool:
+    """Whether the sensor's read-out ignores the seed (no taxel noise, no dead taxels): then one batched
+    press gives the same frames as one press per contour, and a repeated contour need be pressed once."""
+    return sensor.noise_std == 0 and sensor.dead_taxel_rate == 0
 
-    Without noise or dead taxels the read-out does not depend on the seed, so a contour drawn several
-    times (the same Contour object, from the cut cache) is pressed once. With them every row is pressed
-    with its own seed.
-    """
-    if sensor.noise_std > 0 or sensor.dead_taxel_rate > 0:
-        return contours, np.arange(len(contours))
+
+def _distinct(sensor: FSRSensor, contours: list[Contour]) -> tuple[np.ndarray, np.ndarray]:
+    """Rows to press (the first row of each distinct contour; every row when the read-out needs its seed)
+    and, per row, the index into them of the press that gives its frames. A contour drawn several times is
+    the same Contour object, from the cut cache."""
+    if not _seed_free(sensor):
+        return np.arange(len(contours)), np.arange(len(contours))
     first: dict[int, int] = {}
     which = np.array([first.setdefault(id(c), len(first)) for c in contours], dtype=np.int64)
-    return list({id(c): c for c in contours}.values()), which
+    _, rows = np.unique(which, return_index=True)
+    return rows, which
 
 
 def _press(sensor: FSRSensor, model: ObjectModel, contours: list[Contour], noise_seeds) -> tuple:
-    """Frames (N, P, R, C) float32 and pad sides (N, P) of the contours, as ``explore`` gives them.
-
-    When the sensor has no noise and no dead taxels its read-out does not use the seed, and one batched
-    press gives the same frames as one press per contour; otherwise each contour is pressed with its seed.
-    """
+    """Frames (N, P, R, C) float32 and pad sides (N, P) of the contours, as ``explore`` gives them: one
+    batched press when the read-out ignores the seed, else each contour pressed with its seed."""
     n, p = len(contours), contours[0].n_probes
-    if sensor.noise_std == 0 and sensor.dead_taxel_rate == 0:
+    if _seed_free(sensor):
         stack = [np.concatenate([getattr(c, a) for c in contours]) for a in ("positions", "normals", "tangents")]
         frames, sides = sensor.press(model, *stack)
         return frames.reshape(n, p, sensor.rows, sensor.cols), sides.reshape(n, p)
@@ -138,10 +139,11 @@ def explore_into_store(
             out["plane_points"][k], out["plane_normals"][k] = contour.plane.point, contour.plane.normal
             for a in ("normals", "positions", "tangents"):
                 out[a][k] = getattr(contour, a)
-        distinct, which = _distinct(sensor, contours)
-        for lo in range(0, len(distinct), PRESS_BATCH):
-            hi = min(lo + PRESS_BATCH, len(distinct))
-            frames, sides = _press(sensor, model, distinct[lo:hi], out["noise_seeds"][lo:hi])
+        pressed, which = _distinct(sensor, contours)
+        for lo in range(0, len(pressed), PRESS_BATCH):
+            hi = min(lo + PRESS_BATCH, len(pressed))
+            batch = pressed[lo:hi]
+            frames, sides = _press(sensor, model, [contours[k] for k in batch], out["noise_seeds"][batch])
             done = np.flatnonzero((which >= lo) & (which < hi))
             encoded = encode_frames(frames, settings["encoding"], f"{spec.name} ({strategy})")
             out["frames"][done] = encoded[which[done] - lo]
