@@ -3,7 +3,7 @@
 Training: built-in catalogue objects (every class x ``--train-objects`` seeds 0, 1, ...), blind contours,
 one store per sensor setting. Test: other instances of every class (seeds 1000, 1001, ...), each touched
 ``--touches`` times (blind contours, sum of log-probabilities) twice: on its CAD mesh, and on its reconstruction
-from a virtual OAK-D (4 views at 500 mm, stereo noise, :func:`perception.reconstruct.reconstruct_frames` closed
+from a virtual OAK-D (4 views at 500 mm, stereo noise, :func:`perception.reconstruct.multiview.reconstruct_frames` closed
 against the table, as ``visuotactile camera`` does) scaled to the training size.
 ``--settle`` compares sensor settings: ``settle_mm`` 0 (the pad never settles; it shrinks wherever the surface
 pokes through) against the default, each with its own store and models. Timings: reconstruction per object,
@@ -28,7 +28,8 @@ from benchmarks._common import machine
 from fusion.evaluate import accuracy
 from perception.camera import VirtualOakCamera
 from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
-from perception.reconstruct import reconstruct_frames, surface_error
+from perception.reconstruct.multiview import reconstruct_frames
+from perception.reconstruct.surface import surface_error
 from perception.shapes import CLASSES, make_object
 from tactile.dataset import generate, open_dataset
 from tactile.explore import SequenceBatch

@@ -557,7 +557,7 @@ def _child(manifest: str, start: int, fd: int, memory_mb: int) -> None:
     if kinds & {"mesh", "points"}:
         from perception.errors import VisuotactileError
         from perception.geometry import DEFAULT_SIZE_MM, load_object
-        from perception.reconstruct import load_points, points_to_model
+        from perception.reconstruct.surface import load_points, points_to_model
 
         size = DEFAULT_SIZE_MM
         loaders = {"mesh": load_object, "points": lambda p: load_points(p, **POINT_KWARGS)}

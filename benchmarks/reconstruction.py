@@ -1,7 +1,7 @@
 """Reconstruction benchmark: surface error against run time for RGB-D captures and point-cloud files.
 
 (a) Virtual OAK-D (400p, stereo noise, seeded) around built-in objects on a table, reconstructed with
-    :func:`perception.reconstruct.reconstruct_frames`: surface error (distance from 20k points drawn on the
+    :func:`perception.reconstruct.multiview.reconstruct_frames`: surface error (distance from 20k points drawn on the
     reconstruction to the true mesh, mm: mean and 95th percentile) against the number of views (at 500 mm,
     Poisson depth 7), the camera distance (4 views) and the Poisson depth (4 views at 500 mm), plus the
     same capture without ICP refinement, and the open surface of the seen points alone (``close=False``,
@@ -13,7 +13,7 @@
     bounding-box centres (the point contour planes pass through), mm. Times: capture (ray casting +
     stereo model) and reconstruction, median over the objects.
 (b) Point-cloud files: 15k points sampled on each object, written as PCD / XYZ / PLY (no faces) / NPZ,
-    loaded back with :func:`perception.reconstruct.load_points` (estimated normals, Poisson depth 7):
+    loaded back with :func:`perception.reconstruct.surface.load_points` (estimated normals, Poisson depth 7):
     error and completeness as in (a).
 (c) The real GraspNet RealSense frame (shared data): table plane, object clusters (smooth segmentation),
     cluster centres matched one-to-one (Hungarian) to the 9 annotated object poses; ``--figure`` writes
@@ -37,14 +37,10 @@ import numpy as np
 
 from benchmarks._common import DATA, machine
 from perception.camera import VirtualOakCamera, read_recording
-from perception.reconstruct import (
-    frames_to_points,
-    load_points,
-    reconstruct_frames,
-    segment_table,
-    surface_error,
-    write_points,
-)
+from perception.reconstruct.multiview import reconstruct_frames
+from perception.reconstruct.pointfiles import write_points
+from perception.reconstruct.surface import load_points, surface_error
+from perception.reconstruct.tabletop import frames_to_points, segment_table
 from perception.shapes import CLASSES, make_object
 
 VIEWS = (1, 2, 4, 8)

@@ -10,7 +10,8 @@ import tempfile
 
 from perception.camera import VirtualOakCamera, read_recording, write_recording
 from perception.geometry import ObjectModel, normalize
-from perception.reconstruct import reconstruct_frames, surface_error
+from perception.reconstruct.multiview import reconstruct_frames
+from perception.reconstruct.surface import surface_error
 from perception.shapes import make_object
 from tactile import explore_object
 from tactile.explore import SequenceBatch

@@ -16,7 +16,7 @@ _EXPORTS = {
     "load_object": "geometry",
     "CLASSES": "shapes",
     "make_object": "shapes",
-    "load_points": "reconstruct",
+    "load_points": "reconstruct.surface",
 }
 
 __all__ = ["CLASSES", "Curvature", "ObjectModel", "VisuotactileError", "load_dataset", "load_object", "load_points", "make_object"]

@@ -170,7 +170,7 @@ def writers(models, set_inputs) -> dict:
     from fusion.experiments.models import Predictions
     from fusion.experiments.touch import save_batch
     from perception.camera.recording import write_recording
-    from perception.reconstruct import write_points
+    from perception.reconstruct.pointfiles import write_points
     from tactile.dataset.store import write_record
     from tests.fusion._synthetic import circle_batch
 
@@ -400,7 +400,7 @@ def _big_report(path: Path, v: int) -> None:
 
 
 def _big_cloud(path: Path, v: int) -> None:
-    from perception.reconstruct import write_points
+    from perception.reconstruct.pointfiles import write_points
 
     write_points(path, np.random.default_rng(v).normal(size=(20000 + 5000 * v, 3)))
 

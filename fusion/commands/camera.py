@@ -153,7 +153,8 @@ def recognise(
     timings["capture_s"] = time.perf_counter() - start
     # Only now the geometry stack: without a device the user hears so before Open3D has loaded.
     from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
-    from perception.reconstruct import reconstruct_frames, surface_error
+    from perception.reconstruct.multiview import reconstruct_frames
+    from perception.reconstruct.surface import surface_error
     from tactile.contours import make_contour
     from tactile.explore import SequenceBatch
     from tactile.sampling import explore_object

@@ -16,7 +16,7 @@ from benchmarks import fuzz
 from perception.errors import VisuotactileError
 from perception.geometry import load_object
 from perception.meshio import read_mesh
-from perception.reconstruct import read_points
+from perception.reconstruct.pointfiles import read_points
 
 
 def _report(results) -> str:

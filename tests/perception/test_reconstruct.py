@@ -8,15 +8,10 @@ import pytest
 
 from perception.camera import Intrinsics, RGBDFrame, look_at
 from perception.errors import InvalidArgumentError, InvalidMeshError, MeshLoadError
-from perception.reconstruct import (
-    estimate_normals,
-    load_points,
-    read_points,
-    segment_table,
-    surface_error,
-    validate_points,
-    write_points,
-)
+from perception.reconstruct.pointfiles import read_points, write_points
+from perception.reconstruct.points import estimate_normals, validate_points
+from perception.reconstruct.surface import load_points, surface_error
+from perception.reconstruct.tabletop import segment_table
 from perception.shapes import make_object
 
 RADIUS = 50.0

@@ -11,14 +11,10 @@ import trimesh
 
 from perception.camera import VirtualOakCamera
 from perception.geometry import ObjectModel, normalize
-from perception.reconstruct import (
-    _close_small_holes,
-    _fill_row_gaps,
-    carve,
-    reconstruct_frames,
-    segment_table,
-    surface_error,
-)
+from perception.reconstruct.carving import _fill_row_gaps, carve
+from perception.reconstruct.multiview import reconstruct_frames
+from perception.reconstruct.surface import _close_small_holes, surface_error
+from perception.reconstruct.tabletop import segment_table
 from perception.shapes import CLASSES, make_object
 from tactile.contours import make_contour, plane_through
 

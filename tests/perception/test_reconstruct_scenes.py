@@ -8,7 +8,9 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
 from perception.camera import VirtualOakCamera, read_recording
-from perception.reconstruct import frames_to_points, reconstruct_frames, segment_table, surface_error
+from perception.reconstruct.multiview import reconstruct_frames
+from perception.reconstruct.surface import surface_error
+from perception.reconstruct.tabletop import frames_to_points, segment_table
 from perception.shapes import CLASSES, make_object
 from tests.conftest import data_folder
 
@@ -58,7 +60,7 @@ def test_virtual_oak_reconstruction_of_a_bottle_is_within_millimetres():
 def test_virtual_oak_reconstruction_of_every_class(class_name):
     from scipy.spatial import cKDTree
 
-    from perception.reconstruct import _sample_surface
+    from perception.reconstruct.surface import _sample_surface
 
     rec, truth = _reconstruct(class_name)
     # Where the cameras saw the object (the surface within 2 mm of a captured point), within millimetres of
@@ -79,7 +81,7 @@ def test_reconstruction_is_deterministic():
 
 
 def test_icp_undoes_a_small_pose_error():
-    from perception.reconstruct import refine_views
+    from perception.reconstruct.multiview import refine_views
     from tests.perception.test_reconstruct import sample_surface
 
     box = make_object("box", 0)
