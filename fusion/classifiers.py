@@ -8,7 +8,7 @@ from perception.errors import DatasetError
 CLASSIFIERS = ("cnn", "svm", "knn")
 
 
-def make_classifier(name: str, *, cue: str = "normals", seed: int = 0, progress: bool = False, **options):
+def make_classifier(name: str, *, cue: str = "invariant", seed: int = 0, progress: bool = False, **options):
     """A new, unfitted classifier ``name`` with kinesthetic ``cue`` and ``seed``; ``options`` go to its constructor.
 
     Raises:

@@ -76,7 +76,7 @@ def contourlet_std(batch: SequenceBatch) -> np.ndarray:
     return std
 
 
-def sequence_features(batch: SequenceBatch, cue: str = "normals") -> np.ndarray:
+def sequence_features(batch: SequenceBatch, cue: str = "invariant") -> np.ndarray:
     """(S, F * P) float64 series of every sequence, series-major: 16 subband stds then the cue's channels.
 
     Raises:
@@ -98,7 +98,7 @@ class SequenceSeries(TransformerMixin, BaseEstimator):
     Stateless. Takes batches only, so scikit-learn's random-array estimator checks do not apply to it.
     """
 
-    def __init__(self, cue: str = "normals"):
+    def __init__(self, cue: str = "invariant"):
         self.cue = cue
 
     def fit(self, X, y=None):

@@ -1,8 +1,11 @@
 """Object geometry: the :class:`ObjectModel` every stage works on, and the loaders that build it.
 
-Units are millimetres. A loaded object is centred on its bounding-box centre and scaled to a bounding-box
-diagonal of ``size_mm`` (150 mm by default, a hand-held object); ``ObjectModel.transform`` maps the
-source file's coordinates to the model's. Expensive derived data (normals, curvature, the ray-casting
+Units are millimetres. Nothing here depends on how a file happens to be posed: a loaded object is centred on
+its surface centroid (the area-weighted mean of its triangles) and scaled so that the sphere about that centre
+holding every vertex has a diameter of ``size_mm`` (150 mm by default, a hand-held object). Both are
+rotation-invariant, so a mesh and any rotation of it load to the same centre and size (the bounding box, the
+paper's frame, changes with the pose: ``centering="bbox"`` keeps it as an option). ``ObjectModel.transform``
+maps the source file's coordinates to the model's. Expensive derived data (normals, curvature, the ray-casting
 scene) are computed on first use and cached, so a scene pays only for what it asks.
 """
 
@@ -18,7 +21,7 @@ import open3d as o3d
 
 from perception import meshio
 from perception.curvature import Curvature, compute_curvature, vertex_normals
-from perception.errors import DatasetError, InvalidMeshError
+from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
 from perception.orientation import orient_outward
 
 log = logging.getLogger(__name__)
@@ -32,7 +35,11 @@ MIN_EXTENT_MM = 1e-9
 #: Ray casting is float32: warn where its rounding at the mesh's distance from the origin exceeds this
 #: fraction of the bounding-box diagonal (1.5 um on a 150 mm object; the FSR gaps span about 2 mm).
 FLOAT32_TOLERANCE_FRACTION = 1e-5
-_GEOMETRY_FIELDS = ("vertices", "triangles", "vertex_colors", "transform")
+_GEOMETRY_FIELDS = ("vertices", "triangles", "vertex_colors", "transform", "centering")
+#: How an object's centre and size are defined: ``"surface"`` (pose-free: the area-weighted surface centroid and
+#: the diameter of the sphere about it holding every vertex) or ``"bbox"`` (the paper's: the bounding-box centre
+#: and diagonal, which change when the object is turned).
+CENTERINGS = ("surface", "bbox")
 
 @dataclass(eq=False)
 class ObjectModel:
@@ -44,8 +51,10 @@ class ObjectModel:
         name: a human-readable identifier (file stem, or ``class/seed`` for built-in objects).
         label: the class name, if known.
         vertex_colors: optional (V, 3) float64 RGB in [0, 1].
-        transform: 4 x 4 matrix mapping source coordinates to these (scale then translation).
+        transform: 4 x 4 matrix mapping source coordinates to these (rotation and scale, then translation).
         source: the file it came from, if any.
+        centering: how :attr:`center` and :attr:`size` are defined, one of :data:`CENTERINGS` (default
+            ``"surface"``, pose-free).
 
     The model keeps its own copies of the arrays. Assigning ``vertices``, ``triangles``, ``vertex_colors`` or
     ``transform`` re-validates and drops every cached value; editing the arrays in place is not supported
@@ -63,8 +72,10 @@ class ObjectModel:
     vertex_colors: np.ndarray | None = None
     transform: np.ndarray = field(default_factory=lambda: np.eye(4))
     source: str | None = None
+    centering: str = "surface"
 
     def __post_init__(self) -> None:
+        check_centering(self.centering, self.name)
         vertices, triangles, colors, transform = self._checked(
             self.vertices, self.triangles, self.vertex_colors, self.transform
         )
@@ -106,6 +117,8 @@ class ObjectModel:
         if not self.__dict__.get("_ready") or key not in _GEOMETRY_FIELDS:
             object.__setattr__(self, key, value)
             return
+        if key == "centering":
+            check_centering(value, self.name)
         current = {k: self.__dict__[k] for k in _GEOMETRY_FIELDS}
         current[key] = value
         checked = self._checked(current["vertices"], current["triangles"], current["vertex_colors"], current["transform"])
@@ -113,6 +126,7 @@ class ObjectModel:
             del self.__dict__[k]
         for k, v in zip(("vertices", "triangles", "vertex_colors", "transform"), checked, strict=True):
             object.__setattr__(self, k, v)
+        object.__setattr__(self, "centering", current["centering"])
 
     # ----------------------------------------------------------------------------------------- basic
     @property
@@ -134,13 +148,35 @@ class ObjectModel:
 
     @cached_property
     def center(self) -> np.ndarray:
-        """Bounding-box centre, mm (the origin for loaded objects)."""
-        return self.bounds.mean(axis=0)
+        """The object's centre, mm (the origin for loaded objects; contour planes pass through it): the area-
+        weighted surface centroid (``centering="surface"``, follows the object when it is turned; the mean
+        vertex where every triangle has zero area) or the bounding-box centre (``"bbox"``)."""
+        if self.centering == "bbox":
+            return self.bounds.mean(axis=0)
+        return surface_centroid(self.vertices, self.triangles)
+
+    @cached_property
+    def size(self) -> float:
+        """The object's size, mm, what ``load_object(size_mm=...)`` scales to: the diameter of the sphere about
+        :attr:`center` holding every vertex (``centering="surface"``, unchanged when the object is turned) or
+        the bounding-box diagonal (``"bbox"``). Scale-dependent settings (saliency spacing, views) use it."""
+        if self.centering == "bbox":
+            return self.diagonal
+        return 2.0 * _max_norm(self.vertices - self.center)
 
     @cached_property
     def diagonal(self) -> float:
         """Bounding-box diagonal, mm."""
         return _norm3(self.bounds[1] - self.bounds[0])
+
+    @cached_property
+    def principal_frame(self) -> np.ndarray:
+        """(3, 3) rotation whose columns are the surface's principal axes about :attr:`center`, largest
+        second moment first, each signed so that the surface's third moment along it is positive; turning the
+        object turns the frame with it. A pose-free frame for what must look at the object from fixed
+        directions (saliency views). Where two moments are equal (surfaces of revolution) the axes in their
+        plane are any orthonormal pair, a choice the object's symmetry makes (nearly) irrelevant."""
+        return principal_frame(self.vertices, self.triangles, self.center)
 
     @cached_property
     def triangle_areas(self) -> np.ndarray:
@@ -275,38 +311,151 @@ class ObjectModel:
 _FIELD_NAMES = frozenset(f.name for f in fields(ObjectModel))
 
 
+def check_centering(centering: str, where: str = "object") -> None:
+    """Raise :class:`InvalidArgumentError` unless ``centering`` is one of :data:`CENTERINGS`."""
+    if centering not in CENTERINGS:
+        raise InvalidArgumentError(f"{where}: centering must be one of {', '.join(CENTERINGS)}, got {centering!r}")
+
+
+def surface_centroid(vertices: np.ndarray, triangles: np.ndarray | None = None) -> np.ndarray:
+    """(3,) area-weighted centroid of the triangles' surface, mm; the mean vertex when there are no triangles or
+    all have zero area. It follows the mesh under any rotation and translation and, unlike the mean vertex, does
+    not depend on how finely each part is tessellated. Coordinates up to +-1e12 mm stay finite."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if triangles is not None and len(triangles):
+        v0, v1, v2 = (vertices[triangles[:, i]] for i in range(3))
+        # Relative to the mean vertex: smaller numbers, so the products below lose less to rounding.
+        origin = vertices.mean(axis=0)
+        areas = np.linalg.norm(np.cross(v1 - v0, v2 - v0), axis=1)
+        total = areas.sum()
+        if total > 0 and np.isfinite(total):
+            centroids = (v0 + v1 + v2) / 3.0 - origin
+            return origin + (areas @ centroids) / total
+    return vertices.mean(axis=0)
+
+
+def principal_frame(vertices: np.ndarray, triangles: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """(3, 3) proper rotation, columns the principal axes of the triangles' surface about ``center`` (see
+    :attr:`ObjectModel.principal_frame`). Second moments are exact per triangle
+    (integral of x x^T over a triangle = area / 12 (sum_i v_i v_i^T + s s^T), s = v0 + v1 + v2); signs come from
+    the third moments of the triangle centroids. Degenerate inputs (no area) give the identity."""
+    v = (np.asarray(vertices, dtype=np.float64) - center)
+    scale = max(_max_norm(v), 1e-300)
+    v = v / scale  # unit size: the moments neither overflow nor underflow
+    v0, v1, v2 = (v[triangles[:, i]] for i in range(3))
+    areas = 0.5 * np.linalg.norm(np.cross(v1 - v0, v2 - v0), axis=1)
+    if not areas.sum() > 0:
+        return np.eye(3)
+    total = v0 + v1 + v2
+    second = np.einsum("f,fi,fj->ij", areas, total, total)
+    for corner in (v0, v1, v2):
+        second += np.einsum("f,fi,fj->ij", areas, corner, corner)
+    _, axes = np.linalg.eigh(second / 12.0)  # ascending
+    axes = axes[:, ::-1].copy()
+    third = areas @ ((total / 3.0) @ axes) ** 3
+    axes *= np.where(third < 0, -1.0, 1.0)
+    axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])  # right-handed: a proper rotation
+    return axes
+
+
+def random_rotation(seed: int | np.random.Generator) -> np.ndarray:
+    """(3, 3) rotation matrix drawn uniformly over SO(3) (Haar measure) from ``seed``: same seed, same bytes."""
+    from scipy.spatial.transform import Rotation
+
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    return Rotation.random(random_state=rng).as_matrix()
+
+
+def rotate(model: ObjectModel, rotation: np.ndarray) -> ObjectModel:
+    """A copy of ``model`` turned by the (3, 3) ``rotation`` about its :attr:`~ObjectModel.center` (the centre
+    stays; ``transform`` records the turn). Presents an object in another pose without reloading it.
+
+    Raises:
+        InvalidArgumentError: ``rotation`` is not a proper rotation matrix.
+    """
+    r = _check_rotation(rotation, model.name)
+    turn = np.eye(4)
+    turn[:3, :3] = r
+    turn[:3, 3] = model.center - r @ model.center
+    return ObjectModel(
+        model.vertices @ r.T + turn[:3, 3], model.triangles, name=model.name, label=model.label,
+        vertex_colors=model.vertex_colors, transform=turn @ model.transform, source=model.source,
+        centering=model.centering,
+    )
+
+
+def _check_rotation(rotation, where: str) -> np.ndarray:
+    """``rotation`` as a float64 proper rotation matrix (orthonormal to 1e-6, determinant +1)."""
+    r = np.asarray(rotation, dtype=np.float64)
+    if r.shape != (3, 3) or not np.isfinite(r).all():
+        raise InvalidArgumentError(f"{where}: rotation must be a finite 3 x 3 matrix, got shape {r.shape}")
+    if np.abs(r @ r.T - np.eye(3)).max() > 1e-6 or np.linalg.det(r) < 0:
+        raise InvalidArgumentError(
+            f"{where}: rotation must be orthonormal with determinant +1 (a proper rotation), got {r.tolist()}"
+        )
+    return r
+
+
+def _max_norm(vectors: np.ndarray) -> float:
+    """Largest Euclidean length of (N, 3) vectors without overflow (scaled by the largest component first)."""
+    top = float(np.abs(vectors).max()) if len(vectors) else 0.0
+    if top == 0:
+        return 0.0
+    return top * float(np.sqrt(((vectors / top) ** 2).sum(axis=1).max()))
+
+
 def _norm3(vector: np.ndarray) -> float:
     """Euclidean length of a 3-vector without overflow (hypot scales): finite for any finite input."""
     return float(np.hypot(np.hypot(vector[0], vector[1]), vector[2]))
 
 
 def normalize(
-    vertices: np.ndarray, size_mm: float = DEFAULT_SIZE_MM
+    vertices: np.ndarray,
+    size_mm: float = DEFAULT_SIZE_MM,
+    *,
+    triangles: np.ndarray | None = None,
+    centering: str = "surface",
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Centre on the bounding-box centre and scale to a bounding-box diagonal of ``size_mm``.
+    """Centre and scale ``vertices`` to an object of size ``size_mm`` in a frame that does not depend on the pose.
+
+    ``centering="surface"``: centre on the area-weighted centroid of ``triangles`` (the mean vertex for a point
+    set, ``triangles=None``) and scale so that the sphere about it holding every vertex has diameter ``size_mm``;
+    turning the input turns the output and changes neither. ``"bbox"`` (the paper's): centre on the bounding-box
+    centre and scale to a bounding-box diagonal of ``size_mm``; both change with the pose.
 
     Returns the new vertices and the 4 x 4 transform from the old coordinates to the new. Works for any
-    finite coordinates (halves are taken before differences, so +-1e308 does not overflow).
+    finite coordinates (a bounding-box pre-scaling comes first, so +-1e308 does not overflow).
 
     Raises:
-        InvalidMeshError: all vertices coincide (zero diagonal) or ``size_mm`` is not a positive number.
+        InvalidMeshError: all vertices coincide (zero extent) or ``size_mm`` is not a positive number.
+        InvalidArgumentError: an unknown ``centering``.
     """
+    check_centering(centering, "normalize")
     if isinstance(size_mm, bool) or not isinstance(size_mm, (int, float, np.floating, np.integer)):
         raise InvalidMeshError(f"size_mm must be a positive number of millimetres, got {size_mm!r}")
     if not np.isfinite(size_mm) or not 0 < size_mm <= MAX_COORDINATE_MM:
         raise InvalidMeshError(f"size_mm must be a positive number of millimetres up to {MAX_COORDINATE_MM:g}, got {size_mm!r}")
+    vertices = np.asarray(vertices, dtype=np.float64)
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     half_extent = 0.5 * hi - 0.5 * lo
     half_diagonal = _norm3(half_extent)
     if half_diagonal <= 0:
         raise InvalidMeshError("mesh has zero extent: all vertices coincide")
+    # Step 1 (both rules): bounding-box centre and a diagonal of 2, computed on halves so nothing overflows.
     center = 0.5 * lo + 0.5 * hi
-    # scale = size / diagonal; applied to half-differences so that nothing overflows on the way.
-    scale = 0.5 * float(size_mm) / half_diagonal
-    out = (0.5 * vertices - 0.5 * center) * (2.0 * scale)
+    scale = 1.0 / half_diagonal
+    unit = (0.5 * vertices - 0.5 * center) * (2.0 * scale)
+    if centering == "surface":
+        # Step 2: a similarity maps centroids to centroids, so the composite is exactly the pose-free frame.
+        shift = surface_centroid(unit, triangles)
+        radius = _max_norm(unit - shift)
+        center, scale = center + shift / scale, scale / radius
+        unit = (unit - shift) / radius  # enclosing-sphere diameter 2
+    factor = 0.5 * float(size_mm)
+    out = unit * factor
     transform = np.eye(4)
-    transform[:3, :3] *= scale
-    transform[:3, 3] = -scale * center
+    transform[:3, :3] *= scale * factor
+    transform[:3, 3] = -scale * factor * center
     if not (np.isfinite(out).all() and np.isfinite(transform).all()):
         raise InvalidMeshError(f"mesh extent {2 * half_diagonal:.3g} cannot be scaled to {size_mm} mm")
     return out, transform
@@ -320,6 +469,8 @@ def load_object(
     repair: bool = True,
     name: str | None = None,
     orient: bool = True,
+    centering: str = "surface",
+    rotation: np.ndarray | None = None,
 ) -> ObjectModel:
     """Load a mesh file (OFF, OBJ, PLY, STL) or an Open3D mesh as a validated, repaired, scaled object.
 
@@ -330,16 +481,23 @@ def load_object(
     Args:
         source: a path or an ``open3d.geometry.TriangleMesh``.
         label: the class name to attach.
-        size_mm: bounding-box diagonal after scaling, mm; ``None`` keeps the source scale and position.
+        size_mm: size after scaling, mm (:attr:`ObjectModel.size`: the enclosing-sphere diameter about the
+            surface centroid); ``None`` keeps the source scale and position (physical sizes, e.g. captures).
         repair: run the clean-up (on by default).
         name: defaults to the file stem.
         orient: re-wind triangles consistently and outward (:func:`perception.orientation.orient_outward`:
             signed volume for closed parts, what outside rays see for open ones); on by default.
+        centering: ``"surface"`` (pose-free, default) or ``"bbox"`` (the paper's bounding-box frame), see
+            :func:`normalize`.
+        rotation: an optional (3, 3) rotation applied to the source coordinates before anything else, to
+            present the object in another pose (e.g. :func:`random_rotation`); recorded in ``transform``.
 
     Raises:
         MeshLoadError: missing, unreadable, unknown type, or unparseable file.
         InvalidMeshError: empty, non-finite, out-of-range indices, or nothing left after repair.
+        InvalidArgumentError: an unknown ``centering`` or a ``rotation`` that is not a proper rotation matrix.
     """
+    check_centering(centering, str(name or source))
     if isinstance(source, o3d.geometry.TriangleMesh):
         name = name or "open3d-mesh"
         vertices = np.asarray(source.vertices, dtype=np.float64)
@@ -357,15 +515,22 @@ def load_object(
     if repair:
         vertices, triangles, colors = meshio.repair(vertices, triangles, colors, where)
     transform = np.eye(4)
+    if rotation is not None:
+        transform[:3, :3] = _check_rotation(rotation, where)
+        vertices = vertices @ transform[:3, :3].T
+        if not np.isfinite(vertices).all():
+            raise InvalidMeshError(f"{where}: coordinates overflow when rotated; load it with size_mm first")
     if size_mm is not None:
         try:
-            vertices, transform = normalize(vertices, size_mm)
+            vertices, scaling = normalize(vertices, size_mm, triangles=triangles, centering=centering)
         except InvalidMeshError as exc:
             raise InvalidMeshError(f"{where}: {exc}") from None
+        transform = scaling @ transform
     if orient:
         triangles, _ = orient_outward(vertices, triangles, where)
     return ObjectModel(
-        vertices, triangles, name=name, label=label, vertex_colors=colors, transform=transform, source=src
+        vertices, triangles, name=name, label=label, vertex_colors=colors, transform=transform, source=src,
+        centering=centering,
     )
 
 

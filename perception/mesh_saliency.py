@@ -11,10 +11,10 @@ from scipy.spatial import cKDTree
 
 from perception.geometry import ObjectModel
 
-#: Lee et al.'s scales: sigma_i = i * epsilon, epsilon = 0.3 % of the bounding-box diagonal.
+#: Lee et al.'s scales: sigma_i = i * epsilon, epsilon = 0.3 % of the object size (ObjectModel.size, pose-free).
 LEE_SCALES = (2, 3, 4, 5, 6)
 LEE_EPSILON_FRACTION = 0.003
-#: ISS keypoints are spread with a Gaussian of this fraction of the diagonal (2 % = 3 mm at 150 mm).
+#: ISS keypoints are spread with a Gaussian of this fraction of the object size (2 % = 3 mm at 150 mm).
 ISS_SPREAD_FRACTION = 0.02
 
 
@@ -53,13 +53,13 @@ def mesh_saliency(
 ) -> np.ndarray:
     """Lee, Varshney & Jacobs (2005) mesh saliency per vertex, in [0, 1].
 
-    For each scale sigma_i = i * epsilon (epsilon = ``epsilon_fraction`` of the bounding-box diagonal):
+    For each scale sigma_i = i * epsilon (epsilon = ``epsilon_fraction`` of the object size):
     the centre-surround difference |G(H, sigma) - G(H, 2 sigma)| of the Gaussian-weighted mean curvature H
     (neighbours within 2 sigma, Euclidean, from a KD-tree), then the non-linear normalisation, summed over
     scales and scaled to [0, 1]. Uses ``model.curvature.mean``.
     """
     curvature = model.curvature.mean.astype(np.float64)
-    epsilon = epsilon_fraction * model.diagonal
+    epsilon = epsilon_fraction * model.size
     radius = 4 * max(scales) * epsilon  # 2 * (2 sigma_max): the widest surround
     tree = cKDTree(model.vertices)
     pairs = tree.query_pairs(radius, output_type="ndarray")
@@ -87,11 +87,11 @@ def iss_keypoints(model: ObjectModel) -> np.ndarray:
 
 def iss_saliency(model: ObjectModel, spread_fraction: float = ISS_SPREAD_FRACTION) -> np.ndarray:
     """ISS baseline per vertex, in [0, 1]: 1 at each ISS keypoint, decaying as exp(-d^2 / 2 s^2) with the
-    Euclidean distance d to the nearest keypoint, s = ``spread_fraction`` of the diagonal. All zero when ISS
+    Euclidean distance d to the nearest keypoint, s = ``spread_fraction`` of the object size. All zero when ISS
     finds no keypoint."""
     index = iss_keypoints(model)
     if len(index) == 0:
         return np.zeros(model.n_vertices)
     d, _ = cKDTree(model.vertices[index]).query(model.vertices)
-    s = spread_fraction * model.diagonal
+    s = spread_fraction * model.size
     return np.exp(-(d * d) / (2 * s * s))

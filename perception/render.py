@@ -25,7 +25,7 @@ log = logging.getLogger(__name__)
 #: bottom, which no outside view sees (``tests/perception/test_render.py``). About 1 s per 7k-triangle mesh.
 DEFAULT_N_VIEWS = 20
 DEFAULT_SIZE_PX = 128
-#: The image side covers the bounding sphere (diameter = bounding-box diagonal) plus this margin.
+#: The image side covers the sphere about the centre holding the object (diameter ObjectModel.size) plus this margin.
 _MARGIN = 1.04
 
 
@@ -113,17 +113,23 @@ def view_directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def make_camera(model: ObjectModel, position: np.ndarray, width: int, height: int) -> Camera:
-    """An orthographic camera at unit direction ``position`` from the centre, framing the whole object."""
+def make_camera(
+    model: ObjectModel, position: np.ndarray, width: int, height: int, frame: np.ndarray | None = None
+) -> Camera:
+    """An orthographic camera at unit direction ``position`` from the centre, framing the whole object.
+
+    The image's up direction follows the first column of ``frame`` (a (3, 3) rotation, default the world axes
+    with z first), or its second column when looking along the first: with the object's principal frame the
+    images do not depend on how the object is posed."""
     position = np.asarray(position, dtype=np.float64)
     position = position / np.linalg.norm(position)
     forward = -position
-    # Any fixed up hint works; fall back to x when looking along z.
-    hint = np.array([0.0, 0.0, 1.0]) if abs(forward[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    axes = np.eye(3)[:, [2, 0, 1]] if frame is None else np.asarray(frame, dtype=np.float64)
+    hint = axes[:, 0] if abs(forward @ axes[:, 0]) < 0.9 else axes[:, 1]
     right = np.cross(forward, hint)
     right /= np.linalg.norm(right)
     up = np.cross(right, forward)
-    extent = _MARGIN * model.diagonal
+    extent = _MARGIN * model.size
     return Camera(
         position=position,
         center=model.center.copy(),
@@ -133,7 +139,7 @@ def make_camera(model: ObjectModel, position: np.ndarray, width: int, height: in
         width=int(width),
         height=int(height),
         pixel_mm=extent / min(width, height),
-        distance_mm=model.diagonal,  # the bounding sphere's radius is diagonal / 2: start outside it
+        distance_mm=model.size,  # every vertex lies within size / 2 of the centre: start outside that sphere
     )
 
 
@@ -144,6 +150,7 @@ def render_views(
     height: int = DEFAULT_SIZE_PX,
     *,
     directions: np.ndarray | None = None,
+    frame: np.ndarray | None = None,
 ) -> list[View]:
     """Render ``n_views`` orthographic views of ``model`` (one ``cast_rays`` call for all of them).
 
@@ -152,6 +159,7 @@ def render_views(
         n_views: number of views, on a Fibonacci sphere (ignored when ``directions`` is given).
         width, height: image size in pixels.
         directions: optional (K, 3) camera positions (unit vectors from the centre).
+        frame: optional (3, 3) rotation fixing each image's up direction (see :func:`make_camera`).
 
     Raises:
         InvalidArgumentError: non-positive or fractional image size or view count, or directions that are not
@@ -165,7 +173,7 @@ def render_views(
         dirs = np.asarray(directions, dtype=np.float64)
         if dirs.size == 0 or dirs.size % 3 or not np.isfinite(dirs).all() or (np.abs(dirs.reshape(-1, 3)).max(axis=1) == 0).any():
             raise InvalidArgumentError(f"{model.name}: view directions must be finite non-zero 3-vectors, got shape {dirs.shape}")
-    cameras = [make_camera(model, d, width, height) for d in dirs.reshape(-1, 3)]
+    cameras = [make_camera(model, d, width, height, frame) for d in dirs.reshape(-1, 3)]
     rays = np.concatenate([c.rays(model.scene_origin) for c in cameras])
     hits = model.scene.cast_rays(o3d.core.Tensor(rays))
     t_hit = hits["t_hit"].numpy()

@@ -18,7 +18,7 @@
   normals (Harris uses the normals). A keypoint set, not a per-vertex map: :attr:`Saliency.keypoints` lists
   the keypoint vertices strongest first (by the detector's response); the keypoint of rank r among K scores
   1 - r / (2K), in (0.5, 1], and every other vertex 0.5 exp(-d^2 / 2 s^2), d its distance to the nearest
-  keypoint, s 2 % of the diagonal (as ``"iss"``), so any keypoint outranks any other vertex. With at least
+  keypoint, s 2 % of the object size (as ``"iss"``), so any keypoint outranks any other vertex. With at least
   n keypoints, ``interest_points(n)`` picks among the keypoints only (by response, spaced as usual); with
   fewer, among all vertices (the keypoints first). All zero when the detector finds no keypoint.
 
@@ -65,7 +65,7 @@ PCL_BINARY_ENV = "VISUOTACTILE_PCL_KEYPOINTS"
 PCL_DEFAULT_BINARY = Path(__file__).resolve().parents[1] / "benchmarks" / "peers" / "pcl_keypoints"
 #: Time limit (s) of one run of the peer program.
 PCL_TIMEOUT_S = 300.0
-#: Default separation of interest points, as a fraction of the bounding-box diagonal (15 mm at 150 mm).
+#: Default separation of interest points, as a fraction of the object size (15 mm at 150 mm; ObjectModel.size, pose-free).
 DEFAULT_SEPARATION_FRACTION = 0.1
 #: Marked points label vertices within this fraction of the diagonal as "salient" (3 mm at 150 mm).
 MARK_RADIUS_FRACTION = 0.02
@@ -114,7 +114,7 @@ class Saliency:
 
     def interest_points(self, n: int, *, min_distance_mm: float | None = None) -> np.ndarray:
         """(n, 3) surface points (mm), greedily picked by decreasing score, at least ``min_distance_mm`` apart
-        (Euclidean; default 10 % of the diagonal). Where fewer than n fit, the distance is halved and the
+        (Euclidean; default 10 % of the object size). Where fewer than n fit, the distance is halved and the
         search continues, so the n points always come back. Deterministic (ties broken by index). The
         candidates are the vertices and fixations, or the keypoints when there are at least n of them.
 
@@ -127,7 +127,7 @@ class Saliency:
                 f"{self.model.name}: cannot pick {n} interest points from {len(points)} candidates"
             )
         distance = (
-            DEFAULT_SEPARATION_FRACTION * self.model.diagonal if min_distance_mm is None else min_distance_mm
+            DEFAULT_SEPARATION_FRACTION * self.model.size if min_distance_mm is None else min_distance_mm
         )
         if not np.isfinite(distance) or distance < 0:
             raise SaliencyError(f"{self.model.name}: min_distance_mm must be >= 0, got {min_distance_mm!r}")
@@ -142,7 +142,7 @@ class Saliency:
                 if chosen and np.min(np.linalg.norm(points[chosen] - points[index], axis=1)) < distance:
                     continue
                 chosen.append(int(index))
-            distance = distance / 2 if distance > 1e-9 * self.model.diagonal else 0.0
+            distance = distance / 2 if distance > 1e-9 * self.model.size else 0.0
         return points[chosen].copy()
 
 
@@ -188,7 +188,9 @@ def multiview_maps(
 ) -> ViewMaps:
     """Render the views and compute every channel's conspicuity and the combined map (eq. 1) per view.
 
-    The view sphere (a Fibonacci lattice) is turned by a random rotation drawn from ``seed``.
+    The view sphere (a Fibonacci lattice) is turned by a random rotation drawn from ``seed``, in the object's
+    principal frame (:attr:`ObjectModel.principal_frame`), which also sets each image's up direction: turning
+    the object turns the views with it, so its saliency does not depend on its pose.
 
     Raises:
         SaliencyError: bad weights or view settings.
@@ -203,8 +205,10 @@ def multiview_maps(
     channels, _ = _channels_for(model)
     w = _check_weights(weights, channels, model.name)
     rotation = Rotation.random(random_state=np.random.default_rng(seed)).as_matrix()
+    frame = model.principal_frame
     views = render_views(
-        model, width=size_px, height=size_px, directions=view_directions(n_views) @ rotation.T
+        model, width=size_px, height=size_px, directions=view_directions(n_views) @ (frame @ rotation).T,
+        frame=frame,
     )
     mask = np.stack([v.mask for v in views])
     maps = compute_channels(
@@ -367,7 +371,7 @@ def _pcl_saliency(model: ObjectModel, method: str) -> Saliency:
     scores = np.zeros(model.n_vertices)
     if len(index):
         d, _ = cKDTree(model.vertices[index]).query(model.vertices)
-        s = mesh_saliency.ISS_SPREAD_FRACTION * model.diagonal
+        s = mesh_saliency.ISS_SPREAD_FRACTION * model.size
         scores = 0.5 * np.exp(-(d * d) / (2 * s * s))
         scores[index] = 1.0 - np.arange(len(index)) / (2 * len(index))
     else:
@@ -426,7 +430,7 @@ def fit_channel_weights(
     """Learn multiview channel weights from human-marked points (one (K, 3) array or file per model).
 
     A vertex is "marked" if it is the nearest vertex of a marked point or lies within ``radius_mm``
-    (default 2 % of the diagonal) of one. Each channel's weight is its Somers' D, 2 AUC - 1 (clipped at 0),
+    (default 2 % of the object size) of one. Each channel's weight is its Somers' D, 2 AUC - 1 (clipped at 0),
     for ranking marked above unmarked vertices by its pooled per-vertex conspicuity, averaged over the
     models, then normalised to sum 1. ``n_views``, ``size_px`` and ``seed`` are passed to :func:`saliency`. A rank measure, not a regression: the channels are strongly
     correlated (on simple shapes several rank the same vertices), and least-squares fits then pick an
@@ -444,7 +448,7 @@ def fit_channel_weights(
         points = load_marked_points(marks) if isinstance(marks, (str, Path)) else np.asarray(marks, float)
         if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0 or not np.isfinite(points).all():
             raise SaliencyError(f"{model.name}: marked points must be a non-empty finite (K, 3) array")
-        radius = MARK_RADIUS_FRACTION * model.diagonal if radius_mm is None else radius_mm
+        radius = MARK_RADIUS_FRACTION * model.size if radius_mm is None else radius_mm
         distance, _ = cKDTree(points).query(model.vertices)
         positive = distance <= radius
         positive[cKDTree(model.vertices).query(points)[1]] = True
@@ -525,7 +529,7 @@ def plot_saliency(sal: Saliency, path: str | Path, *, n_points: int = 10, size_p
         image = colour * (0.35 + 0.65 * view.intensity[..., None])
         image[~view.mask] = 1.0
         ax.imshow(image)
-        seen = visible(view, points, 0.01 * model.diagonal)
+        seen = visible(view, points, 0.01 * model.size)
         pix = view.camera.project(points[seen])
         ax.plot(
             pix[:, 0], pix[:, 1], "o", markerfacecolor="none", markeredgecolor="cyan", markersize=9, mew=2

@@ -13,8 +13,8 @@ evenly spread (a plain revolve puts as many vertices on a ring near the axis as 
 triangles there). Parts that are not surfaces of revolution (handles, hammer heads, lids) are joined with
 manifold3d booleans, which keep the mesh closed and consistently oriented.
 
-Resolution: every object is meshed at a 150 mm bounding-box diagonal with an edge length chosen from its
-area (2 to 4 mm, aiming at ~6000 triangles; 6k-12k in practice), finer where the surface turns quickly:
+Resolution: every object is meshed at a 150 mm size (the enclosing-sphere diameter about its surface centroid) with an edge length chosen from its
+area (2 to 4 mm, aiming at ~6000 triangles; 6k-15k in practice), finer where the surface turns quickly:
 steps of at most 15 degrees around rings and along profiles, down to ``edge / 8`` on small fillets and
 rims. The facets then depart from the intended surface by about 0.1 mm at most (chord sagitta), well below
 the 0.6 mm pitch of a 32 x 32, 20 mm tactile pad. A different ``size_mm`` scales the whole mesh.
@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from perception.atomic import save_figure
 from perception.errors import DatasetError, InvalidMeshError
-from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
+from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize, surface_centroid
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +49,7 @@ _MAX_TURN_DEG = 15.0
 #: Edges shorter than this (at the 150 mm build size) are collapsed, mm.
 _TINY_EDGE_MM = 1e-3
 
-#: The diagonal objects are meshed at before the final scaling, mm.
+#: The size (ObjectModel.size) objects are meshed at before the final scaling, mm.
 _BUILD_MM = 150.0
 
 Builder = Callable[[float], mf.Manifold]
@@ -809,11 +809,14 @@ def _collapse_tiny_edges(
 
 
 def _scale_to_build_size(solid: mf.Manifold, name: str) -> float:
-    """The factor that brings ``solid`` to the build diagonal; a failed construction raises."""
+    """The factor that brings ``solid`` to the build size (:attr:`ObjectModel.size`: the diameter of the
+    sphere about its surface centroid that holds it); a failed construction raises."""
     if solid.status() != mf.Error.NoError or solid.is_empty():
         raise InvalidMeshError(f"{name}: construction failed ({solid.status()})")
-    x0, y0, z0, x1, y1, z1 = solid.bounding_box()
-    return _BUILD_MM / float(np.linalg.norm([x1 - x0, y1 - y0, z1 - z0]))
+    mesh = solid.to_mesh64()
+    vertices = np.asarray(mesh.vert_properties)[:, :3]
+    center = surface_centroid(vertices, np.asarray(mesh.tri_verts, dtype=np.int64))
+    return _BUILD_MM / (2.0 * float(np.linalg.norm(vertices - center, axis=1).max()))
 
 
 def make_object(
@@ -821,8 +824,9 @@ def make_object(
 ) -> ObjectModel:
     """One watertight, outward-oriented instance of ``class_name``, drawn from ``seed``.
 
-    The instance is centred on its bounding-box centre and scaled to a bounding-box diagonal of
-    ``size_mm`` (mm). Same integer seed -> identical vertex bytes; the name is ``"class/seed"`` (or
+    The instance is centred on its surface centroid and scaled to ``size_mm`` (mm), the diameter of the sphere
+    about that centre holding it (:func:`perception.geometry.normalize`); it stands upright (+z), the
+    class's canonical pose (turn it with :func:`perception.geometry.rotate` for any other). Same integer seed -> identical vertex bytes; the name is ``"class/seed"`` (or
     ``"class/rng"`` when a ``numpy.random.Generator`` is given), the label the class name.
 
     Raises:
@@ -860,7 +864,7 @@ def make_object(
     vertices, triangles = _collapse_tiny_edges(
         np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts, dtype=np.int64), _TINY_EDGE_MM
     )
-    vertices, transform = normalize(vertices, size_mm)
+    vertices, transform = normalize(vertices, size_mm, triangles=triangles)
     transform[:3, :3] *= scale  # from the construction frame, not only from the build size
     log.debug("%s: %d triangles, edge %.2f mm at 150 mm", name, len(mesh.tri_verts), edge)
     return ObjectModel(vertices, triangles.astype(np.int32), name=name, label=class_name, transform=transform)

@@ -18,7 +18,7 @@ import numpy as np
 from perception.errors import ContourError
 from perception.geometry import ObjectModel
 
-#: Vertices closer to the plane than this fraction of the object diagonal count as lying on it.
+#: Vertices closer to the plane than this fraction of the object size count as lying on it.
 ON_PLANE_TOLERANCE = 1e-9
 #: Plane points lie within this distance of the origin, mm (far beyond any object; squares stay finite).
 MAX_PLANE_POINT_MM = 1e150
@@ -132,7 +132,7 @@ class Chain:
 
 def _signed_distances(model: ObjectModel, plane: Plane) -> np.ndarray:
     d = (model.vertices - plane.point) @ plane.normal
-    d[np.abs(d) <= ON_PLANE_TOLERANCE * max(model.diagonal, 1e-12)] = 0.0
+    d[np.abs(d) <= ON_PLANE_TOLERANCE * max(model.size, 1e-12)] = 0.0
     return d
 
 
@@ -257,7 +257,7 @@ def section_chains(model: ObjectModel, plane: Plane) -> list[Chain]:
         return []
     points = _point_coordinates(model, d, ids)
     chains = []
-    tolerance = ON_PLANE_TOLERANCE * max(model.diagonal, 1e-12)
+    tolerance = ON_PLANE_TOLERANCE * max(model.size, 1e-12)
     for nodes, path, closed in _walk(edges, len(ids)):
         if not closed and len(path) >= 3 and np.linalg.norm(points[nodes[-1]] - points[nodes[0]]) <= tolerance:
             nodes, closed = nodes[:-1], True  # both ends on one spot: a loop cut open by a crack (T-junction)
@@ -388,13 +388,34 @@ def choose_chain(chains: list[Chain], plane: Plane) -> Chain:
     return loop
 
 
+#: Loop points within this relative distance of the furthest one tie for the start (symmetric objects).
+START_TIE_TOLERANCE = 1e-9
+
+
+def _furthest_start(points: np.ndarray, center: np.ndarray) -> int:
+    """Index of the loop point furthest from ``center``. Symmetric objects tie (a bottle cut through its axis
+    has two furthest corners, mirror images): then the tied point after the longest stretch of loop from the
+    previous tied point wins, which rotation, scale and rounding do not change. Exact n-fold ties (a circle)
+    give the first; any is then the same contour up to the symmetry."""
+    distance = np.linalg.norm(points - center, axis=1)
+    tied = np.flatnonzero(distance >= distance.max() * (1 - START_TIE_TOLERANCE))
+    if len(tied) == 1:
+        return int(tied[0])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(_shifted(points) - points, axis=1))])
+    at, total = arc[tied], arc[-1]
+    gaps = np.diff(np.concatenate([[at[-1] - total], at]))
+    best = gaps >= gaps.max() * (1 - START_TIE_TOLERANCE)
+    return int(tied[np.argmax(best)])
+
+
 def make_contour(model: ObjectModel, plane: Plane, n_probes: int = 25, *, start=None) -> Contour:
     """Cut ``model`` with ``plane``, keep the outer loop (:func:`choose_chain`) and place ``n_probes``
     probes at equal arc length along it, with poses.
 
-    Loops start at the loop point nearest ``start`` (mm), by default at the point furthest along the
-    plane's first in-plane axis (:meth:`Plane.basis`), so the result does not depend on chaining
-    order; open chains run from one end to the other, both ends included.
+    Loops start at the loop point nearest ``start`` (mm), by default at the point furthest from the plane's
+    point (the object centre), so the result depends neither on chaining order nor on the object's pose
+    (turning the object and the plane together turns the probes with them); open chains run from one end to
+    the other, both ends included.
 
     Raises:
         ContourError: the plane misses the object, ``n_probes`` < 2, or the cut has zero length.
@@ -418,7 +439,7 @@ def make_contour(model: ObjectModel, plane: Plane, n_probes: int = 25, *, start=
     points, tris = chain.points, chain.triangle_ids
     if chain.closed:
         if start is None:
-            first = int(np.argmax((points - plane.point) @ plane.basis()[0]))
+            first = _furthest_start(points, plane.point)
         else:
             first = int(np.argmin(np.linalg.norm(points - np.asarray(start, dtype=np.float64), axis=1)))
         points, tris = np.roll(points, -first, axis=0), np.roll(tris, -first)

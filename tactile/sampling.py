@@ -37,7 +37,7 @@ STRATEGIES: dict[str, str | None] = {"blind": None, "guided": "multiview", "mesh
 INTEREST_POOL = 10
 #: Draws per plane (near-collinear pairs) or per contour (planes that miss) before giving up.
 MAX_DRAWS = 100
-#: An object whose RMS distance from its best-fit plane is below this fraction of its diagonal is flat.
+#: An object whose RMS distance from its best-fit plane is below this fraction of its size is flat.
 FLAT_TOLERANCE = 1e-9
 
 
@@ -51,7 +51,7 @@ def _check_not_flat(model: ObjectModel) -> None:
     and two of its points is the plate's own plane, which holds the surface instead of cutting it."""
     centred = model.vertices - model.center
     # Smallest singular value of the centred vertices = the RMS distance from the best-fit plane x sqrt(V).
-    thickness = np.linalg.svd(centred / max(model.diagonal, 1e-300), compute_uv=False)[-1]
+    thickness = np.linalg.svd(centred / max(model.size, 1e-300), compute_uv=False)[-1]
     if thickness <= FLAT_TOLERANCE * np.sqrt(model.n_vertices):
         raise ContourError(
             f"{model.name}: the object is flat (all {model.n_vertices} vertices lie in one plane), so every "

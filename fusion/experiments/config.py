@@ -77,8 +77,8 @@ class Sizes:
     runtime_probes: tuple[int, ...] = (5, 10, 25, 50)
     runtime_grids: tuple[int, ...] = (8, 16, 32)
     epochs: int | None = None
-    paper_classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
-    unseen_classifiers: tuple[str, ...] = ("cnn-invariant", "svm", "knn")
+    paper_classifiers: tuple[str, ...] = ("cnn-normals", "svm-normals", "knn-normals")
+    unseen_classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
 
     def __post_init__(self) -> None:
         for name in ("paper_classes", "objects_per_class", "paper_contours", "unseen_contours", "noise_contours",

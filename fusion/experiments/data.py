@@ -6,10 +6,12 @@ resumes an interrupted generation and refuses a store made with other settings.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from pathlib import Path
 
 from perception.errors import DatasetError
+from tactile.dataset.objects import ObjectSpec
 from tactile.sensor import FSRSensor
 
 log = logging.getLogger(__name__)
@@ -20,13 +22,16 @@ def folder_objects(folder: str | Path, classes=None, per_class: int | None = Non
     """(path, class) pairs of a class-per-folder mesh set: the named ``classes`` (default: all, or the first
     ``max_classes`` in sorted order), each with its first ``per_class`` files in sorted order (default all).
 
+    Byte-identical files count as one object (the first in sorted order is kept, the others are logged and left
+    out), so no split can put a copy of a test object in training.
+
     Raises:
         DatasetError: a bad folder (see :func:`perception.geometry.load_dataset`), an unknown class, or a
             class with fewer than ``per_class`` files.
     """
     from perception.geometry import load_dataset
 
-    items = load_dataset(folder)
+    items = unique_meshes(load_dataset(folder))
     available = sorted({label for _, label in items})
     if classes:
         unknown = [c for c in classes if c not in available]
@@ -44,6 +49,31 @@ def folder_objects(folder: str | Path, classes=None, per_class: int | None = Non
     return out
 
 
+def unique_meshes(items: list[tuple[Path, str]]) -> list[tuple[Path, str]]:
+    """``items`` without the files whose bytes (SHA-256) equal an earlier one's (logged as a warning)."""
+    seen: dict[str, Path] = {}
+    out = []
+    for path, label in items:
+        key = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        if key in seen:
+            log.warning("%s is byte-identical to %s: counted as one object", path, seen[key])
+            continue
+        seen[key] = Path(path)
+        out.append((path, label))
+    return out
+
+
+def any_pose(objects, seed: int) -> list:
+    """The same objects as :class:`~tactile.dataset.ObjectSpec` s, each turned by its own uniformly random
+    rotation (applied to the raw mesh before loading), drawn from (``seed``, object name): the "any pose"
+    setting of the experiments. Same seed, same poses."""
+    from tactile.dataset import object_specs
+    from tactile.dataset.store import contour_seed
+
+    return [ObjectSpec(**{**vars(spec), "rotation_seed": contour_seed(seed, spec.name, "pose", 0)})
+            for spec in object_specs(objects)]
+
+
 def catalogue_objects(classes, per_class: int, first_seed: int = 0) -> list[tuple[str, int]]:
     """(class, seed) pairs of the built-in catalogue: seeds ``first_seed .. first_seed + per_class - 1``."""
     return [(c, first_seed + i) for c in classes for i in range(per_class)]
@@ -52,8 +82,17 @@ def catalogue_objects(classes, per_class: int, first_seed: int = 0) -> list[tupl
 def store_record(objects, contours: int, seed: int, strategies=("guided", "blind"), sensor: FSRSensor | None = None,
                  probes: int = 25) -> dict:
     """What identifies a store's content (its name and the cache records of models trained on it use it)."""
-    return {"objects": [[str(a), b] for a, b in objects], "contours": contours, "seed": seed,
+    from tactile.dataset import object_specs
+
+    return {"objects": [_identity(spec) for spec in object_specs(objects)], "contours": contours, "seed": seed,
             "strategies": list(strategies), "sensor": (sensor or FSRSensor()).spec(), "probes": probes}
+
+
+def _identity(spec) -> list:
+    """[path or catalogue item, label] (the record format of upright objects), plus the pose seed if any."""
+    source = spec.path if spec.path is not None else (
+        str(tuple(spec.catalogue)) if spec.catalogue is not None else spec.to_dict().get("loader"))
+    return [str(source), spec.label] + ([spec.rotation_seed] if spec.rotation_seed is not None else [])
 
 
 def ensure_store(objects, folder: Path, *, strategies, contours: int, seed: int, sensor: FSRSensor | None = None,
@@ -91,4 +130,5 @@ def load_models(objects) -> list:
     return [spec.load() for spec in object_specs(objects)]
 
 
-__all__ = ["catalogue_objects", "ensure_store", "folder_objects", "load_models", "store_record"]
+__all__ = ["any_pose", "catalogue_objects", "ensure_store", "folder_objects", "load_models", "store_record",
+           "unique_meshes"]

@@ -11,10 +11,11 @@ import logging
 import numpy as np
 
 from fusion.evaluate import confusion, plot_confusion
-from fusion.experiments.analysis import score, touch_curve
+from fusion.experiments.analysis import paired_difference, score, touch_curve
 from fusion.experiments.context import Context
-from fusion.experiments.data import ensure_store, store_record
+from fusion.experiments.data import any_pose, ensure_store, store_record
 from fusion.experiments.models import DISPLAY, MODALITY_DISPLAY, Predictions, digest, pick, train_and_predict
+from perception.errors import DatasetError, InvalidArgumentError
 
 log = logging.getLogger(__name__)
 
@@ -27,8 +28,7 @@ def accuracy_rows(preds: dict[str, dict[str, Predictions]], by: str, seed: int) 
     for strategy, by_clf in preds.items():
         for name, pred in by_clf.items():
             variants = [(DISPLAY.get(name, name), pred)]
-            if name == "cnn":
-                variants += [(MODALITY_DISPLAY[m], pred.modality(m)) for m in MODALITY_DISPLAY if m in pred.modalities]
+            variants += [(MODALITY_DISPLAY[m], pred.modality(m)) for m in MODALITY_DISPLAY if m in pred.modalities]
             for label, p in variants:
                 rows.append({"classifier": label, "name": name, "strategy": strategy,
                              "accuracy": score(p, by=by, seed=seed).to_dict(),
@@ -50,13 +50,14 @@ def confusion_figures(ctx: Context, preds: dict[str, dict[str, Predictions]], se
     return names
 
 
-def _loader(ds, train, test):
-    """``load("train" | "test")``: the split's batch, read from the store once and only when asked for."""
+def _loader(ds, train, test, test_ds=None):
+    """``load("train" | "test")``: the split's batch, read from the store once and only when asked for (the
+    test indices from ``test_ds`` when given)."""
     cache: dict = {}
 
     def load(which: str):
         if which not in cache:
-            cache[which] = ds.load(train if which == "train" else test)
+            cache[which] = ds.load(train) if which == "train" else (test_ds or ds).load(test)
         return cache[which]
 
     return load
@@ -92,30 +93,98 @@ def paper_protocol(ctx: Context, objects) -> dict[str, dict[str, Predictions]]:
     return preds
 
 
-def unseen_objects(ctx: Context, objects) -> dict[str, dict[str, Predictions]]:
+#: Poses the unseen-objects part tests in: as stored (upright) and each object turned by its own seeded,
+#: uniformly random rotation applied to the raw mesh before loading (see ``data.any_pose``).
+POSES = ("upright", "any pose")
+
+
+def unseen_objects(ctx: Context, objects, pose: str = "upright") -> dict[str, dict[str, Predictions]]:
     """Grouped k-fold by object (each fold's test objects never seen in training), both strategies.
 
-    Returns out-of-fold predictions[strategy][classifier name] covering every sequence once.
+    Models train on the objects as stored; ``pose="any pose"`` tests each fold's models on the same test
+    objects turned by their random rotations (a robot never sees a data set's pose), so the two poses are
+    paired object by object.
+
+    Returns out-of-fold predictions[strategy][classifier name] covering every test object once.
+
+    Raises:
+        InvalidArgumentError: an unknown pose.
     """
+    if pose not in POSES:
+        raise InvalidArgumentError(f"unknown pose {pose!r}; choose one of {', '.join(POSES)}")
     sizes = ctx.sizes
-    ds, record = ensure_store(objects, ctx.path("stores"), strategies=sizes.strategies,
-                      contours=sizes.unseen_contours, seed=ctx.seed, workers=ctx.workers, progress=ctx.progress)
+    store = {"strategies": sizes.strategies, "contours": sizes.unseen_contours, "seed": ctx.seed, "workers": ctx.workers,
+                 "progress": ctx.progress}
+    ds, record = ensure_store(objects, ctx.path("stores"), **store)
+    test_ds, test_store = (ds, record) if pose == "upright" else ensure_store(
+        any_pose(objects, ctx.seed), ctx.path("stores"), **store)
     preds: dict[str, dict[str, Predictions]] = {}
     for strategy in sizes.strategies:
         folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
         parts: dict[str, list[Predictions]] = {}
         for i, (train, test) in enumerate(folds):
-            batch = _loader(ds, train, test)
+            test = test if test_ds is ds else same_objects(ds, test, test_ds, strategy)
+            batch = _loader(ds, train, test, test_ds)
 
             train_record = {"part": "unseen", "store": digest(record), "strategy": strategy, "train": digest(train)}
+            test_record = {"tag": "test"} if pose == "upright" else {"tag": "anypose", "store": digest(test_store)}
             for name, factory in pick(ctx.classifiers, sizes.unseen_classifiers).items():
-                log.info("unseen objects, %s, fold %d: %s", strategy, i + 1, name)
+                log.info("unseen objects (%s), %s, fold %d: %s", pose, strategy, i + 1, name)
                 parts.setdefault(name, []).append(train_and_predict(
                     name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
                     ctx.path("models", "unseen", strategy, f"fold{i + 1}"), train_record,
-                    {"tag": "test", "test": digest(test)}))
+                    {**test_record, "test": digest(test)}))
         preds[strategy] = {name: Predictions.concatenate(p) for name, p in parts.items()}
     return preds
+
+
+def same_objects(ds, index: np.ndarray, other, strategy: str) -> np.ndarray:
+    """Indices into the store ``other`` of the ``strategy`` sequences of the objects that ``index`` selects in
+    ``ds`` (matched by object name: the same objects in another pose).
+
+    Raises:
+        DatasetError: an object of ``index`` is missing from ``other`` (e.g. it failed to generate there).
+    """
+    names = {ds.object_names[i] for i in np.unique(ds.object_ids[index])}
+    missing = names - set(other.object_names)
+    if missing:
+        raise DatasetError(f"{other.path}: objects {sorted(missing)[:3]} are missing; cannot pair the poses")
+    wanted = np.isin(np.asarray(other.object_names, dtype=object)[other.object_ids], list(names))
+    return np.flatnonzero(wanted & (other.sequence_strategies == strategy)).astype(np.int64)
+
+
+def _usable_ks(preds: dict[str, Predictions], ks) -> list[int]:
+    return [k for k in ks if all(k <= _min_per_object(p) for p in preds.values())]
+
+
+def strategy_differences(by_pose: dict[str, dict[str, dict[str, Predictions]]], ks, seed: int) -> list[dict]:
+    """Guided minus blind accuracy per (pose, classifier, K): paired over the objects both strategies tested
+    (:func:`fusion.experiments.analysis.paired_difference`, log rule). Empty unless both strategies ran."""
+    rows = []
+    for pose, preds in by_pose.items():
+        if not {"guided", "blind"} <= set(preds):
+            continue
+        for name in preds["guided"]:
+            pair = {"guided": preds["guided"][name], "blind": preds["blind"][name]}
+            for k in _usable_ks(pair, ks):
+                rows.append({"pose": pose, "classifier": DISPLAY.get(name, name), "name": name, "k": k,
+                             **paired_difference(pair["guided"], pair["blind"], k, seed=seed)})
+    return rows
+
+
+def pose_differences(by_pose: dict[str, dict[str, dict[str, Predictions]]], ks, seed: int) -> list[dict]:
+    """Any-pose minus upright accuracy per (strategy, classifier, K), paired over the test objects."""
+    rows = []
+    upright, turned = by_pose.get("upright", {}), by_pose.get("any pose", {})
+    for strategy in upright:
+        for name in upright[strategy]:
+            if name not in turned.get(strategy, {}):
+                continue
+            pair = {"upright": upright[strategy][name], "any pose": turned[strategy][name]}
+            for k in _usable_ks(pair, ks):
+                rows.append({"strategy": strategy, "classifier": DISPLAY.get(name, name), "name": name, "k": k,
+                             **paired_difference(pair["any pose"], pair["upright"], k, seed=seed)})
+    return rows
 
 
 def touches_rows(preds: dict[str, dict[str, Predictions]], setting: str, ks, seed: int) -> list[dict]:
@@ -135,5 +204,15 @@ def _min_per_object(pred: Predictions) -> int:
     return int(np.bincount(np.unique(pred.object_ids, return_inverse=True)[1]).min())
 
 
-__all__ = ["STRATEGIES", "accuracy_rows", "confusion_figures", "paper_dataset", "paper_protocol", "store_record",
-           "touches_rows", "unseen_objects"]
+__all__ = [
+    "POSES",
+    "STRATEGIES",
+    "accuracy_rows",
+    "confusion_figures",
+    "paper_dataset",
+    "paper_protocol",
+    "same_objects",
+    "store_record",
+    "touches_rows",
+    "unseen_objects",
+]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fusion.evaluate import PAPER_TABLE1, Accuracy, markdown_table
 
 #: Display name -> key of the paper's Table 1.
-PAPER_KEYS = {"CNN fusion": "cnn", "SVM": "svm", "kNN": "knn"}
+PAPER_KEYS = {"CNN fusion (normals cue)": "cnn", "SVM (normals cue)": "svm", "kNN (normals cue)": "knn"}
 
 
 def pct(acc: dict | None) -> str:
@@ -39,6 +39,21 @@ def touches_table(rows: list[dict], setting: str) -> list[dict]:
         for k in ks:
             hit = [r for r in sel if (r["classifier"], r["strategy"], r["rule"]) == key and r["k"] == k]
             row[f"K={k}"] = pct(hit[0]["accuracy"]) if hit else "-"
+        out.append(row)
+    return out
+
+
+def difference_table(rows: list[dict], group: str) -> list[dict]:
+    """Paired differences (percentage points, 95 % interval, smallest detectable) as rows per ``group`` value
+    (pose or strategy) and classifier, K columns."""
+    ks = sorted({r["k"] for r in rows})
+    out = []
+    for key in dict.fromkeys((r[group], r["classifier"]) for r in rows):
+        row = {group: key[0], "classifier": key[1]}
+        for k in ks:
+            hit = [r for r in rows if (r[group], r["classifier"]) == key and r["k"] == k]
+            row[f"K={k}"] = (f"{100 * hit[0]['difference']:+.1f} [{100 * hit[0]['low']:+.1f}, "
+                             f"{100 * hit[0]['high']:+.1f}] (+-{100 * hit[0]['detectable']:.1f})") if hit else "-"
         out.append(row)
     return out
 
@@ -87,7 +102,22 @@ def render(results: dict) -> str:
                   (f"{unseen['n_objects']} objects of {len(unseen['classes'])} classes, {unseen['contours']} "
                   f"contours per object and strategy; grouped {unseen['folds']}-fold by object (a test object is "
                   "never in training), out-of-fold predictions of every sequence. One touch per decision; "
-                  "interval: bootstrap over objects."), "", markdown_table(table1(unseen["rows"])), ""]
+                  "interval: bootstrap over objects. Models train on the objects as stored."), "",
+                  "### Upright (as stored)", "", markdown_table(table1(unseen["rows"])), ""]
+        if unseen.get("any_pose_rows"):
+            lines += ["### Any pose", "",
+                      ("The same test objects, each turned by its own seeded uniformly random rotation applied to "
+                       "the raw mesh before loading; the same models."), "",
+                      markdown_table(table1(unseen["any_pose_rows"])), ""]
+        for key, group, title, what in (
+                ("strategy_differences", "pose", "Guided minus blind", "guided - blind"),
+                ("pose_differences", "strategy", "Any pose minus upright", "any pose - upright")):
+            if unseen.get(key):
+                lines += [f"### {title}", "",
+                          (f"Accuracy difference {what} in percentage points, paired object by object (each "
+                           "object's share of right K-touch decisions, log rule), 95 % bootstrap interval over "
+                           "objects, and in brackets the smallest difference this design detects with 80 % power "
+                           "at the 5 % level."), "", markdown_table(difference_table(unseen[key], group)), ""]
         lines += [_image(f, f) for f in unseen.get("figures", [])] + [""]
     touches = results.get("touches")
     if touches:
@@ -145,4 +175,4 @@ def render(results: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["noise_table", "pct", "render", "table1", "touches_table"]
+__all__ = ["difference_table", "noise_table", "pct", "render", "table1", "touches_table"]

@@ -1,7 +1,8 @@
 """``reproduce``: the paper's protocol on a class-per-folder mesh set and the parts beyond it, as a report folder.
 
 Parts (each can be chosen with ``parts``): ``paper`` (Table 1), ``unseen`` (grouped k-fold by object over all
-instances), ``touches`` (K per decision, on the paper and unseen predictions), ``noise``, ``attention`` and
+instances, each test object upright and in a seeded random pose, with paired guided-vs-blind and upright-vs-any-
+pose differences over objects), ``touches`` (K per decision, on the paper and unseen predictions), ``noise``, ``attention`` and
 ``runtime`` (error vs time, Pareto front). ``touches`` and ``noise`` need ``paper`` (they reuse its models and
 predictions). Everything expensive is cached under the report folder (stores, models, predictions, part
 results), so an interrupted run resumes and the same seed gives the same numbers.
@@ -28,6 +29,8 @@ from fusion.experiments.protocol import (
     confusion_figures,
     paper_dataset,
     paper_protocol,
+    pose_differences,
+    strategy_differences,
     touches_rows,
     unseen_objects,
 )
@@ -39,7 +42,8 @@ log = logging.getLogger(__name__)
 
 PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime")
 BOOTSTRAP_NOTE = ("over test sequences for the paper protocol and noise; over objects (whole objects resampled) "
-                  "for unseen objects, K touches, attention and the run-time part.")
+                  "for unseen objects, K touches, attention and the run-time part; differences (guided - blind, "
+                  "any pose - upright) are paired object by object and bootstrapped over objects.")
 
 
 def machine() -> str:
@@ -103,7 +107,7 @@ def reproduce(
         ctx.timings[name] = round(time.perf_counter() - start, 1)
         return value
 
-    paper_preds = unseen_preds = None
+    paper_preds = unseen_preds = anypose_preds = None
     if "paper" in parts:
         paper_preds = timed("paper", lambda: paper_protocol(ctx, paper_objects))
         results["paper"] = {
@@ -117,17 +121,24 @@ def reproduce(
     if "unseen" in parts:
         unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
         unseen_preds = timed("unseen", lambda: unseen_objects(ctx, unseen_list))
+        anypose_preds = timed("unseen any pose", lambda: unseen_objects(ctx, unseen_list, "any pose"))
+        by_pose = {"upright": unseen_preds, "any pose": anypose_preds}
         results["unseen"] = {
             "n_objects": len(unseen_list), "classes": list(dict.fromkeys(label for _, label in unseen_list)),
             "contours": sizes.unseen_contours, "folds": sizes.unseen_folds,
             "rows": accuracy_rows(unseen_preds, "object", ctx.seed),
-            "figures": confusion_figures(ctx, unseen_preds, "unseen"),
+            "any_pose_rows": accuracy_rows(anypose_preds, "object", ctx.seed),
+            "strategy_differences": strategy_differences(by_pose, sizes.touches, ctx.seed),
+            "pose_differences": pose_differences(by_pose, sizes.touches, ctx.seed),
+            "figures": confusion_figures(ctx, unseen_preds, "unseen")
+            + confusion_figures(ctx, anypose_preds, "unseen_any_pose"),
         }
         _write(out, results)  # a partial report after every part
     if "touches" in parts:
         rows = touches_rows(paper_preds, "paper_protocol", sizes.touches, ctx.seed)
         if unseen_preds:
             rows += touches_rows(unseen_preds, "unseen_objects", sizes.touches, ctx.seed)
+            rows += touches_rows(anypose_preds, "unseen_objects_any_pose", sizes.touches, ctx.seed)
         figures.plot_touches(rows, out / "accuracy_vs_k.png")
         results["touches"] = {"rows": rows, "figure": "accuracy_vs_k.png"}
         _write(out, results)  # a partial report after every part

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from perception.errors import DatasetError
 from perception.geometry import ObjectModel
 
@@ -24,9 +26,12 @@ class ObjectSpec:
         name: unique within a dataset; seeds derive from it (with the dataset seed, strategy, contour).
         label: the class name.
         path: made absolute, since workers (Ray ones included) may run in another folder.
+        rotation_seed: present the object in the pose :func:`perception.geometry.random_rotation` draws from
+            this seed (uniform over all rotations), applied to the raw mesh before loading; None: as stored.
 
     Raises:
-        DatasetError: an empty name or label, or not exactly one source.
+        DatasetError: an empty name or label, not exactly one source, or a rotation seed that is not a
+            non-negative integer.
     """
 
     name: str
@@ -34,6 +39,7 @@ class ObjectSpec:
     path: str | None = None
     catalogue: tuple[str, int] | None = None
     loader: Callable[[], ObjectModel] | None = None
+    rotation_seed: int | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -45,14 +51,20 @@ class ObjectSpec:
             raise DatasetError(f"object {self.name!r}: give exactly one of path, catalogue or loader")
         if self.path is not None:
             object.__setattr__(self, "path", str(Path(self.path).resolve()))
+        seed = self.rotation_seed
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+            raise DatasetError(f"object {self.name!r}: rotation_seed must be a non-negative integer, got {seed!r}")
 
     def load(self) -> ObjectModel:
-        """Load the object (in the worker). Raises what the loader raises (MeshLoadError, ...)."""
+        """Load the object (in the worker), in its pose. Raises what the loader raises (MeshLoadError, ...)."""
+        from perception.geometry import random_rotation, rotate
+
+        rotation = None if self.rotation_seed is None else random_rotation(int(self.rotation_seed))
         if self.path is not None:
             from perception.geometry import load_object
 
-            model = load_object(self.path, label=self.label, name=self.name)
-        elif self.catalogue is not None:
+            return load_object(self.path, label=self.label, name=self.name, rotation=rotation)
+        if self.catalogue is not None:
             from perception.shapes import make_object
 
             model = make_object(self.catalogue[0], int(self.catalogue[1]))
@@ -60,6 +72,8 @@ class ObjectSpec:
             model = self.loader()
             if not isinstance(model, ObjectModel):
                 raise DatasetError(f"object {self.name!r}: loader returned {type(model).__name__}, not ObjectModel")
+        if rotation is not None:
+            model = rotate(model, rotation)
         model.name, model.label = self.name, self.label
         return model
 
@@ -75,6 +89,8 @@ class ObjectSpec:
             out["loader"] = f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}"
             if hasattr(self.loader, "args"):
                 out["loader_args"] = repr((self.loader.args, self.loader.keywords))
+        if self.rotation_seed is not None:
+            out["rotation_seed"] = int(self.rotation_seed)
         return out
 
 

@@ -17,7 +17,13 @@ import pytest
 from fusion.base import TactileClassifier
 from fusion.cues import kinesthetic_cues
 from fusion.experiments import Sizes, reproduce
-from fusion.experiments.analysis import name_operating_points, pareto_front, score, touches_score
+from fusion.experiments.analysis import (
+    name_operating_points,
+    paired_difference,
+    pareto_front,
+    score,
+    touches_score,
+)
 from fusion.experiments.config import TILT_DEG_PER_MM
 from fusion.experiments.data import folder_objects
 from fusion.experiments.models import Predictions
@@ -118,13 +124,39 @@ def test_touch_scores_by_hand():
 
 
 def test_table1_puts_paper_numbers_only_next_to_the_papers_classifiers():
+    """The paper's numbers sit beside the classifiers with the paper's (normals) cue, not the pose-free ones."""
     acc = {"value": 0.9, "low": 0.8, "high": 0.95, "n": 10}
     rows = [{"classifier": c, "strategy": s, "accuracy": acc}
-            for c in ("CNN fusion", "CNN cutaneous", "SVM") for s in ("guided", "blind")]
+            for c in ("CNN fusion (normals cue)", "CNN cutaneous", "SVM (normals cue)", "SVM")
+            for s in ("guided", "blind")]
     out = {r["classifier"]: r for r in table1(rows)}
-    assert out["CNN fusion"]["paper guided"] == "98.97 %" and out["SVM"]["paper blind"] == "77.21 %"
-    assert out["CNN cutaneous"]["paper guided"] == "-"
+    assert out["CNN fusion (normals cue)"]["paper guided"] == "98.97 %"
+    assert out["SVM (normals cue)"]["paper blind"] == "77.21 %"
+    assert out["CNN cutaneous"]["paper guided"] == "-" and out["SVM"]["paper guided"] == "-"
     assert out["SVM"]["guided"] == "90.0 % [80.0, 95.0]"
+
+
+def test_paired_difference_by_hand():
+    """Object a/0: A right 4 of 4, B right 2 of 4; object b/0: A 1 of 4, B 1 of 4 -> differences 0.5 and 0:
+    mean 0.25, bootstrap interval within [0, 0.5], detectable = 2.8 x std(ddof 1) / sqrt(2) = 0.7."""
+    ids = np.repeat([0, 1], 4)
+    right, wrong = [0.9, 0.1], [0.1, 0.9]
+    labels = np.array(["a"] * 4 + ["b"] * 4, dtype=object)
+    a = Predictions(np.array([right] * 4 + [right, right, right, wrong]), labels, ids, ["a", "b"], ["a/0", "b/0"])
+    b = Predictions(np.array([right, right, wrong, wrong] + [right, right, right, wrong]), labels, ids, ["a", "b"],
+                    ["a/0", "b/0"])
+    out = paired_difference(a, b, 1)
+    assert out["difference"] == pytest.approx(0.25) and out["n_objects"] == 2
+    assert 0 <= out["low"] <= 0.25 <= out["high"] <= 0.5
+    assert out["detectable"] == pytest.approx(2.8 * np.std([0.5, 0.0], ddof=1) / np.sqrt(2))
+
+
+def test_byte_identical_meshes_count_as_one_object(tmp_path):
+    """Two files with the same bytes (SHREC's Fish/226 and 227) are one object: the later one is left out."""
+    for name, text in (("226.off", "OFF\n# fish\n"), ("227.off", "OFF\n# fish\n"), ("228.off", "OFF\n# other\n")):
+        (tmp_path / "Fish").mkdir(exist_ok=True)
+        (tmp_path / "Fish" / name).write_text(text)
+    assert [p.name for p, _ in folder_objects(tmp_path)] == ["226.off", "228.off"]
 
 
 def test_sizes_refuse_bad_values():
@@ -188,7 +220,7 @@ def test_folder_objects_choose_and_refuse(tmp_path):
     for c in ("b", "a", "c"):
         for i in range(2):
             (tmp_path / c).mkdir(exist_ok=True)
-            (tmp_path / c / f"{i}.off").write_text("OFF\n")
+            (tmp_path / c / f"{i}.off").write_text(f"OFF\n# {c}{i}\n")
     assert [label for _, label in folder_objects(tmp_path, max_classes=2)] == ["a", "a", "b", "b"]
     assert [p.name for p, _ in folder_objects(tmp_path, ["c"], per_class=1)] == ["0.off"]
     with pytest.raises(DatasetError, match="'zebra'"):
@@ -242,7 +274,12 @@ def test_reproduce_writes_a_complete_report(tiny_run):
     # 2 classes x 3 objects x 10 contours, 20 % held out per strategy.
     assert all(r["accuracy"]["n"] == 12 for r in rows)
     assert sum(r["accuracy"]["n"] for r in saved["unseen"]["rows"]) == 2 * 3 * 10
-    assert len(list((out / "stores").glob("*.zarr"))) == 1  # the same data: one shared store
+    # The same test objects in a random pose each: every sequence predicted once more, paired with upright.
+    assert sum(r["accuracy"]["n"] for r in saved["unseen"]["any_pose_rows"]) == 2 * 3 * 10
+    assert {r["k"] for r in saved["unseen"]["pose_differences"]} >= {1}
+    assert all(r["n_objects"] == 6 for r in saved["unseen"]["pose_differences"])
+    # The paper protocol and the unseen part share one upright store; the any-pose store is the second.
+    assert len(list((out / "stores").glob("*.zarr"))) == 2
     accs = list(_accuracies(saved))
     assert accs and all(0 <= a["low"] <= a["value"] <= a["high"] <= 1 for a in accs)
     assert {r["kind"] for r in saved["noise"]["rows"]} == {"taxel_noise", "dead_taxels", "dead_taxels_repaired",
@@ -259,7 +296,7 @@ def test_reproduce_writes_a_complete_report(tiny_run):
 
 def test_reproduce_resumes_from_its_cache_with_the_same_numbers(tiny_run):
     data, out, results = tiny_run
-    models = sorted((out / "models").rglob("*.pkl"))
+    models = sorted((out / "models").rglob("*.vtm"))
     stamps = [p.stat().st_mtime_ns for p in models]
     again = reproduce(data, out, sizes=TINY, classifiers=STANDINS, parts=FAST_PARTS, workers=2, progress=False)
     assert [p.stat().st_mtime_ns for p in models] == stamps  # nothing retrained
@@ -328,7 +365,7 @@ def test_model_cache_reloads_only_the_same_estimator_on_the_same_data(tmp_path):
     from fusion.experiments.models import fit_cached
 
     batch = touch_objects([make_object("box", 0), make_object("can", 0)], ["box", "can"], "blind", 3, probes=6)
-    path = tmp_path / "m.pkl"
+    path = tmp_path / "m.vtm"
     calls = []
 
     def train():
