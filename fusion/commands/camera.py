@@ -3,7 +3,9 @@
 capture -> table removed, object segmented, views fused -> surface (Poisson), closed where no camera saw it
 (the bottom on the table) from the carved space -> scaled like the training objects (150 mm diagonal) ->
 contours -> virtual FSR sequences -> classifier (``--model``) -> touches fused -> class.
-Without ``--model`` everything up to the tactile sequences runs and is reported. A figure (capture, cloud,
+Without ``--model`` everything up to the tactile sequences runs and is reported. Every object segmented in
+the first view is listed (centre and size in mm, pixel centroid); ``--target U,V`` touches the one that pixel
+of the first view shows (default: the object in front, on the optical axis). A figure (capture, cloud,
 reconstructed mesh with the explored contours) and ``summary.json`` go to ``--out``.
 """
 
@@ -71,6 +73,25 @@ def acquire(source: str, views: int = 4, distance_mm: float = 500.0, seed: int =
         )
     frames = read_recording(folder)
     return frames, None, None, None
+
+
+def parse_pixel(text: str) -> tuple[float, float]:
+    """``"U,V"`` (column, row of the first frame) -> (u, v).
+
+    Raises:
+        InvalidArgumentError: not two finite numbers separated by a comma (the image bounds are checked
+            where the frame is known, :func:`perception.reconstruct.tabletop.pixel_point`).
+    """
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        u, v = float(parts[0]), float(parts[1])
+        if not (np.isfinite(u) and np.isfinite(v)):
+            raise ValueError
+    except ValueError:
+        raise InvalidArgumentError(f"--target {text!r}: expected a pixel U,V (column,row), e.g. --target 640,360") from None
+    return u, v
 
 
 def _optical_axis_target(frame) -> np.ndarray:
@@ -141,8 +162,10 @@ def recognise(
     strategy: str = "blind",
     seed: int = 0,
     out: str | Path | None = None,
+    target_pixel: tuple[float, float] | None = None,
 ) -> dict:
-    """The whole camera path; returns the summary (see the module docstring).
+    """The whole camera path; returns the summary (see the module docstring). ``target_pixel``: (column, row)
+    of the object to touch in the first frame.
 
     Raises:
         VisuotactileError subclasses: bad source, no device, no object, unreadable model.
@@ -155,18 +178,22 @@ def recognise(
     from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
     from perception.reconstruct.multiview import reconstruct_frames
     from perception.reconstruct.surface import surface_error
+    from perception.reconstruct.tabletop import describe_objects
     from tactile.contours import make_contour
     from tactile.explore import SequenceBatch
     from tactile.sampling import explore_object
     from tactile.sensor import FSRSensor
     virtual = truth is not None
     start = time.perf_counter()
+    if target_pixel is None and target is None:
+        target = _optical_axis_target(frames[0])
     rec = reconstruct_frames(
         frames,
-        target=target if target is not None else _optical_axis_target(frames[0]),
+        target=target,
+        target_pixel=target_pixel,
         name=f"{source}",
-        method="euclidean" if virtual else "smooth",
-        voxel_mm=2.0 if virtual else 3.0,  # smooth segmentation needs normals over 3 mm voxels on real noise
+        method="euclidean" if virtual else "convex",  # real scenes: touching objects told apart
+        voxel_mm=2.0 if virtual else 3.0,  # segmentation by normals needs 3 mm voxels on real noise
         seed=seed,
     )
     timings["reconstruct_s"] = time.perf_counter() - start
@@ -174,6 +201,14 @@ def recognise(
         "source": source,
         "frames": len(frames),
         "objects_in_first_view": len(rec.scenes[0].clusters),
+        "objects": describe_objects(rec.scenes[0], frames[0]),
+        "picked": {
+            "index": rec.picked,
+            "size_mm": [round(float(x), 1) for x in rec.object.size_mm],
+            "diagonal_mm": round(rec.object.diagonal_mm, 1),
+            "center_mm": [round(float(x), 1) for x in rec.object.center],
+        },
+        "warnings": list(rec.warnings),
         "object_points": len(rec.points),
         "reconstruction": {
             "vertices": rec.model.n_vertices,
@@ -233,9 +268,10 @@ def recognise(
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.commands import print_json
 
+    pixel = parse_pixel(args.target) if args.target is not None else None
     summary = recognise(
         args.source, views=args.views, distance_mm=args.distance, model_path=args.model, contours=args.contours,
-        strategy=args.strategy, seed=args.seed, out=args.out,
+        strategy=args.strategy, seed=args.seed, out=args.out, target_pixel=pixel,
     )
     if args.json:
         print_json(summary)
@@ -243,6 +279,14 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     rec = summary["reconstruction"]
     print(f"source {summary['source']}: {summary['frames']} frame(s), {summary['objects_in_first_view']} object(s) "
           f"in the first view, {summary['object_points']} object points")
+    for o in summary["objects"]:
+        mark = "*" if o["index"] == summary["picked"]["index"] else " "
+        pixel = "-" if o["pixel"] is None else f"({o['pixel'][0]:.0f}, {o['pixel'][1]:.0f})"
+        print(f" {mark} object {o['index']:2d}: centre {o['center_mm']} mm, size {o['size_mm']} mm, pixel {pixel}")
+    picked = summary["picked"]
+    print(f"picked object {picked['index']}: size {picked['size_mm']} mm (diagonal {picked['diagonal_mm']:.0f} mm)")
+    for w in summary["warnings"]:
+        print(f"warning: {w}")
     line = f"reconstruction: {rec['vertices']} vertices, {rec['triangles']} triangles, {rec['diagonal_mm']:.1f} mm"
     if "error_mm" in rec:
         err = rec["error_mm"]
@@ -274,6 +318,8 @@ def register(sub) -> None:
     camera.add_argument("--model", default=None, help="a trained classifier (visuotactile train); without it, no class")
     camera.add_argument("--contours", type=int, default=8, help="contours touched (default 8)")
     camera.add_argument("--strategy", default="blind", help="contour strategy: blind | guided | mesh | iss")
+    camera.add_argument("--target", default=None, metavar="U,V",
+                        help="touch the object this pixel (column,row) of the first frame shows (default: the one in front)")
     camera.add_argument("--seed", type=int, default=0)
     camera.add_argument("--json", action="store_true", help="print the summary as JSON")
     camera.add_argument("--out", default="out/camera", help="folder for the figure and summary.json")

@@ -21,10 +21,13 @@ from perception.reconstruct.carving import carve
 from perception.reconstruct.points import MIN_POINTS, estimate_normals
 from perception.reconstruct.surface import points_to_model
 from perception.reconstruct.tabletop import (
+    Cluster,
     TableScene,
+    _check_pixel,
     frames_to_points,
     merge_stacked,
     pick_cluster,
+    pick_pixel,
     segment_table,
 )
 
@@ -81,6 +84,11 @@ class Reconstruction:
         scenes: the segmented scene of each frame.
         corrections: the ICP correction (4 x 4) applied to each view.
         support: (M, 3) the points added where no camera saw the surface (:meth:`~perception.reconstruct.carving.Carving.boundary`), mm.
+        picked: the index of the object in the first view's clusters (``scenes[0].clusters``).
+        object: the first view's cluster of the object as reconstructed (stacked pieces joined): its size
+            (:attr:`~perception.reconstruct.tabletop.Cluster.size_mm`) and warnings.
+        warnings: what the views could not settle (objects they could not separate, a target pixel on no
+            object), plain sentences; empty when all is clear.
     """
 
     model: ObjectModel
@@ -89,12 +97,16 @@ class Reconstruction:
     scenes: list[TableScene]
     corrections: list[np.ndarray]
     support: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    picked: int = 0
+    object: Cluster | None = None
+    warnings: list[str] = field(default_factory=list)
 
 
 def reconstruct_frames(
     frames,
     *,
     target: np.ndarray | None = None,
+    target_pixel: tuple[float, float] | None = None,
     name: str = "capture",
     label: str | None = None,
     size_mm: float | None = None,
@@ -114,7 +126,9 @@ def reconstruct_frames(
 
     Per frame: points in the world frame, table removed, the cluster nearest ``target`` (world mm;
     default: the first frame's largest cluster, then the nearest to it) kept, with the pieces stacked
-    above its footprint (:func:`~perception.reconstruct.tabletop.merge_stacked`). Normals are estimated in each view and turned towards its
+    above its footprint (:func:`~perception.reconstruct.tabletop.merge_stacked`). ``target_pixel`` (column,
+    row of the first frame) instead picks the object that pixel shows
+    (:func:`~perception.reconstruct.tabletop.pick_pixel`). Normals are estimated in each view and turned towards its
     camera, the views ICP-refined onto each other, outliers removed, and a Poisson surface
     (``poisson_depth``) built; ``size_mm=None`` keeps world millimetres, else the model is scaled like
     ``load_object``'s.
@@ -131,11 +145,15 @@ def reconstruct_frames(
 
     Raises:
         InvalidMeshError: no depth, no table, no object, or no surface.
+        InvalidArgumentError: a ``target_pixel`` outside the first frame or on neither depth nor table.
     """
     frames = list(frames)
     if not frames:
         raise InvalidMeshError(f"{name}: no frames to reconstruct from")
+    if target_pixel is not None:
+        _check_pixel(frames[0], target_pixel)  # a bad pixel fails before any work
     scenes, picked = [], []
+    index, warnings = 0, []
     for i, frame in enumerate(frames):
         pts, cols, views = frames_to_points([frame], max_depth_mm=max_depth_mm)
         if target is not None and roi_mm is not None:  # only the neighbourhood of the object matters
@@ -145,7 +163,16 @@ def reconstruct_frames(
         scene = segment_table(
             pts, cols, views, voxel_mm=voxel_mm, cluster_eps_mm=cluster_eps_mm, method=method, seed=seed + i
         )
-        cluster = merge_stacked(scene, pick_cluster(scene, target))
+        if i == 0 and target_pixel is not None:
+            index, warnings = pick_pixel(scene, frame, target_pixel)
+            chosen = scene.clusters[index]
+        else:
+            chosen = pick_cluster(scene, target)
+            index = index if i else next(k for k, c in enumerate(scene.clusters) if c is chosen)
+        cluster = merge_stacked(scene, chosen)
+        if i == 0:
+            first = cluster
+            warnings = warnings + [f"object {index}: {w}" for w in cluster.warnings]
         if target is None:
             target = cluster.centroid
         scenes.append(scene)
@@ -185,7 +212,9 @@ def reconstruct_frames(
     if size_mm is not None:
         vertices, scale = normalize(model.vertices, size_mm)
         model = ObjectModel(vertices, model.triangles, name=name, label=label, transform=scale)
-    return Reconstruction(model, points, normals, scenes, corrections, support)
+    for w in warnings:
+        log.warning("%s: %s", name, w)
+    return Reconstruction(model, points, normals, scenes, corrections, support, index, first, warnings)
 
 
 __all__ = ["Reconstruction", "reconstruct_frames", "refine_views"]
