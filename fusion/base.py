@@ -7,23 +7,27 @@ A classifier takes tactile sequences as a :class:`~tactile.explore.SequenceBatch
 trained on and refuses data from another sensor (:class:`ModelMismatchError`); taxel noise and dead
 taxels are read-out conditions, not geometry, so they may differ (that is the noise experiment).
 
-Models are saved with :meth:`TactileClassifier.save` as a pickle holding the estimator and a metadata
-header (classes, sensor spec, probes, cue, library versions). Pickles run code when loaded: load only
-models you trust.
+Models are saved with :meth:`TactileClassifier.save` as a model file (``.vtm``, :mod:`fusion.modelfile`): the
+arrays in a safetensors file and, as JSON in its header, the classes, sensor spec, probes, grid, cue, library
+versions, training record, constructor parameters and fitted state. :func:`load_model` never unpickles: it
+rebuilds the classifier from data, choosing its class among those defined in this process (every
+:class:`TactileClassifier` subclass registers itself when defined; the toolkit's own are imported on demand).
+Subclasses with state beyond numbers, strings, lists, dicts and numpy arrays override ``_model_state`` and
+``_restore_state`` (the CNN stores its nets' state dicts, the conventional classifier its pipeline's arrays).
+Old pickled models are refused unless ``trust_pickle=True`` (for files you made yourself).
 """
 
 from __future__ import annotations
 
 import logging
-import pickle
 import platform
+import re
 from pathlib import Path
 
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
-from perception.atomic import atomic_path
-from perception.errors import DatasetError, ModelMismatchError
+from perception.errors import DatasetError, ModelFileError, ModelMismatchError, VisuotactileError
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 
@@ -31,7 +35,18 @@ log = logging.getLogger(__name__)
 
 #: Sensor settings that may differ between training and use (read-out conditions, not geometry).
 READOUT_SETTINGS = ("noise_std", "dead_taxel_rate")
-MODEL_FORMAT = 1
+#: Fitted attributes every classifier has; the model file stores them in its description's header fields.
+BASE_FITTED = ("classes_", "sensor_spec_", "n_probes_", "grid_", "training_")
+#: The toolkit's classifiers by the class name a model file gives, and the module that defines each (imported
+#: on demand: a model file can name only classes defined in the running process or listed here).
+KNOWN_CLASSES = {"fusion.cnn.CNNClassifier": "fusion.cnn",
+                 "fusion.conventional.ConventionalClassifier": "fusion.conventional"}
+#: Bounds on a model file's header fields (checked before anything is built from them).
+MAX_CLASSES = 100_000
+MAX_PROBES = 100_000
+MAX_TAXELS = 4096
+_ATTRIBUTE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*_$|^_[A-Za-z][A-Za-z0-9_]*$")
+_REGISTRY: dict[str, type] = {}
 
 
 def as_batch(X) -> SequenceBatch:
@@ -86,6 +101,10 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
 
     Fitted attributes: ``classes_`` (names), ``sensor_spec_``, ``n_probes_``, ``grid_``.
     """
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        _REGISTRY[class_name(cls)] = cls
 
     def fit(self, X, y=None):
         """Train on ``X`` (see the module docstring); ``y``: class names or indices into ``X.class_names``.
@@ -180,48 +199,209 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
 
     # ------------------------------------------------------------------------------- persistence
     def save(self, path: str | Path) -> Path:
-        """Write the fitted model to ``path`` atomically (a pickle with a metadata header)."""
+        """Write the fitted model to ``path`` atomically as a model file (``.vtm``; see :mod:`fusion.modelfile`).
+
+        Raises:
+            DatasetError: the model is not fitted. ModelFileError: a fitted attribute that is not plain data.
+        """
+        from fusion.modelfile import FORMAT_NAME, FORMAT_VERSION, SUFFIX, encode, write_model_file
+
         if not hasattr(self, "classes_"):
             raise DatasetError(f"{type(self).__name__}: fit the model before saving it")
-        header = {
-            "format": MODEL_FORMAT,
-            "kind": type(self).__name__,
+        path = Path(path)
+        if path.suffix == ".pkl":
+            log.warning("%s: model files are no longer pickles; the suffix %s is the usual one", path, SUFFIX)
+        arrays: dict[str, np.ndarray] = {}
+        try:
+            params = encode(self.get_params(deep=False), "params", arrays)
+            state = self._model_state(arrays)
+            training = encode(getattr(self, "training_", None), "training", arrays)
+        except TypeError as exc:
+            raise ModelFileError(f"{path}: {type(self).__name__} cannot be written to a model file ({exc})") from None
+        description = {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "class": class_name(type(self)),
             "classes": [str(c) for c in self.classes_],
-            "sensor_spec": self.sensor_spec_,
-            "probes": self.n_probes_,
-            "grid": list(self.grid_),
+            "sensor_spec": encode(dict(self.sensor_spec_), "sensor_spec", arrays),
+            "probes": int(self.n_probes_),
+            "grid": [int(g) for g in self.grid_],
             "cue": getattr(self, "cue", None),
             "versions": library_versions(),
+            "training": training,
+            "params": params,
+            "state": state,
         }
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            pickle.dump({"header": header, "model": self}, f, protocol=pickle.HIGHEST_PROTOCOL)
-        return Path(path)
+        return write_model_file(path, description, arrays)
+
+    def _fitted_attributes(self, exclude=()) -> dict:
+        """Fitted attributes (not parameters, not the base's header fields, not ``exclude``).
+
+        Raises:
+            TypeError: an attribute that is neither a parameter nor spelled as a fitted one (``name_``).
+        """
+        params = set(self.get_params(deep=False))
+        fitted = {k: v for k, v in vars(self).items() if k not in params and k not in BASE_FITTED and k not in exclude}
+        odd = [k for k in fitted if not is_fitted_name(k)]
+        if odd:
+            raise TypeError(f"attributes {odd} are neither parameters nor fitted attributes (name_)")
+        return fitted
+
+    def _model_state(self, arrays: dict[str, np.ndarray]) -> dict:
+        """The fitted state as JSON data (numeric arrays go to ``arrays``); override for state that is not plain
+        data (numbers, strings, lists, tuples, dicts, numpy arrays)."""
+        from fusion.modelfile import encode
+
+        return {"fitted": encode(self._fitted_attributes(), "fitted", arrays)}
+
+    def _restore_state(self, state: dict, arrays: dict[str, np.ndarray], where: str) -> None:
+        """Set the fitted state written by :meth:`_model_state`; raise ModelFileError naming ``where``."""
+        set_fitted(self, _field(state, "fitted", dict, where), arrays, where)
 
 
-def load_model(path: str | Path) -> TactileClassifier:
-    """Load a model written by :meth:`TactileClassifier.save`.
+def is_fitted_name(name: str) -> bool:
+    """Whether ``name`` is spelled as a fitted attribute (``name_``, or private ``_name``; never ``__name``)."""
+    return bool(_ATTRIBUTE.match(name)) and not name.startswith("__")
+
+
+def class_name(cls: type) -> str:
+    """The name a model file gives a classifier class: ``module.QualifiedName``."""
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+def set_fitted(estimator, fitted, arrays: dict[str, np.ndarray], where: str, exclude=()) -> None:
+    """Decode ``fitted`` (encoded attributes) and set them on ``estimator``: only names of fitted attributes
+    (``name_`` or ``_name``) that are not constructor parameters.
 
     Raises:
-        DatasetError: missing file, not a visuotactile model, or a newer format.
+        ModelFileError: a bad name or value.
     """
+    from fusion.modelfile import decode
+
+    values = decode(fitted, arrays, where)
+    if not isinstance(values, dict):
+        raise ModelFileError(f"{where}: the fitted state of {type(estimator).__name__} is not a mapping")
+    params = set(estimator.get_params(deep=False)) if hasattr(estimator, "get_params") else set()
+    for name, value in values.items():
+        if not is_fitted_name(name) or name in params or name in exclude:
+            raise ModelFileError(f"{where}: {type(estimator).__name__} has no fitted attribute {name[:60]!r}")
+        setattr(estimator, name, value)
+
+
+def _field(mapping, key: str, kind, where: str):
+    value = mapping.get(key) if isinstance(mapping, dict) else None
+    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+        raise ModelFileError(f"{where}: the model description lacks a valid {key!r}")
+    return value
+
+
+def _model_class(name, path: Path) -> type:
+    """The registered classifier class ``name`` (the toolkit's own are imported from a fixed table)."""
+    if not isinstance(name, str):
+        raise ModelFileError(f"{path}: the model description names no classifier class")
+    if name not in _REGISTRY and name in KNOWN_CLASSES:
+        import importlib
+
+        importlib.import_module(KNOWN_CLASSES[name])
+    if name not in _REGISTRY:
+        raise ModelFileError(
+            f"{path}: the model is a {name[:120]!r}, a class not defined in this process; import the module that "
+            "defines it before loading (a model file never imports code)"
+        )
+    return _REGISTRY[name]
+
+
+def _check_header(description: dict, path: Path) -> tuple[list[str], dict, int, tuple[int, int]]:
+    """(classes, sensor spec, probes, grid) of a model description, checked."""
+    from fusion.modelfile import decode
+
+    classes = _field(description, "classes", list, path)
+    if not 2 <= len(classes) <= MAX_CLASSES or not all(isinstance(c, str) for c in classes) or (
+            len(set(classes)) != len(classes)):
+        raise ModelFileError(f"{path}: the model's classes must be 2 to {MAX_CLASSES} distinct names")
+    spec = decode(description.get("sensor_spec"), {}, str(path))
+    if not isinstance(spec, dict):
+        raise ModelFileError(f"{path}: the model description lacks a sensor specification")
+    try:
+        FSRSensor.from_spec(spec)
+    except (VisuotactileError, TypeError, ValueError, KeyError) as exc:
+        raise ModelFileError(f"{path}: the model's sensor specification is invalid ({exc})") from None
+    probes = _field(description, "probes", int, path)
+    grid = _field(description, "grid", list, path)
+    if not 1 <= probes <= MAX_PROBES:
+        raise ModelFileError(f"{path}: {probes} probes in the model, outside 1..{MAX_PROBES}")
+    if len(grid) != 2 or not all(isinstance(g, int) and not isinstance(g, bool) and 1 <= g <= MAX_TAXELS
+                                 for g in grid):
+        raise ModelFileError(f"{path}: bad taxel grid {str(grid)[:40]} in the model (two integers 1..{MAX_TAXELS})")
+    if "rows" in spec and (spec.get("rows"), spec.get("cols")) != tuple(grid):
+        raise ModelFileError(f"{path}: the model's taxel grid {grid} differs from its sensor's")
+    return classes, spec, probes, (grid[0], grid[1])
+
+
+def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int | None = None) -> TactileClassifier:
+    """Load a model written by :meth:`TactileClassifier.save`; nothing in the file is executed.
+
+    Args:
+        trust_pickle: also load an old pickled model (visuotactile before model files); unpickling runs any
+            code the file holds, so only for files you made yourself.
+        max_bytes: largest file accepted (default :data:`fusion.modelfile.MAX_MODEL_BYTES`).
+
+    Raises:
+        ModelFileError: missing file, a pickle (without ``trust_pickle``), not a visuotactile model, damaged,
+            truncated or inconsistent, or a newer format.
+    """
+    from fusion.modelfile import MAX_MODEL_BYTES, decode, looks_like_pickle, read_model_file
+
     path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: no such model file")
+    if trust_pickle and path.is_file():
+        with open(path, "rb") as f:
+            if looks_like_pickle(f.read(8)):
+                return _load_pickle(path)
+    description, arrays = read_model_file(path, MAX_MODEL_BYTES if max_bytes is None else max_bytes)
+    cls = _model_class(description.get("class"), path)
+    classes, spec, probes, grid = _check_header(description, path)
+    params = decode(_field(description, "params", dict, path), arrays, str(path))
+    unknown = sorted(set(params) - set(cls._get_param_names()))
+    if unknown:
+        raise ModelFileError(f"{path}: {cls.__name__} has no parameters {unknown[:5]}")
+    training = decode(description.get("training"), arrays, str(path))
+    if training is not None and not isinstance(training, dict):
+        raise ModelFileError(f"{path}: the model's training record is not a mapping")
+    try:
+        model = cls(**params)
+        model.classes_ = np.array(classes, dtype=object)
+        model.sensor_spec_, model.n_probes_, model.grid_ = spec, probes, grid
+        if training is not None:
+            model.training_ = training
+        model._restore_state(_field(description, "state", dict, path), arrays, str(path))
+    except ModelFileError:
+        raise
+    except VisuotactileError as exc:  # e.g. a parameter the classifier's own checks refuse
+        raise ModelFileError(f"{path}: inconsistent model ({exc})") from None
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError, RuntimeError) as exc:
+        raise ModelFileError(f"{path}: inconsistent model ({type(exc).__name__}: {str(exc)[:200]})") from None
+    saved, now = description.get("versions"), library_versions()
+    if isinstance(saved, dict):
+        changed = {k: (saved.get(k), v) for k, v in now.items() if k != "python" and saved.get(k) != v}
+        if changed:
+            log.warning("%s was saved with other library versions: %s", path, changed)
+    return model
+
+
+def _load_pickle(path: Path) -> TactileClassifier:
+    """An old pickled model (``trust_pickle=True`` only: this runs whatever code the file holds)."""
+    import pickle
+
+    log.warning("%s: unpickling a model file (trust_pickle=True); save it again to get the safe format", path)
     try:
         with open(path, "rb") as f:
-            content = pickle.load(f)
-    except Exception as exc:  # unpickling garbage raises many types
-        raise DatasetError(f"{path}: not a visuotactile model ({type(exc).__name__}: {exc})") from exc
+            content = pickle.load(f)  # the caller vouched for this file
+    except Exception as exc:  # noqa: BLE001 -- unpickling garbage raises many types
+        raise ModelFileError(f"{path}: not a visuotactile model ({type(exc).__name__}: {exc})") from None
     if not isinstance(content, dict) or not isinstance(content.get("model"), TactileClassifier):
-        raise DatasetError(f"{path}: not a visuotactile model")
-    header = content["header"]
-    if header.get("format", 0) > MODEL_FORMAT:
-        raise DatasetError(f"{path}: model format {header['format']} is newer than this library's {MODEL_FORMAT}")
-    saved, now = header.get("versions", {}), library_versions()
-    changed = {k: (saved.get(k), v) for k, v in now.items() if k != "python" and saved.get(k) != v}
-    if changed:
-        log.warning("%s was saved with other library versions: %s", path, changed)
+        raise ModelFileError(f"{path}: not a visuotactile model")
     return content["model"]
 
 
-__all__ = ["READOUT_SETTINGS", "TactileClassifier", "as_batch", "library_versions", "load_model"]
+__all__ = ["READOUT_SETTINGS", "TactileClassifier", "as_batch", "class_name", "is_fitted_name", "library_versions",
+           "load_model", "set_fitted"]

@@ -418,5 +418,73 @@ class CNNClassifier(TactileClassifier):
         self.check_compatible(batch)
         return self._modality_proba(batch)
 
+    # ------------------------------------------------------------------------------- persistence
+    _NETS = ("cutaneous", "kinesthetic")
+
+    def _model_state(self, arrays: dict[str, np.ndarray]) -> dict:
+        """Plain fitted attributes, and each trained net's state dict as tensors ``<net>.<parameter>``."""
+        from fusion.modelfile import encode
+
+        nets = {}
+        for kind in self._NETS:
+            net = getattr(self, f"{kind}_net_", None)
+            nets[kind] = net is not None
+            if net is not None:
+                for name, value in net.state_dict().items():
+                    arrays[f"{kind}.{name}"] = value.detach().cpu().numpy()
+        fitted = self._fitted_attributes(exclude=tuple(f"{k}_net_" for k in self._NETS))
+        return {"fitted": encode(fitted, "fitted", arrays), "nets": nets}
+
+    def _restore_state(self, state: dict, arrays: dict[str, np.ndarray], where: str) -> None:
+        """Rebuild the nets from the model's classes, probes and grid, check every stored tensor's name,
+        dtype and shape against them (on the meta device: nothing allocated), then load the weights."""
+        from fusion.base import set_fitted
+        from perception.errors import ModelFileError
+
+        self._check_params()
+        set_fitted(self, state.get("fitted"), arrays, where, exclude=tuple(f"{k}_net_" for k in self._NETS))
+        for name in ("frame_mean_", "frame_std_"):
+            value = getattr(self, name, None)
+            if not isinstance(value, float) or not np.isfinite(value) or (name == "frame_std_" and value <= 0):
+                raise ModelFileError(f"{where}: the CNN's {name} is missing or not a positive finite number")
+        width = cue_width(self.cue)
+        for name in ("cue_mean_", "cue_std_"):
+            value = getattr(self, name, None)
+            if not (isinstance(value, np.ndarray) and value.dtype == np.float32 and value.shape == (width,)
+                    and np.isfinite(value).all()):
+                raise ModelFileError(f"{where}: the CNN's {name} must be {width} finite float32 values")
+        nets = state.get("nets")
+        if not isinstance(nets, dict) or set(nets) != set(self._NETS):
+            raise ModelFileError(f"{where}: the CNN's description does not say which nets it holds")
+        n_classes, probes = len(self.classes_), int(self.n_probes_)
+        pooled = (min(self.grid_[0], self.frame_size), min(self.grid_[1], self.frame_size))
+        for kind in self._NETS:
+            if nets[kind] is not self._uses(kind):
+                raise ModelFileError(f"{where}: a {self.modality!r} CNN {'lacks' if self._uses(kind) else 'has'} "
+                                     f"a {kind} net")
+            net = None
+            if nets[kind]:
+                with torch.device("meta"):
+                    net = (CutaneousNet(probes, pooled, n_classes) if kind == "cutaneous"
+                           else KinestheticNet(probes, width, n_classes))
+                expected = net.state_dict()
+                stored = {k[len(kind) + 1:]: v for k, v in arrays.items() if k.startswith(f"{kind}.")}
+                if set(stored) != set(expected):
+                    raise ModelFileError(f"{where}: the {kind} net's tensors differ from its architecture's "
+                                         f"({sorted(set(stored) ^ set(expected))[:4]})")
+                weights = {}
+                for name, meta in expected.items():
+                    value = torch.from_numpy(stored[name].copy())
+                    if value.dtype != meta.dtype or tuple(value.shape) != tuple(meta.shape):
+                        raise ModelFileError(f"{where}: tensor {kind}.{name} is {value.dtype} {tuple(value.shape)}, "
+                                             f"the architecture needs {meta.dtype} {tuple(meta.shape)}")
+                    if value.is_floating_point() and not torch.isfinite(value).all():
+                        raise ModelFileError(f"{where}: tensor {kind}.{name} holds NaN or Inf")
+                    weights[name] = value
+                net = net.to_empty(device="cpu")
+                net.load_state_dict(weights, strict=True)
+                net.eval()
+            setattr(self, f"{kind}_net_", net)
+
 
 __all__ = ["MODALITIES", "CNNClassifier", "CutaneousNet", "KinestheticNet", "pool_frames"]

@@ -172,6 +172,193 @@ class ConventionalClassifier(TactileClassifier):
         # Columns follow the labels seen in training, which are all of 0..C-1 (classes_ comes from them).
         return self.pipeline_.predict_proba(batch)
 
+    # ------------------------------------------------------------------------------- persistence
+    #: Parameters that fitting sets from the training data (see make_pipeline), stored with the model.
+    _DATA_PARAMS = ("reduce__n_components", "classify__n_neighbors", "classify__cv")
+
+    def _model_state(self, arrays: dict[str, np.ndarray]) -> dict:
+        """The pipeline as data: its data-dependent parameters, each fitted step's arrays, and the classifier
+        (kNN: its training points; SVM: support vectors, dual coefficients, intercepts and Platt sigmoids)."""
+        from fusion.modelfile import encode
+
+        pipeline = self.pipeline_
+        params = pipeline.get_params()
+        steps = {name: encode(_fitted(step), f"pipeline.{name}", arrays) for name, step in pipeline.steps[1:-1]}
+        head = pipeline[-1]
+        if self.kind == "knn":
+            classify = {"fit_X": encode(head._fit_X, "knn.fit_X", arrays), "y": encode(head._y, "knn.y", arrays),
+                        "classes": encode(head.classes_, "knn.classes", arrays)}
+        else:
+            classify = {
+                "classes": encode(head.classes_, "svm.classes", arrays), "n_features_in": int(head.n_features_in_),
+                "calibrated": [
+                    {"svc": encode(_fitted(c.estimator), f"svm.{i}.svc", arrays),
+                     "classes": encode(c.classes, f"svm.{i}.classes", arrays),
+                     "sigmoids": [[float(s.a_), float(s.b_)] for s in c.calibrators]}
+                    for i, c in enumerate(head.calibrated_classifiers_)
+                ],
+            }
+        return {
+            "fitted": encode(self._fitted_attributes(exclude=("pipeline_",)), "fitted", arrays),
+            "data_params": {k: int(params[k]) for k in self._DATA_PARAMS if k in params},
+            "steps": steps, "classify": classify,
+        }
+
+    def _restore_state(self, state: dict, arrays: dict[str, np.ndarray], where: str) -> None:
+        """Rebuild the pipeline from this classifier's parameters (never from the file), set the stored arrays
+        on its steps, check the SVM's arrays are consistent (libsvm reads them unchecked), refit the kNN index
+        on the stored points, and run one prediction to prove the steps fit together."""
+        from fusion.base import set_fitted
+        from fusion.modelfile import decode
+        from perception.errors import ModelFileError
+
+        set_fitted(self, state.get("fitted"), arrays, where, exclude=("pipeline_",))
+        pipeline = self.make_pipeline()
+        data_params = state.get("data_params")
+        defaults = pipeline.get_params()
+        if not isinstance(data_params, dict) or not set(data_params) <= set(self._DATA_PARAMS):
+            raise ModelFileError(f"{where}: bad pipeline parameters in the model")
+        for key, value in data_params.items():
+            if key not in defaults or not isinstance(value, int) or isinstance(value, bool) or not (
+                    1 <= value <= defaults[key]):
+                raise ModelFileError(f"{where}: pipeline parameter {key} = {str(value)[:20]} outside 1..{defaults.get(key)}")
+        pipeline.set_params(**data_params)
+        steps = state.get("steps")
+        names = [name for name, _ in pipeline.steps[1:-1]]
+        if not isinstance(steps, dict) or sorted(steps) != sorted(names):
+            raise ModelFileError(f"{where}: the model's pipeline steps are not {names}")
+        for name in names:
+            set_fitted(pipeline.named_steps[name], steps[name], arrays, where)
+        classify = state.get("classify")
+        if not isinstance(classify, dict):
+            raise ModelFileError(f"{where}: the model lacks its classifier's state")
+        n_classes = len(self.classes_)
+        if self.kind == "knn":
+            points = {k: decode(classify.get(k), arrays, where) for k in ("fit_X", "y", "classes")}
+            _restore_knn(pipeline[-1], points, n_classes, where)
+        else:
+            _restore_svm(pipeline[-1], classify, n_classes, arrays, where)
+        for name, value in _arrays_of(pipeline):
+            if value.dtype.kind == "f" and not np.isfinite(value).all():
+                raise ModelFileError(f"{where}: {name} of the model holds NaN or Inf")
+        width = n_series(self.cue) * int(self.n_probes_)
+        try:
+            proba = pipeline[1:].predict_proba(np.zeros((1, width)))
+        except (ValueError, TypeError, IndexError, AttributeError) as exc:
+            raise ModelFileError(f"{where}: the model's pipeline steps do not fit together ({str(exc)[:200]})") from None
+        if proba.shape != (1, n_classes):
+            raise ModelFileError(f"{where}: the model gives {proba.shape[1]} probabilities for {n_classes} classes")
+        self.pipeline_ = pipeline
+
+
+def _fitted(estimator) -> dict:
+    """A scikit-learn estimator's fitted attributes (``name_`` or ``_name``, not parameters; the constructor sets
+    the rest)."""
+    from fusion.base import is_fitted_name
+
+    params = set(estimator.get_params(deep=False))
+    return {k: v for k, v in vars(estimator).items() if k not in params and is_fitted_name(k)}
+
+
+def _arrays_of(pipeline: Pipeline):
+    """(name, array) of every numeric array attribute of the pipeline's steps (and the SVMs inside)."""
+    objects = [(name, step) for name, step in pipeline.steps]
+    head = pipeline[-1]
+    for i, c in enumerate(getattr(head, "calibrated_classifiers_", [])):
+        objects.append((f"svm {i}", c.estimator))
+    for name, obj in objects:
+        for key, value in vars(obj).items():
+            if isinstance(value, np.ndarray) and value.dtype.kind in "biuf":
+                yield f"{name}.{key}", value
+
+
+def _restore_knn(knn: KNeighborsClassifier, state: dict, n_classes: int, where: str) -> None:
+    """Refit the kNN on its stored training points: the same points give the same neighbour index."""
+    from perception.errors import ModelFileError
+
+    fit_x, y, classes = state.get("fit_X"), state.get("y"), state.get("classes")
+    if not (isinstance(fit_x, np.ndarray) and fit_x.dtype == np.float64 and fit_x.ndim == 2 and len(fit_x) >= 1
+            and isinstance(y, np.ndarray) and y.dtype.kind == "i" and y.shape == (len(fit_x),)
+            and isinstance(classes, np.ndarray) and np.array_equal(classes, np.arange(n_classes))
+            and y.min() >= 0 and y.max() < n_classes and len(np.unique(y)) == n_classes):
+        raise ModelFileError(f"{where}: the kNN's training points, labels or classes are inconsistent")
+    if knn.n_neighbors > len(fit_x):
+        raise ModelFileError(f"{where}: the kNN has k = {knn.n_neighbors} but {len(fit_x)} training points")
+    knn.fit(fit_x, classes[y])
+
+
+def _restore_svm(head: CalibratedClassifierCV, state: dict, n_classes: int, arrays, where: str) -> None:
+    """Rebuild the Platt-calibrated SVM from its stored arrays, checked for the consistency libsvm assumes."""
+    from sklearn.calibration import _CalibratedClassifier, _SigmoidCalibration
+
+    from fusion.base import set_fitted
+    from fusion.modelfile import decode
+    from perception.errors import ModelFileError
+
+    classes, calibrated = decode(state.get("classes"), arrays, where), state.get("calibrated")
+    n_features = state.get("n_features_in")
+    if not (isinstance(classes, np.ndarray) and np.array_equal(classes, np.arange(n_classes))
+            and isinstance(calibrated, list) and 1 <= len(calibrated) <= 100
+            and all(isinstance(entry, dict) for entry in calibrated)
+            and isinstance(n_features, int) and not isinstance(n_features, bool) and n_features >= 1):
+        raise ModelFileError(f"{where}: the SVM's classes or calibration are inconsistent")
+    models = []
+    for entry in calibrated:
+        svc = clone(head.estimator)
+        set_fitted(svc, entry.get("svc"), arrays, where)
+        _check_svc(svc, n_classes, n_features, where)
+        sigmoids = entry.get("sigmoids")
+        n_sigmoids = 1 if n_classes == 2 else n_classes
+        if not (isinstance(sigmoids, list) and len(sigmoids) == n_sigmoids and all(
+                isinstance(p, list) and len(p) == 2 and all(isinstance(v, float) and np.isfinite(v) for v in p)
+                for p in sigmoids)):
+            raise ModelFileError(f"{where}: the SVM's Platt sigmoids are inconsistent")
+        calibrators = []
+        for a, b in sigmoids:
+            sigmoid = _SigmoidCalibration()
+            sigmoid.a_, sigmoid.b_ = np.float64(a), np.float64(b)
+            calibrators.append(sigmoid)
+        if not np.array_equal(decode(entry.get("classes"), arrays, where), np.arange(n_classes)):
+            raise ModelFileError(f"{where}: the SVM's calibrated classes are inconsistent")
+        models.append(_CalibratedClassifier(svc, calibrators, classes=np.arange(n_classes), method=head.method))
+    head.classes_, head.n_features_in_, head.calibrated_classifiers_ = classes, n_features, models
+
+
+def _check_svc(svc: SVC, n_classes: int, n_features: int, where: str) -> None:
+    """The shapes and dtypes libsvm's prediction reads without checking (a mismatch would read out of bounds)."""
+    from perception.errors import ModelFileError
+
+    def array(name, dtype, shape):
+        value = getattr(svc, name, None)
+        if not (isinstance(value, np.ndarray) and value.dtype == dtype and value.shape == shape
+                and value.flags.c_contiguous):
+            raise ModelFileError(f"{where}: the SVM's {name} must be {np.dtype(dtype)} of shape {shape}")
+        return value
+
+    pairs = n_classes * (n_classes - 1) // 2
+    counts = array("_n_support", np.int32, (n_classes,))
+    n_sv = int(counts.sum()) if (counts >= 0).all() else -1
+    vectors = getattr(svc, "support_vectors_", None)
+    if n_sv < 1 or not isinstance(vectors, np.ndarray) or len(vectors) != n_sv:
+        raise ModelFileError(f"{where}: the SVM's support vector counts do not match its support vectors")
+    array("support_vectors_", np.float64, (n_sv, n_features))
+    array("support_", np.int32, (n_sv,))
+    for name in ("_dual_coef_", "dual_coef_"):
+        array(name, np.float64, (n_classes - 1, n_sv))
+    for name in ("_intercept_", "intercept_"):
+        array(name, np.float64, (pairs,))
+    for name in ("_probA", "_probB"):
+        value = getattr(svc, name, None)
+        if not (isinstance(value, np.ndarray) and value.dtype == np.float64 and value.shape in ((0,), (pairs,))):
+            raise ModelFileError(f"{where}: the SVM's {name} is inconsistent")
+    array("class_weight_", np.float64, (n_classes,))
+    array("classes_", np.int64, (n_classes,))
+    gamma, shape = getattr(svc, "_gamma", None), getattr(svc, "shape_fit_", None)
+    if not (isinstance(gamma, float) and np.isfinite(gamma) and gamma > 0 and getattr(svc, "_sparse", None) is False
+            and getattr(svc, "n_features_in_", None) == n_features and isinstance(shape, tuple) and len(shape) == 2
+            and shape[1] == n_features and getattr(svc, "fit_status_", None) == 0):
+        raise ModelFileError(f"{where}: the SVM's kernel settings or fitted shape are inconsistent")
+
 
 def cross_validate(clf: TactileClassifier, X, folds: int = 5, seed: int = 0) -> np.ndarray:
     """(folds,) test accuracies of ``clf`` in stratified, seeded k-fold cross-validation on ``X`` (a batch).

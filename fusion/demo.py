@@ -214,7 +214,7 @@ def recognise(out: Path, seed: int, sizes: DemoSizes, classifiers: dict | None, 
     return {"sizes": {**asdict(sizes), "classes": list(classes)}, "objects": [f"{c}/{s}" for c, s in objects],
             "table": table, "touches": touches, "figures": figures, "data_seconds": round(data_seconds, 1),
             "seconds": round(time.perf_counter() - start, 1),
-            "models": sorted(str(p.relative_to(out)) for p in (out / "models").rglob("*.pkl"))}
+            "models": sorted(str(p.relative_to(out)) for p in (out / "models").rglob("*.vtm"))}
 
 
 def _table(preds: dict, seed: int) -> list[dict]:

@@ -40,6 +40,11 @@ class ModelMismatchError(VisuotactileError):
     """A trained model is given data from another sensor spec or class list."""
 
 
+class ModelFileError(ModelMismatchError):
+    """A model file is missing, truncated, damaged or hostile, not a visuotactile model, of a newer format, or a
+    pickle (refused: unpickling can run code)."""
+
+
 class DeviceNotFoundError(VisuotactileError):
     """No depth camera is connected (or it cannot be opened)."""
 
@@ -56,6 +61,7 @@ __all__ = [
     "InvalidArgumentError",
     "InvalidMeshError",
     "MeshLoadError",
+    "ModelFileError",
     "ModelMismatchError",
     "SaliencyError",
     "SensorSpecError",

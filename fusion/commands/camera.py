@@ -163,6 +163,7 @@ def recognise(
     seed: int = 0,
     out: str | Path | None = None,
     target_pixel: tuple[float, float] | None = None,
+    trust_pickle: bool = False,
 ) -> dict:
     """The whole camera path; returns the summary (see the module docstring). ``target_pixel``: (column, row)
     of the object to touch in the first frame.
@@ -225,7 +226,7 @@ def recognise(
     if model_path is not None:
         from fusion.base import load_model
 
-        clf = load_model(model_path)
+        clf = load_model(model_path, trust_pickle=trust_pickle)
     sensor = clf.sensor() if clf is not None else None
     probes = clf.probes if clf is not None else 25
     # Touch the object at the size the classifiers were trained at (catalogue and loaders: 150 mm diagonal).
@@ -271,7 +272,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     pixel = parse_pixel(args.target) if args.target is not None else None
     summary = recognise(
         args.source, views=args.views, distance_mm=args.distance, model_path=args.model, contours=args.contours,
-        strategy=args.strategy, seed=args.seed, out=args.out, target_pixel=pixel,
+        strategy=args.strategy, seed=args.seed, out=args.out, target_pixel=pixel, trust_pickle=args.trust_pickle,
     )
     if args.json:
         print_json(summary)
@@ -316,6 +317,8 @@ def register(sub) -> None:
     camera.add_argument("--views", type=int, default=4, help="views of the virtual OAK around the object (default 4)")
     camera.add_argument("--distance", type=float, default=500.0, help="virtual camera distance, mm (default 500)")
     camera.add_argument("--model", default=None, help="a trained classifier (visuotactile train); without it, no class")
+    camera.add_argument("--trust-pickle", action="store_true",
+                        help="also load an old pickled --model (runs code from the file: only for files you made)")
     camera.add_argument("--contours", type=int, default=8, help="contours touched (default 8)")
     camera.add_argument("--strategy", default="blind", help="contour strategy: blind | guided | mesh | iss")
     camera.add_argument("--target", default=None, metavar="U,V",

@@ -17,7 +17,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.evaluate import accuracy, confusion, per_class_accuracy, plot_confusion
     from tactile.dataset import open_dataset
 
-    model = load_model(args.model)
+    model = load_model(args.model, trust_pickle=args.trust_pickle)
     dataset = open_dataset(args.store)
     info = getattr(model, "training_", {})
     same_store = info and info.get("store_id", "") == dataset.attrs.get("store_id", "") and \
@@ -72,6 +72,8 @@ def register(sub) -> None:
     p = sub.add_parser("evaluate", help="evaluate a saved model on a dataset store")
     p.add_argument("--model", required=True, help="model file written by `visuotactile train` or the demo")
     p.add_argument("--store", required=True, help="dataset store")
+    p.add_argument("--trust-pickle", action="store_true",
+                   help="also load an old pickled model (runs code from the file: only for files you made)")
     p.add_argument("--touches", type=int, default=1, help="sequences of the same object per decision (default: 1)")
     p.add_argument("--rule", choices=RULES, default="log", help="multi-touch fusion rule (default: log)")
     p.add_argument("--strategy", default=None, help="only this strategy's sequences (other stores)")

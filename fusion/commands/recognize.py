@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-DEFAULT_MODEL = "out/demo/models/cnn.pkl"
+DEFAULT_MODEL = "out/demo/models/cnn.vtm"
 #: tactile.sampling.STRATEGIES, spelled out so that the command line starts without importing Open3D.
 STRATEGIES = ("blind", "guided", "mesh", "iss", "pcl_harris", "pcl_iss")
 
@@ -22,7 +22,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     if not model_path.is_file():
         raise DatasetError(f"{model_path}: no model there; run `visuotactile demo` (writes {DEFAULT_MODEL}) or "
                            "`visuotactile train`, or pass --model")
-    model = load_model(model_path)
+    model = load_model(model_path, trust_pickle=args.trust_pickle)
     obj = load_object(args.mesh, label=None)
     result = recognize(model, obj, touches=args.touches, strategy=args.strategy, seed=args.seed, rule=args.rule)
     out = {"mesh": str(args.mesh), "model": str(model_path), "touches": args.touches, "strategy": args.strategy,
@@ -51,6 +51,8 @@ def register(sub) -> None:
     parser.add_argument("mesh", help="the mesh file")
     parser.add_argument("--model", default=DEFAULT_MODEL,
                         help=f"a model from `visuotactile train` or the demo (default: {DEFAULT_MODEL})")
+    parser.add_argument("--trust-pickle", action="store_true",
+                        help="also load an old pickled model (runs code from the file: only for files you made)")
     parser.add_argument("--touches", "-k", type=int, default=4, help="contours per decision K (default 4)")
     parser.add_argument("--strategy", choices=STRATEGIES, default="guided",
                         help="where to touch: blind, guided (multiview saliency), mesh, iss, pcl_harris, pcl_iss "

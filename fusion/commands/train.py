@@ -72,7 +72,7 @@ def register(sub) -> None:
     p = sub.add_parser("train", help="train a classifier on a dataset store and save it")
     p.add_argument("--store", required=True, help="dataset store written by `visuotactile generate`")
     p.add_argument("--model", choices=CLASSIFIERS, default="cnn", help="classifier (default: cnn)")
-    p.add_argument("--out", required=True, help="model file to write (e.g. models/cnn.pkl)")
+    p.add_argument("--out", required=True, help="model file to write (e.g. models/cnn.vtm)")
     p.add_argument("--split", choices=SPLITS, default="sequence",
                    help="hold out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none")
     p.add_argument("--test-fraction", type=float, default=0.2, help="held-out share (default: 0.2)")

@@ -2,7 +2,9 @@
 
 A trained model is saved next to a small JSON record of what it was trained on (classifier parameters, data,
 training indices); a re-run with the same record loads it instead of training again, so an interrupted run
-resumes and a finished one is cheap to re-report. Predictions are cached the same way (``.npz``).
+resumes and a finished one is cheap to re-report. Models are cached as model files (``.vtm``: safetensors and
+JSON, :mod:`fusion.modelfile`; loading one runs no code, so a report folder from elsewhere is safe to resume);
+predictions are cached the same way (``.npz``, read without pickles).
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from fusion.base import TactileClassifier, load_model
+from fusion.modelfile import SUFFIX
 from perception.atomic import atomic_path, write_text
-from perception.errors import DatasetError, InvalidArgumentError
+from perception.errors import DatasetError, InvalidArgumentError, ModelMismatchError
 from tactile.explore import SequenceBatch
 
 log = logging.getLogger(__name__)
@@ -115,7 +118,7 @@ def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[Tacti
             meta = json.loads(meta_path.read_text())
             if meta.get("record") == record:
                 return load_model(path), float(meta["fit_seconds"])
-        except (DatasetError, OSError, ValueError, KeyError) as exc:
+        except (DatasetError, ModelMismatchError, OSError, ValueError, KeyError) as exc:
             log.warning("cached model %s unusable (%s); training again", path, exc)
     batch = train() if callable(train) else train
     start = time.perf_counter()
@@ -218,7 +221,7 @@ def predict(model: TactileClassifier, test: SequenceBatch, fit_seconds: float = 
 def train_and_predict(name: str, factory: Factory, train, test, folder: Path, record: dict,
                       test_record: dict | None = None) -> Predictions:
     """Train (or load) classifier ``name`` and predict ``test`` (or load the cached predictions); the model
-    goes to ``folder/name.pkl``, the predictions to ``folder/name[-tag].npz``.
+    goes to ``folder/name.vtm``, the predictions to ``folder/name[-tag].npz``.
 
     Args:
         train, test: batches, or callables returning them (called only when needed).
@@ -229,9 +232,9 @@ def train_and_predict(name: str, factory: Factory, train, test, folder: Path, re
     pred_path = folder / f"{name}-{test_record.get('tag', 'test')}.npz"
     estimator_record = {**record, "estimator": describe(factory()), "test": test_record}
     cached = Predictions.load(pred_path, json.loads(json.dumps(estimator_record, default=str)))
-    if cached is not None and (folder / f"{name}.pkl").is_file():
+    if cached is not None and (folder / f"{name}{SUFFIX}").is_file():
         return cached
-    model, fit_seconds = fit_cached(factory, train, folder / f"{name}.pkl", record)
+    model, fit_seconds = fit_cached(factory, train, folder / f"{name}{SUFFIX}", record)
     result = predict(model, test() if callable(test) else test, fit_seconds)
     result.save(pred_path, json.loads(json.dumps(estimator_record, default=str)))
     return result

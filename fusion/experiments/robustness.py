@@ -21,6 +21,7 @@ from fusion.experiments.analysis import score
 from fusion.experiments.context import Context
 from fusion.experiments.models import DISPLAY, predict
 from fusion.experiments.touch import load_batch, save_batch, touch_objects
+from fusion.modelfile import SUFFIX
 from perception.errors import SaliencyError
 from perception.geometry import ObjectModel
 from tactile.dead_taxels import repair_dead_taxels
@@ -89,7 +90,7 @@ def noise_rows(ctx: Context, models: list, class_names: list[str], ds=None) -> l
     attention: dict[str, dict] = {}
     rows = []
     for strategy in sizes.strategies:
-        estimators = {name: load_model(ctx.path("models", "paper", strategy, f"{name}.pkl"))
+        estimators = {name: load_model(ctx.path("models", "paper", strategy, f"{name}{SUFFIX}"))
                       for name in sizes.paper_classifiers}
         for kind, level in levels:
             sensor, jitter = _sensor_and_jitter(kind, level)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fusion.base import TactileClassifier, load_model
-from perception.errors import DatasetError, ModelMismatchError
+from perception.errors import DatasetError, ModelFileError, ModelMismatchError
 from tactile.sensor import FSRSensor
 from tests.fusion._synthetic import circle_batch
 
@@ -84,15 +84,15 @@ def test_data_from_another_sensor_is_refused_but_noise_settings_may_differ(batch
 
 def test_save_load_round_trip(batch, tmp_path):
     model = MeanFrame().fit(batch)
-    path = model.save(tmp_path / "m.pkl")
+    path = model.save(tmp_path / "m.vtm")
     loaded = load_model(path)
     np.testing.assert_array_equal(loaded.predict_proba(batch), model.predict_proba(batch))
     assert list(loaded.classes_) == list(model.classes_)
 
 
 def test_loading_garbage_or_missing_files_is_refused(tmp_path):
-    with pytest.raises(DatasetError, match="no such model file"):
-        load_model(tmp_path / "missing.pkl")
-    (tmp_path / "junk.pkl").write_bytes(b"not a pickle at all")
-    with pytest.raises(DatasetError, match="not a visuotactile model"):
-        load_model(tmp_path / "junk.pkl")
+    with pytest.raises(ModelFileError, match="missing.vtm: no such model file"):
+        load_model(tmp_path / "missing.vtm")
+    (tmp_path / "junk.vtm").write_bytes(b"not a pickle at all")
+    with pytest.raises(ModelFileError, match="junk.vtm: not a readable visuotactile model file"):
+        load_model(tmp_path / "junk.vtm")

@@ -34,8 +34,8 @@ def test_reconstructed_object_is_recognised_by_a_model_trained_on_cad_meshes(tmp
     objects = [(name, seed) for name in ("box", "mug", "ring", "spoon") for seed in (0, 1)]
     generate(objects, store, strategies=("blind",), contours_per_object=16, sensor=FSRSensor(rows=8, cols=8),
              probes=10, seed=0, workers=1, progress=False)
-    ConventionalClassifier(kind="knn", cue="invariant").fit(open_dataset(store).load()).save(tmp_path / "knn.pkl")
-    code = main(["camera", "--source", "virtual:mug/7", "--views", "4", "--model", str(tmp_path / "knn.pkl"),
+    ConventionalClassifier(kind="knn", cue="invariant").fit(open_dataset(store).load()).save(tmp_path / "knn.vtm")
+    code = main(["camera", "--source", "virtual:mug/7", "--views", "4", "--model", str(tmp_path / "knn.vtm"),
                  "--json"])
     assert code == 0
     summary = json.loads(capsys.readouterr().out)

@@ -23,7 +23,7 @@ def store(tmp_path_factory):
 
 
 def test_train_then_evaluate_on_the_held_out_sequences(store, tmp_path, capsys):
-    model_path = tmp_path / "knn.pkl"
+    model_path = tmp_path / "knn.vtm"
     assert main(["train", "--store", str(store), "--model", "knn", "--out", str(model_path), "--json"]) == 0
     trained = json.loads(capsys.readouterr().out)
     # 6 objects x 12 contours, 20 % held out by sequence.
@@ -50,7 +50,7 @@ def test_train_then_evaluate_on_the_held_out_sequences(store, tmp_path, capsys):
 
 
 def test_evaluate_with_touches_groups_sequences_of_one_object(store, tmp_path, capsys):
-    model_path = tmp_path / "knn.pkl"
+    model_path = tmp_path / "knn.vtm"
     main(["train", "--store", str(store), "--model", "knn", "--out", str(model_path), "--split", "none"])
     capsys.readouterr()
     assert main(["evaluate", "--model", str(model_path), "--store", str(store), "--touches", "3", "--json"]) == 0
@@ -59,7 +59,7 @@ def test_evaluate_with_touches_groups_sequences_of_one_object(store, tmp_path, c
 
 
 def test_bad_inputs_end_with_one_line_and_exit_2(store, tmp_path, capsys):
-    assert main(["evaluate", "--model", str(tmp_path / "missing.pkl"), "--store", str(store)]) == 2
+    assert main(["evaluate", "--model", str(tmp_path / "missing.vtm"), "--store", str(store)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no such model file" in err[0]
     assert main(["train", "--store", str(tmp_path / "nothing.zarr"), "--model", "svm", "--out", str(tmp_path / "m")]) == 2

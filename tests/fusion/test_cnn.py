@@ -188,7 +188,7 @@ def test_statistics_come_from_the_training_frames():
 def test_save_load_predicts_identically_and_refuses_another_sensor(tmp_path):
     train, test = make_batch(seed=0), make_batch(n_per_class=4, seed=1)
     model = CNNClassifier(**{**FAST, "epochs": 2}).fit(train)
-    path = model.save(tmp_path / "cnn.pkl")
+    path = model.save(tmp_path / "cnn.vtm")
     loaded = load_model(path)
     assert next(loaded.cutaneous_net_.parameters()).device.type == "cpu"
     for key, value in model.predict_proba_modalities(test).items():

@@ -50,7 +50,7 @@ def test_same_seed_same_bytes_and_save_load(fitted, tmp_path):
     a = models["svm"]
     b = ConventionalClassifier(kind="svm", **FAST).fit(train.subset(np.arange(len(train))))  # no shared cache
     assert a.predict_proba(test).tobytes() == b.predict_proba(test).tobytes()
-    path = a.save(tmp_path / "svm.pkl")
+    path = a.save(tmp_path / "svm.vtm")
     loaded = load_model(path)
     assert isinstance(loaded, ConventionalClassifier) and loaded.cue == "normals"
     assert loaded.predict_proba(test).tobytes() == a.predict_proba(test).tobytes()

@@ -25,7 +25,7 @@ def test_demo_recognition_trains_tests_and_saves_models(tmp_path):
     ks = {(r["k"], r["rule"]) for r in result["touches"]}
     assert ks == {(k, rule) for k in (1, 2, 4) for rule in ("log", "sum")}
     assert all(r["accuracy"]["n"] == 2 * 8 // r["k"] for r in result["touches"])
-    assert result["models"] == ["models/blind/nm.pkl"]
+    assert result["models"] == ["models/blind/nm.vtm"]
     for name in result["figures"]:
         assert (tmp_path / name).read_bytes()[:8] == PNG
     assert any("Test accuracy" in line for line in lines)
@@ -49,6 +49,6 @@ def test_whole_demo_with_a_stand_in_classifier(tmp_path):
     for name in summary["figures"]:
         assert (tmp_path / name).read_bytes()[:8] == PNG
     saved = json.loads((tmp_path / "summary.json").read_text())
-    assert saved["recognition"]["models"] == ["models/blind/nm.pkl", "models/nm.pkl"]
+    assert saved["recognition"]["models"] == ["models/blind/nm.vtm", "models/nm.vtm"]
     report = (tmp_path / "report.md").read_text()
     assert "## Recognition" in report and "](accuracy_vs_k.png)" in report

@@ -21,7 +21,7 @@ def model_and_meshes(tmp_path_factory):
     objects = [make_object(c, s) for c in ("box", "can") for s in range(3)]
     batch = touch_objects(objects, ["box", "can"], "blind", 6, probes=10, seed=0)
     model = NearestMean().fit(batch)
-    path = model.save(root / "model.pkl")
+    path = model.save(root / "model.vtm")
     # Instances never seen in training.
     meshes = {c: write_off(make_object(c, 11), root / f"{c}.off") for c in ("box", "can")}
     return path, meshes, root
@@ -71,7 +71,7 @@ def test_recognize_is_seeded_and_uses_the_models_sensor(model_and_meshes):
 
 def test_recognize_errors_are_one_line_and_exit_2(model_and_meshes, tmp_path, capsys):
     path, meshes, _ = model_and_meshes
-    assert main(["recognize", str(meshes["box"]), "--model", str(tmp_path / "none.pkl")]) == 2
+    assert main(["recognize", str(meshes["box"]), "--model", str(tmp_path / "none.vtm")]) == 2
     assert "no model there" in capsys.readouterr().err
     assert main(["recognize", str(tmp_path / "missing.off"), "--model", str(path)]) == 2
     assert "missing.off" in capsys.readouterr().err
