@@ -17,7 +17,7 @@ from perception.errors import VisuotactileError
 log = logging.getLogger(__name__)
 
 #: Subcommand modules, in the order ``--help`` lists them; a missing module is skipped.
-COMMANDS = ("demo", "generate", "train", "evaluate", "reproduce", "recognize", "camera", "bench")
+COMMANDS = ("demo", "generate", "verify", "train", "evaluate", "reproduce", "recognize", "camera", "bench")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,8 +4,8 @@
         --out STORE [--strategies guided blind] [--contours 950] [--probes 25] [--workers N]
         [--executor local|ray] [--seed 0] [--strict] [--timeout S] [--json]
 
-Re-running the same command resumes (complete objects are skipped); other settings on an existing store
-are refused. Exit code 0 when every object is complete, 1 when some failed (they are listed and
+Re-running the same command resumes (complete, intact objects are skipped; damaged ones are explored again);
+other settings on an existing store are refused. Exit code 0 when every object is complete, 1 when some failed (they are listed and
 recorded in the store), 2 on bad input or, with --strict, at the first failure.
 """
 
@@ -103,6 +103,8 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
         print(f"store      {report.path}")
         print(f"objects    {len(dataset.object_names)}/{report.objects} complete "
               f"({report.completed} now, {report.skipped} already), {len(dataset.failed)} failed")
+        for name, problem in report.repaired:
+            print(f"repaired   {name} (was damaged: {problem})")
         print(f"sequences  {len(dataset)} stored, {report.sequences} written in {report.seconds:.1f} s "
               f"({report.sequences_per_s:.0f}/s)")
         print(f"classes    {len(dataset.class_names)}: {', '.join(dataset.class_names)}")

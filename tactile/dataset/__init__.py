@@ -7,13 +7,15 @@
     train, test = ds.split_by_object(0.2, seed=0, index=ds.indices("guided"))
     batch = ds.load(train)                 # a SequenceBatch (float32 frames in memory)
     items = ds.torch_dataset(test)         # a torch Dataset reading one sequence chunk per item
+    verify_store("out/small.zarr").damaged # {object: what is wrong}; generate re-explores those
 
 Sequence k of strategy s of object o is what ``explore_object(model, s, 1, sensor, probes,
 seed=contour_seed(seed, o, s, k))`` gives, frames within the encoding's quantisation step / 2. See
-:mod:`tactile.dataset.store` for the layout and the frame encoding.
+:mod:`tactile.dataset.store` for the layout, the frame encoding and the checksums that make damage an error.
 """
 
 from tactile.dataset.generate import EXECUTORS, GenerationReport, generate
+from tactile.dataset.integrity import VerifyReport, verify_store
 from tactile.dataset.objects import ObjectSpec, object_specs
 from tactile.dataset.reader import TactileDataset, open_dataset
 from tactile.dataset.store import contour_seed, frame_encoding
@@ -23,9 +25,11 @@ __all__ = [
     "GenerationReport",
     "ObjectSpec",
     "TactileDataset",
+    "VerifyReport",
     "contour_seed",
     "frame_encoding",
     "generate",
     "object_specs",
     "open_dataset",
+    "verify_store",
 ]

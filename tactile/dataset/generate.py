@@ -3,7 +3,9 @@
 Every object is explored in a worker of its own (a fresh process forked from a forkserver, or a Ray
 task) that loads it, computes its saliency at most once per method, explores every strategy, writes its
 rows and then its completion record. A worker that raises, hangs past ``object_timeout_s`` or dies
-(e.g. a native abort in a mesh library) is recorded as failed with the reason; the others go on.
+(e.g. a native abort in a mesh library) is recorded as failed with the reason; the others go on. Resuming
+first checks every complete object against its checksums and digests (:mod:`tactile.dataset.integrity`):
+a damaged object loses its record and is explored again, so the store ends as an undamaged run would.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from tactile.dataset.store import (
     layout_of,
     read_attrs,
     read_records,
+    record_path,
     settings_difference,
     write_record,
 )
@@ -49,8 +52,9 @@ class GenerationReport:
     Attributes:
         path: the store.
         objects: objects in the store.
-        skipped: objects already complete before this call (resumed).
+        skipped: objects already complete (and intact) before this call (resumed).
         completed: objects completed by this call.
+        repaired: (object name, what was wrong) of complete objects found damaged and explored again.
         failed: (object name, reason) of the objects that failed in this call.
         sequences: sequences written by this call.
         seconds: wall time of this call, s.
@@ -60,6 +64,7 @@ class GenerationReport:
     objects: int
     skipped: int = 0
     completed: int = 0
+    repaired: list[tuple[str, str]] = field(default_factory=list)
     failed: list[tuple[str, str]] = field(default_factory=list)
     sequences: int = 0
     seconds: float = 0.0
@@ -71,7 +76,8 @@ class GenerationReport:
     def to_dict(self) -> dict:
         return {
             "path": str(self.path), "objects": self.objects, "skipped": self.skipped,
-            "completed": self.completed, "failed": [list(f) for f in self.failed], "sequences": self.sequences,
+            "completed": self.completed, "repaired": [list(r) for r in self.repaired],
+            "failed": [list(f) for f in self.failed], "sequences": self.sequences,
             "seconds": round(self.seconds, 3), "sequences_per_s": round(self.sequences_per_s, 2),
         }
 
@@ -152,7 +158,8 @@ def generate(
         objects: a class-per-folder mesh collection, (path, label) pairs, catalogue (class, seed) pairs
             or :class:`ObjectSpec` (see :func:`object_specs`).
         out: the store folder. If it exists with the same settings, complete objects are skipped
-            (resume); failed and unfinished ones are explored again.
+            (resume); failed, unfinished and damaged ones (a missing or altered chunk, rows that differ from
+            their record's digest) are explored again.
         strategies: sampling strategies (:data:`tactile.sampling.STRATEGIES`); saliency is computed once
             per object and method, never for blind-only runs.
         sensor: the FSR sensor (default ``FSRSensor()``); probes: probes per contour.
@@ -193,9 +200,10 @@ def generate(
     out = Path(out).resolve()
     _open_or_create(out, settings, command)
     layout = layout_of(settings)
+    repaired = _forget_damaged(out, specs, progress)
     records = read_records(out, len(specs))
     todo = [i for i in range(len(specs)) if records.get(i, {}).get("status") != "complete"]
-    report = GenerationReport(out, len(specs), skipped=len(specs) - len(todo))
+    report = GenerationReport(out, len(specs), skipped=len(specs) - len(todo), repaired=repaired)
     if not todo:
         log.info("%s: all %d objects are complete", out, len(specs))
         report.seconds = time.perf_counter() - start
@@ -234,6 +242,19 @@ def generate(
         bar.close()
     report.seconds = time.perf_counter() - start
     return report
+
+
+def _forget_damaged(out: Path, specs: list[ObjectSpec], progress: bool) -> list[tuple[str, str]]:
+    """Check the store's complete objects; remove the record of each damaged one (so that it is explored again,
+    even if this run is interrupted) and return (name, what was wrong)."""
+    from tactile.dataset.integrity import damaged_objects
+
+    damaged = damaged_objects(out, progress=progress)
+    for index, problem in damaged.items():
+        log.warning("%s: %s is damaged (%s); exploring it again", out, specs[index].name, problem)
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(record_path(out, index))
+    return [(specs[index].name, problem) for index, problem in damaged.items()]
 
 
 def _usable_cores() -> int:

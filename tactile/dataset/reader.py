@@ -2,7 +2,8 @@
 
 Only objects with a complete record are part of the dataset: sequence indices 0..len-1 run over their
 rows in store order, ``object_names`` lists them, and failed or unfinished objects are listed in
-``failed`` / ``incomplete``.
+``failed`` / ``incomplete``. Every read checks the chunks it touches (present, not empty, checksum): a damaged
+object raises :class:`DatasetError` naming it, never reads as zeros (see :mod:`tactile.dataset.store`).
 """
 
 from __future__ import annotations
@@ -13,7 +14,15 @@ from pathlib import Path
 import numpy as np
 
 from perception.errors import DatasetError
-from tactile.dataset.store import ZARR_READ, decode_frames, layout_of, read_attrs, read_records
+from tactile.dataset.store import (
+    ZARR_READ,
+    decode_frames,
+    layout_of,
+    read_attrs,
+    read_records,
+    read_rows,
+    rows_per_file,
+)
 from tactile.explore import SequenceBatch
 
 log = logging.getLogger(__name__)
@@ -22,14 +31,20 @@ log = logging.getLogger(__name__)
 PROBE_ARRAYS = ("normals", "positions", "tangents", "pad_sides_mm")
 
 
-def _read_rows(array, rows: np.ndarray, block: int) -> np.ndarray:
-    """``array[rows]`` for sorted or unsorted ``rows``, reading one contiguous range per ``block`` of rows
-    (zarr's point selection on sharded arrays decodes a shard per point; ranges decode each chunk once)."""
+def _read_rows(path: Path, name: str, array, rows: np.ndarray, owner) -> np.ndarray:
+    """``array[rows]`` for sorted or unsorted ``rows``, reading one contiguous range per chunk file (zarr's point
+    selection on sharded arrays decodes a shard per point; ranges decode each chunk once), every chunk checked
+    (:func:`~tactile.dataset.store.read_rows`; ``owner(row)`` names the object in errors).
+
+    Raises:
+        DatasetError: a missing or damaged chunk.
+    """
     import zarr
 
     out = np.empty((len(rows), *array.shape[1:]), dtype=array.dtype)
     if not len(rows):
         return out
+    block = rows_per_file(array)
     order = np.argsort(rows, kind="stable")
     sorted_rows = rows[order]
     blocks = sorted_rows // block
@@ -37,7 +52,7 @@ def _read_rows(array, rows: np.ndarray, block: int) -> np.ndarray:
         for b in np.unique(blocks):
             pick = np.flatnonzero(blocks == b)
             lo, hi = int(sorted_rows[pick[0]]), int(sorted_rows[pick[-1]]) + 1
-            out[order[pick]] = array[lo:hi][sorted_rows[pick] - lo]
+            out[order[pick]] = read_rows(path, name, array, lo, hi, owner(lo))[sorted_rows[pick] - lo]
     return out
 
 
@@ -97,8 +112,16 @@ class TactileDataset:
         self.noise_seeds = self._column("noise_seeds")
 
     def _column(self, name: str) -> np.ndarray:
-        values = self._group[name][:]
-        return values[self._rows] if len(self._rows) else values[:0]
+        return self._read(name, self._rows)
+
+    def _owner(self, row: int) -> str:
+        """The name of the object a store row belongs to."""
+        return str(self._settings["objects"][int(row) // self._layout.block]["name"])
+
+    def _read(self, name: str, rows: np.ndarray) -> np.ndarray:
+        """Store rows ``rows`` of array ``name``, checked (a damaged chunk raises DatasetError naming its object)."""
+        array = self._frames if name == "frames" else self._group[name]
+        return _read_rows(self.path, name, array, rows, self._owner)
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -151,19 +174,18 @@ class TactileDataset:
     def frames(self, index=None) -> np.ndarray:
         """(n, P, R, C) float32 decoded frames of the sequences at ``index`` (None: all)."""
         rows = self._rows[self._index(index)]
-        return decode_frames(_read_rows(self._frames, rows, self._frames.shards[0]), self._encoding)
+        return decode_frames(self._read("frames", rows), self._encoding)
 
     def load(self, index=None) -> SequenceBatch:
         """The sequences at ``index`` (None: all), materialised as a :class:`SequenceBatch` (frames decoded
         to float32: 100 KB per 25 x 32 x 32 sequence; use :meth:`torch_dataset` for stores larger than memory).
 
         Raises:
-            DatasetError: a bad index.
+            DatasetError: a bad index, or a damaged object among those read.
         """
         idx = self._index(index)
         rows = self._rows[idx]
-        block = self._layout.contours
-        read = {name: _read_rows(self._group[name], rows, block) for name in (*PROBE_ARRAYS, "plane_points", "plane_normals")}
+        read = {name: self._read(name, rows) for name in (*PROBE_ARRAYS, "plane_points", "plane_normals")}
         return SequenceBatch(
             frames=self.frames(idx),
             normals=read["normals"], positions=read["positions"], tangents=read["tangents"],
@@ -184,8 +206,9 @@ class TactileDataset:
 
         idx = self._index(index)
         rows = self._rows[idx]
-        probe = {name: _read_rows(self._group[name], rows, self._layout.contours) for name in PROBE_ARRAYS}
-        return TorchTactileDataset(str(self.path), rows, probe, self.labels[idx].copy(), self._encoding)
+        probe = {name: self._read(name, rows) for name in PROBE_ARRAYS}
+        owners = [self._owner(r) for r in rows]
+        return TorchTactileDataset(str(self.path), rows, probe, self.labels[idx].copy(), self._encoding, owners)
 
     # -------------------------------------------------------------------------------------- splits
     @staticmethod

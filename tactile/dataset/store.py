@@ -15,8 +15,17 @@ Layout of ``STORE/`` (one row per sequence; the rows of object ``o``, strategy `
   seed each contour's plane was drawn from); ``noise_seeds`` (rows,) int64 (the sensor-noise seed the
   sequence records). Chunks of one (object, strategy) block.
 - ``records/NNNNN.json``: one completion record per object, written atomically after all of its rows:
-  ``status`` "complete" (with its interest points and timing) or "failed" (with the reason). Rows of
-  objects without a complete record are not part of the dataset.
+  ``status`` "complete" (with its interest points, timing and ``digests``) or "failed" (with the reason). Rows
+  of objects without a complete record are not part of the dataset.
+
+Damage is detected, never read as data (format 2): every chunk of every array ends in a CRC-32C checksum (zarr
+v3's ``crc32c`` codec; inside the frames shards each sequence's chunk has its own, and the shard index has one),
+every chunk is written even when it holds only zeros, so a missing or empty chunk file is damage, and each
+complete record holds ``digests``: per array, the SHA-256 of the object's rows as stored (row order, the array's
+dtype). Reading a missing, empty or altered chunk raises :class:`DatasetError` naming the object
+(:func:`read_rows`); :func:`tactile.dataset.verify_store` checks every object against its digests, and
+``generate`` re-explores exactly the damaged objects. Stores of format 1 (no checksums) are refused with a
+message to regenerate them: damage in them would read as zeros.
 """
 
 from __future__ import annotations
@@ -40,8 +49,8 @@ log = logging.getLogger(__name__)
 
 #: Attribute key of the store metadata in the root group's ``zarr.json``.
 ATTRS_KEY = "visuotactile_dataset"
-#: Layout version; a reader refuses stores of another version.
-FORMAT_VERSION = 1
+#: Layout version; a reader refuses stores of another version (1: no checksums).
+FORMAT_VERSION = 2
 RECORDS = "records"
 #: Largest shard, in sequences, of the frames array (bounds a worker's write buffer: ~50 KB/sequence).
 MAX_SHARD_SEQUENCES = 2048
@@ -70,6 +79,8 @@ SEQUENCE_ARRAYS: dict[str, tuple[str, Callable[[int, int, int], tuple]]] = {
     "contour_seeds": ("int64", lambda p, r, c: ()),
     "noise_seeds": ("int64", lambda p, r, c: ()),
 }
+#: Every array of a store, frames first.
+ARRAYS = ("frames", *SEQUENCE_ARRAYS)
 
 
 # ----------------------------------------------------------------------------------- encoding
@@ -178,7 +189,7 @@ def create_store(path: Path, settings: dict, meta: dict) -> None:
     """Create an empty store at ``path`` (must not exist) with all arrays, atomically: built in a temporary
     sibling folder, then renamed, so an interrupted creation leaves nothing half-made at ``path``."""
     import zarr
-    from zarr.codecs import BloscCodec
+    from zarr.codecs import BloscCodec, Crc32cCodec
 
     layout = layout_of(settings)
     probes = int(settings["probes"])
@@ -187,17 +198,17 @@ def create_store(path: Path, settings: dict, meta: dict) -> None:
     if tmp.exists():
         shutil.rmtree(tmp)
     try:
-        compressor = BloscCodec(**COMPRESSOR)
+        compressors = [BloscCodec(**COMPRESSOR), Crc32cCodec()]  # a checksum on every (inner) chunk
         group = zarr.open_group(tmp, mode="w")
         n = max(layout.n_rows, 1)
         group.create_array(
             "frames", shape=(n, probes, rows, cols), dtype="uint16", shards=(layout.shard, probes, rows, cols),
-            chunks=(1, probes, rows, cols), compressors=[compressor], fill_value=0,
+            chunks=(1, probes, rows, cols), compressors=compressors, fill_value=0,
         )
         for name, (dtype, trailing) in SEQUENCE_ARRAYS.items():
             shape = trailing(probes, rows, cols)
             group.create_array(
-                name, shape=(n, *shape), dtype=dtype, chunks=(layout.contours, *shape), compressors=[compressor],
+                name, shape=(n, *shape), dtype=dtype, chunks=(layout.contours, *shape), compressors=compressors,
                 fill_value=0,
             )
         group.attrs[ATTRS_KEY] = {"format": FORMAT_VERSION, "settings": settings, **meta}
@@ -220,6 +231,13 @@ def read_attrs(path: Path) -> dict:
     attrs = meta.get("attributes", {}).get(ATTRS_KEY)
     if meta.get("node_type") != "group" or not isinstance(attrs, dict):
         raise DatasetError(f"{path}: a zarr store, but not a visuotactile tactile dataset (no {ATTRS_KEY!r})")
+    if attrs.get("format") == 1:
+        command = attrs.get("command")
+        raise DatasetError(
+            f"{path}: a store of dataset format 1, made before stores carried checksums (damage in it would read "
+            "as zeros): regenerate it into a new folder"
+            + (f" with the command that made it: {command}" if isinstance(command, str) and command else "")
+        )
     if attrs.get("format") != FORMAT_VERSION:
         raise DatasetError(
             f"{path}: dataset format {attrs.get('format')!r}, this version reads format {FORMAT_VERSION}"
@@ -248,6 +266,64 @@ def settings_difference(old: dict, new: dict) -> list[str]:
         else:
             diffs.append(f"{key}: {a!r} in the store, {b!r} asked")
     return diffs
+
+
+# ------------------------------------------------------------------------------ checked reading
+def open_for_writing(path: str | Path, name: str):
+    """Array ``name`` of the store, opened to write every chunk, zeros included (a missing chunk is damage)."""
+    import zarr
+
+    return zarr.open_array(f"{path}/{name}", mode="r+").with_config({"write_empty_chunks": True})
+
+
+def rows_per_file(array) -> int:
+    """Rows of one chunk file of ``array`` (a frames shard, or a chunk of the other arrays)."""
+    return int(array.shards[0] if getattr(array, "shards", None) else array.chunks[0])
+
+
+def chunk_files(path: Path, name: str, array, lo: int, hi: int) -> list[Path]:
+    """The chunk files holding rows ``lo:hi`` of array ``name`` (trailing axes are never split)."""
+    per = rows_per_file(array)
+    tail = (0,) * (array.ndim - 1)
+    return [Path(path) / name / array.metadata.encode_chunk_key((i, *tail)) for i in range(lo // per, (hi - 1) // per + 1)]
+
+
+def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.ndarray:
+    """``array[lo:hi]``, rows of one object (``owner``, named in errors), with every chunk checked: its file
+    present and not empty, its checksum matching (zarr's ``crc32c`` codec).
+
+    Raises:
+        DatasetError: a missing, empty or damaged chunk.
+    """
+    for file in chunk_files(path, name, array, lo, hi):
+        try:
+            size = file.stat().st_size if file.is_file() else 0
+        except OSError:
+            size = 0
+        if size == 0:
+            raise DatasetError(_damage(path, owner, f"its {name} chunk {file.relative_to(path).as_posix()} is missing"))
+    try:
+        return array[lo:hi]
+    except MemoryError:
+        raise
+    except Exception as exc:  # noqa: BLE001 -- zarr and its codecs raise several types for damaged chunks
+        raise DatasetError(_damage(path, owner, f"its {name} rows {lo}..{hi - 1} do not read back "
+                                                f"({type(exc).__name__}: {str(exc)[:160]})")) from None
+
+
+def _damage(path: Path, owner: str, problem: str) -> str:
+    return (f"{path}: object {owner!r} is damaged: {problem}; `visuotactile verify {path}` lists the damaged "
+            "objects and re-running generate re-explores them")
+
+
+def array_digest():
+    """A fresh ``hashlib`` hash for :func:`update_digest` (SHA-256)."""
+    return hashlib.sha256()
+
+
+def update_digest(digest, values: np.ndarray, dtype) -> None:
+    """Add ``values`` (as ``dtype``, C order) to an object's array digest; rows are added in store order."""
+    digest.update(np.ascontiguousarray(values, dtype=dtype).tobytes())
 
 
 # ------------------------------------------------------------------------------------ records
@@ -280,17 +356,24 @@ def read_records(path: Path, n_objects: int) -> dict[int, dict]:
 
 
 __all__ = [
+    "ARRAYS",
     "ATTRS_KEY",
     "FORMAT_VERSION",
     "Layout",
+    "array_digest",
+    "chunk_files",
     "contour_seed",
     "create_store",
     "decode_frames",
     "encode_frames",
     "frame_encoding",
     "layout_of",
+    "open_for_writing",
     "read_attrs",
     "read_records",
+    "read_rows",
+    "rows_per_file",
     "settings_difference",
+    "update_digest",
     "write_record",
 ]

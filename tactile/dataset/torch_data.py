@@ -2,20 +2,25 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from tactile.dataset.store import decode_frames
+from tactile.dataset.store import decode_frames, read_rows
 
 
 class TorchTactileDataset(Dataset):
     """Sequences of a store, frames read one sequence chunk at a time (see
     :meth:`tactile.dataset.TactileDataset.torch_dataset`). Picklable: each DataLoader worker opens the
-    store itself on first use."""
+    store itself on first use. Each read checks its chunk (a damaged one raises DatasetError naming the object
+    in ``owners``)."""
 
-    def __init__(self, path: str, rows: np.ndarray, probe: dict[str, np.ndarray], labels: np.ndarray, encoding: dict):
+    def __init__(self, path: str, rows: np.ndarray, probe: dict[str, np.ndarray], labels: np.ndarray, encoding: dict,
+                 owners: list[str] | None = None):
         self.path, self.rows, self.labels, self.encoding = path, rows, labels, encoding
+        self.owners = owners if owners is not None else [f"row {r}" for r in rows]
         self.probe = {name: torch.from_numpy(np.ascontiguousarray(values)) for name, values in probe.items()}
         self._frames = None
 
@@ -34,7 +39,9 @@ class TorchTactileDataset(Dataset):
             self._frames = zarr.open_array(f"{self.path}/frames", mode="r")
         if not -len(self) <= i < len(self):
             raise IndexError(f"index {i} out of range for {len(self)} sequences")
-        frames = decode_frames(self._frames[int(self.rows[i])], self.encoding)
+        row = int(self.rows[i])
+        frames = decode_frames(read_rows(Path(self.path), "frames", self._frames, row, row + 1, self.owners[i])[0],
+                               self.encoding)
         probe = {name: values[i] for name, values in self.probe.items()}
         return torch.from_numpy(frames), probe, torch.tensor(self.labels[i], dtype=torch.int64)
 

@@ -25,11 +25,14 @@ from tactile import sampling
 from tactile.contours import Contour
 from tactile.dataset.objects import ObjectSpec
 from tactile.dataset.store import (
-    SEQUENCE_ARRAYS,
+    ARRAYS,
     ZARR_WRITE,
+    array_digest,
     contour_seed,
     encode_frames,
     layout_of,
+    open_for_writing,
+    update_digest,
     write_record,
 )
 from tactile.sensor import FSRSensor
@@ -94,13 +97,11 @@ def explore_into_store(
     progress: Callable[[int], None] | None = None,
 ) -> dict:
     """Explore object ``index`` (``spec``) with every strategy of ``settings``, write its rows, then its
-    completion record; returns the record.
+    completion record with the digest of each array's rows (see :mod:`tactile.dataset.store`); returns the record.
 
     Raises:
         whatever loading, saliency or exploring the object raises (the caller records it as failed).
     """
-    import zarr
-
     start = time.perf_counter()
     layout = layout_of(settings)
     probes, seed = int(settings["probes"]), int(settings["seed"])
@@ -109,8 +110,11 @@ def explore_into_store(
     check_not_flat = getattr(sampling, "_check_not_flat", None)
     if check_not_flat is not None:  # as explore_object: a flat plate fails at once, not after MAX_DRAWS
         check_not_flat(model)
+    import zarr
+
     # Named, not listed: listing the group would trip over the records folder (not a zarr node).
-    arrays = {name: zarr.open_array(f"{store}/{name}", mode="r+") for name in ("frames", *SEQUENCE_ARRAYS)}
+    arrays = {name: open_for_writing(store, name) for name in ARRAYS}
+    digests = {name: array_digest() for name in ARRAYS}
     saliencies: dict[str, attention.Saliency] = {}  # one per method, shared by the strategies using it
     interest: dict[str, list] = {}
     for s, strategy in enumerate(layout.strategies):
@@ -161,6 +165,7 @@ def explore_into_store(
         with zarr.config.set(ZARR_WRITE):
             for name, values in out.items():
                 arrays[name][rows] = values
+                update_digest(digests[name], values, arrays[name].dtype)  # strategies in row order
     record = {
         "index": index,
         "name": spec.name,
@@ -170,6 +175,7 @@ def explore_into_store(
         "vertices": model.n_vertices,
         "triangles": model.n_triangles,
         "interest_points": interest,
+        "digests": {name: digest.hexdigest() for name, digest in digests.items()},
         "seconds": round(time.perf_counter() - start, 3),
     }
     write_record(store, index, record)

@@ -1,0 +1,172 @@
+"""Checking a store for damage: every complete object's chunks (present, not empty, checksums) and digests.
+
+A complete object is intact when every chunk file holding its rows exists and is not empty, every chunk passes
+its CRC-32C checksum, and the SHA-256 of each array's rows equals the digest in its completion record (see
+:mod:`tactile.dataset.store`). :func:`verify_store` checks all of them (``visuotactile verify``);
+:func:`damaged_objects` is what ``generate`` runs before resuming, to re-explore exactly the damaged ones.
+Checking reads the whole store once (decompression and hashing: about the speed of loading it).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+
+from perception.errors import DatasetError
+from tactile.dataset.store import (
+    ARRAYS,
+    RECORDS,
+    ZARR_READ,
+    array_digest,
+    layout_of,
+    read_attrs,
+    read_records,
+    read_rows,
+    rows_per_file,
+    update_digest,
+)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class VerifyReport:
+    """What :func:`verify_store` found.
+
+    Attributes:
+        path: the store.
+        objects: objects in the store's settings.
+        checked: complete objects checked.
+        damaged: {object name: what is wrong} (missing or damaged chunks, rows differing from their digests,
+            unreadable completion records).
+        incomplete: objects not yet explored (no record); failed: {object name: reason} recorded by generate.
+        seconds: wall time of the check, s.
+    """
+
+    path: Path
+    objects: int
+    checked: int = 0
+    damaged: dict[str, str] = field(default_factory=dict)
+    incomplete: list[str] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        """True when no object is damaged (incomplete and failed objects are not damage)."""
+        return not self.damaged
+
+    def to_dict(self) -> dict:
+        return {"path": str(self.path), "objects": self.objects, "checked": self.checked, "ok": self.ok,
+                "damaged": dict(self.damaged), "incomplete": list(self.incomplete), "failed": dict(self.failed),
+                "seconds": round(self.seconds, 3)}
+
+
+def _arrays(path: Path) -> dict:
+    import zarr
+
+    try:
+        return {name: zarr.open_array(f"{path}/{name}", mode="r") for name in ARRAYS}
+    except Exception as exc:  # noqa: BLE001 -- zarr raises several types for missing or corrupt metadata
+        raise DatasetError(f"{path}: cannot open the store's arrays ({type(exc).__name__}: {exc})") from None
+
+
+def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: dict) -> str | None:
+    """What is wrong with complete object ``index`` of the store (None: intact)."""
+    import zarr
+
+    layout = layout_of(settings)
+    name = str(settings["objects"][index]["name"])
+    digests = record.get("digests")
+    if not isinstance(digests, dict):
+        return "its completion record holds no digests"
+    problems = []
+    with zarr.config.set(ZARR_READ):
+        for array_name in ARRAYS:
+            array = arrays[array_name]
+            rows = layout.rows(index)
+            digest = array_digest()
+            per = rows_per_file(array)
+            try:
+                for lo in range(rows.start, rows.stop, per):  # one chunk file at a time: bounded memory
+                    hi = min(lo + per, rows.stop)
+                    update_digest(digest, read_rows(path, array_name, array, lo, hi, name), array.dtype)
+            except DatasetError as exc:
+                problems.append(str(exc).split(" is damaged: ", 1)[-1].split("; `visuotactile verify", 1)[0])
+                continue
+            if digest.hexdigest() != digests.get(array_name):
+                problems.append(f"its {array_name} rows differ from the digest in its record")
+    return "; ".join(problems) or None
+
+
+def _unreadable_records(path: Path, n_objects: int) -> list[int]:
+    """Indices of objects whose record file exists but cannot be read as a JSON object."""
+    bad = []
+    for index in range(n_objects):
+        file = Path(path) / RECORDS / f"{index:05d}.json"
+        if not file.exists():
+            continue
+        try:
+            if isinstance(json.loads(file.read_text(encoding="utf-8")), dict):
+                continue
+        except (OSError, ValueError):
+            pass
+        bad.append(index)
+    return bad
+
+
+def damaged_objects(path: str | Path, progress: bool = False) -> dict[int, str]:
+    """{object index: what is wrong} for every complete object of the store that is damaged.
+
+    Raises:
+        DatasetError: ``path`` is not a readable store of this format.
+    """
+    path = Path(path)
+    settings = read_attrs(path)["settings"]
+    records = read_records(path, len(settings["objects"]))
+    complete = [i for i in sorted(records) if records[i].get("status") == "complete"]
+    arrays = _arrays(path) if complete else {}
+    damaged = {}
+    for index in tqdm(complete, desc="verify", unit="object", disable=not progress):
+        problem = object_damage(path, arrays, settings, index, records[index])
+        if problem is not None:
+            damaged[index] = problem
+    return damaged
+
+
+def verify_store(path: str | Path, progress: bool = False) -> VerifyReport:
+    """Check every complete object of the store at ``path`` (chunks, checksums, digests) and its records.
+
+    Returns:
+        a :class:`VerifyReport`; ``report.ok`` is False when some object is damaged.
+
+    Raises:
+        DatasetError: ``path`` is missing, not a dataset store, of another format, or its arrays cannot be opened.
+    """
+    start = time.perf_counter()
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: no such dataset store (a folder made by generate())")
+    settings = read_attrs(path)["settings"]
+    objects = settings["objects"]
+    records = read_records(path, len(objects))
+    report = VerifyReport(path, len(objects))
+    unreadable = set(_unreadable_records(path, len(objects)))
+    for index in sorted(unreadable):
+        report.damaged[str(objects[index]["name"])] = "its completion record is unreadable"
+    for index, problem in damaged_objects(path, progress).items():
+        report.damaged[str(objects[index]["name"])] = problem
+    report.checked = sum(1 for r in records.values() if r.get("status") == "complete")
+    report.failed = {str(objects[i]["name"]): str(r.get("reason", "")) for i, r in sorted(records.items())
+                     if r.get("status") == "failed"}
+    report.incomplete = [str(objects[i]["name"]) for i in range(len(objects)) if i not in records and i not in unreadable]
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+__all__ = ["VerifyReport", "damaged_objects", "object_damage", "verify_store"]
