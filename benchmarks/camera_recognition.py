@@ -27,7 +27,7 @@ import numpy as np
 from benchmarks._common import machine
 from fusion.evaluate import accuracy
 from perception.camera import VirtualOakCamera
-from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
+from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, rescale
 from perception.reconstruct.multiview import reconstruct_frames
 from perception.reconstruct.surface import surface_error
 from perception.shapes import CLASSES, make_object
@@ -56,8 +56,7 @@ def reconstruct(cls: str, seed: int, views: int, distance_mm: float) -> tuple[Ob
     camera = VirtualOakCamera(make_object(cls, seed), seed=seed)
     rec = reconstruct_frames(camera.capture_views(views, distance_mm), target=camera.target, seed=seed)
     elapsed = time.perf_counter() - start
-    vertices, transform = normalize(rec.model.vertices, DEFAULT_SIZE_MM)
-    model = ObjectModel(vertices, rec.model.triangles, name=f"{cls}/{seed} reconstructed", transform=transform)
+    model = rescale(rec.model, DEFAULT_SIZE_MM, name=f"{cls}/{seed} reconstructed")
     return model, surface_error(rec.model, camera.truth), elapsed
 
 

@@ -9,7 +9,7 @@ import sys
 import tempfile
 
 from perception.camera import VirtualOakCamera, read_recording, write_recording
-from perception.geometry import ObjectModel, normalize
+from perception.geometry import rescale
 from perception.reconstruct.multiview import reconstruct_frames
 from perception.reconstruct.surface import surface_error
 from perception.shapes import make_object
@@ -30,8 +30,7 @@ print(f"reconstructed {rec.model.n_triangles} triangles from {len(rec.points)} p
       f"(+{len(rec.support)} unseen, closed: {rec.model.is_watertight}): "
       f"mean error {error['mean_mm']:.2f} mm, p95 {error['p95_mm']:.2f} mm")
 
-vertices, transform = normalize(rec.model.vertices)  # the 150 mm diagonal the classifiers are trained at
-obj = ObjectModel(vertices, rec.model.triangles, name="captured mug", transform=transform)
+obj = rescale(rec.model, name="captured mug")  # the 150 mm size the classifiers are trained at
 model = None
 if len(sys.argv) > 1:
     from fusion.base import load_model

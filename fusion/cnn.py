@@ -156,7 +156,8 @@ class CNNClassifier(TactileClassifier):
     """The CNN pair with probability fusion, scikit-learn style (see the module docstring).
 
     Args:
-        cue: kinesthetic cue, ``"normals"`` (the paper's) or ``"invariant"`` (:mod:`fusion.cues`).
+        cue: kinesthetic cue, ``"invariant"`` (pose-free, the default) or ``"normals"`` (the paper's, which
+            depends on how each object is posed; for reproducing the paper), see :mod:`fusion.cues`.
         epochs: most training epochs per net (the paper: 50).
         batch_size: sequences per step.
         lr: Adam learning rate.
@@ -176,7 +177,7 @@ class CNNClassifier(TactileClassifier):
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
     """
 
-    def __init__(self, cue: str = "normals", epochs: int = 50, batch_size: int = 64, lr: float = 1e-3,
+    def __init__(self, cue: str = "invariant", epochs: int = 50, batch_size: int = 64, lr: float = 1e-3,
                  patience: int = 6, val_fraction: float = 0.1, seed: int = 0, device: str = "auto",
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
                  frame_size: int = 16, augment: bool | str = "both"):

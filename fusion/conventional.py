@@ -55,7 +55,7 @@ def _check_choice(name: str, value, choices) -> None:
 
 def conventional_pipeline(
     kind: str = "svm",
-    cue: str = "normals",
+    cue: str = "invariant",
     n_select: int = 40,
     reduce: str = "som",
     n_components: int = 5,
@@ -106,7 +106,7 @@ class ConventionalClassifier(TactileClassifier):
 
     Parameters:
         kind: "svm" (RBF, gamma 1, C 1, Platt probabilities) or "knn" (k = ``n_neighbors``, Euclidean).
-        cue: kinesthetic cue, "normals" (the paper's) or "invariant" (pose-invariant, :mod:`fusion.cues`).
+        cue: kinesthetic cue, "invariant" (pose-free, the default, :mod:`fusion.cues`) or "normals" (the paper's, pose-dependent).
         n_select: features kept by information gain (of 15 per series: 285 for normals, 330 invariant).
         reduce: "som" (the paper's SOM to ``n_components``) or "pca" (the baseline it is compared with).
         n_components: features after the reduction (5).
@@ -120,7 +120,7 @@ class ConventionalClassifier(TactileClassifier):
     def __init__(
         self,
         kind: str = "svm",
-        cue: str = "normals",
+        cue: str = "invariant",
         n_select: int = 40,
         reduce: str = "som",
         n_components: int = 5,

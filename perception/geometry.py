@@ -366,6 +366,20 @@ def random_rotation(seed: int | np.random.Generator) -> np.ndarray:
     return Rotation.random(random_state=rng).as_matrix()
 
 
+def rescale(model: ObjectModel, size_mm: float = DEFAULT_SIZE_MM, *, name: str | None = None) -> ObjectModel:
+    """A copy of ``model`` centred and scaled to ``size_mm`` in its pose-free frame (:func:`normalize` with its
+    triangles), e.g. a camera reconstruction (physical mm) brought to the size a classifier was trained at;
+    ``transform`` maps the model's coordinates to the copy's.
+
+    Raises:
+        InvalidMeshError: ``size_mm`` is not a positive number.
+    """
+    vertices, scaling = normalize(model.vertices, size_mm, triangles=model.triangles, centering=model.centering)
+    return ObjectModel(vertices, model.triangles, name=name or model.name, label=model.label,
+                       vertex_colors=model.vertex_colors, transform=scaling @ model.transform, source=model.source,
+                       centering=model.centering)
+
+
 def rotate(model: ObjectModel, rotation: np.ndarray) -> ObjectModel:
     """A copy of ``model`` turned by the (3, 3) ``rotation`` about its :attr:`~ObjectModel.center` (the centre
     stays; ``transform`` records the turn). Presents an object in another pose without reloading it.

@@ -77,7 +77,8 @@ def register(sub) -> None:
                    help="hold out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none")
     p.add_argument("--test-fraction", type=float, default=0.2, help="held-out share (default: 0.2)")
     p.add_argument("--strategy", default=None, help="train on this strategy's sequences only (default: all)")
-    p.add_argument("--cue", choices=CUES, default="normals", help="kinesthetic cue (default: the paper's normals)")
+    p.add_argument("--cue", choices=CUES, default="invariant",
+                   help="kinesthetic cue (default: pose-free invariant cues; normals: the paper's, pose-dependent)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print a JSON result on stdout")
     p.set_defaults(func=run)

@@ -4,8 +4,9 @@ objects.
 
 The strategies share one store of the paper objects, the PCL ones a second store (so building or removing
 the peer program leaves the first store and its models valid); a grouped k-fold by object trains the first
-paper classifier; accuracy for one touch and for the largest K (sum of log probabilities), bootstrap over
-objects. Saliency time per object is measured on the first object of each class (median; for PCL it includes
+unseen-objects classifier (pose-free cues) on the objects as stored and tests it upright and in any pose;
+accuracy for one touch and for the largest K (sum of log probabilities), bootstrap over objects, and each
+strategy's paired difference to blind contours at the largest K. Saliency time per object is measured on the first object of each class (median; for PCL it includes
 starting the program and its file I/O). Without the program the PCL rows say "not built" and how to build it.
 """
 
@@ -15,11 +16,11 @@ import logging
 import statistics
 import time
 
-from fusion.experiments.analysis import score, touches_score
+from fusion.experiments.analysis import paired_difference, score, touches_score
 from fusion.experiments.context import Context
-from fusion.experiments.data import ensure_store, load_models
-from fusion.experiments.models import DISPLAY, Predictions, digest, pick, train_and_predict
-from fusion.experiments.protocol import _loader
+from fusion.experiments.data import load_models
+from fusion.experiments.models import DISPLAY, pick
+from fusion.experiments.protocol import POSES, grouped_kfold, pose_stores
 from perception.saliency import pcl_available, pcl_binary
 from tactile.sampling import STRATEGIES as METHODS
 
@@ -48,11 +49,13 @@ def saliency_seconds(models: list, seed: int, strategies=ATTENTION_STRATEGIES) -
 
 
 def attention_rows(ctx: Context, objects) -> list[dict]:
-    """One row per strategy: accuracy at K = 1 and K = max, saliency seconds per object; the PCL rows say
-    "not built" when the peer program is absent."""
+    """One row per (pose, strategy): accuracy at K = 1 and K = max, saliency seconds per object, and the
+    paired difference to blind contours; the PCL rows say "not built" when the peer program is absent. The
+    classifier is the first of the unseen-objects part (pose-free cues); models train on the objects as
+    stored and are tested upright and in any pose (:data:`fusion.experiments.protocol.POSES`)."""
     sizes = ctx.sizes
     groups = [ATTENTION_STRATEGIES] + ([PCL_STRATEGIES] if pcl_available() else [])
-    name, factory = next(iter(pick(ctx.classifiers, sizes.paper_classifiers[:1]).items()))
+    name, factory = next(iter(pick(ctx.classifiers, sizes.unseen_classifiers[:1]).items()))
     first_per_class: dict = {}
     for path, label in objects:
         first_per_class.setdefault(label, (path, label))
@@ -60,31 +63,27 @@ def attention_rows(ctx: Context, objects) -> list[dict]:
     k = max(sizes.touches)
     rows = []
     for strategies in groups:
-        ds, record = ensure_store(objects, ctx.path("stores"), strategies=strategies,
-                                  contours=sizes.attention_contours, seed=ctx.seed, workers=ctx.workers,
-                                  progress=ctx.progress)
         seconds = saliency_seconds(timing_models, ctx.seed, strategies)
-        for strategy in strategies:
-            folds = ds.kfold_by_object(sizes.attention_folds, seed=ctx.seed, index=ds.indices(strategy))
-            parts = []
-            for i, (train, test) in enumerate(folds):
-                batch = _loader(ds, train, test)
-                parts.append(train_and_predict(
-                    name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
-                    ctx.path("models", "attention", strategy, f"fold{i + 1}"),
-                    {"part": "attention", "store": digest(record), "strategy": strategy, "train": digest(train)},
-                    {"tag": "test", "test": digest(test)}))
-            pred = Predictions.concatenate(parts)
-            rows.append({"strategy": strategy,
-                         "attention": LABELS.get(strategy) or METHODS[strategy] or "none (random vertices)",
-                         "classifier": DISPLAY.get(name, name),
-                         "accuracy_k1": score(pred, by="object", seed=ctx.seed).to_dict(),
-                         "k": k, "accuracy_k": touches_score(pred, k, "log", by="object", seed=ctx.seed).to_dict(),
-                         "saliency_seconds_per_object": seconds[strategy]})
+        for pose in POSES:
+            stores = pose_stores(ctx, objects, pose, strategies, sizes.attention_contours)
+            preds = {strategy: grouped_kfold(ctx, "attention", stores, strategy, {name: factory},
+                                             sizes.attention_folds)[name] for strategy in strategies}
+            blind = preds.get("blind")
+            for strategy, pred in preds.items():
+                versus = (paired_difference(pred, blind, k, seed=ctx.seed)
+                          if blind is not None and strategy != "blind" else None)
+                rows.append({"pose": pose, "strategy": strategy,
+                             "attention": LABELS.get(strategy) or METHODS[strategy] or "none (random vertices)",
+                             "classifier": DISPLAY.get(name, name),
+                             "accuracy_k1": score(pred, by="object", seed=ctx.seed).to_dict(),
+                             "k": k, "accuracy_k": touches_score(pred, k, "log", by="object", seed=ctx.seed).to_dict(),
+                             "minus_blind_k": versus,
+                             "saliency_seconds_per_object": seconds[strategy]})
     if not pcl_available():
         for strategy in PCL_STRATEGIES:
-            rows.append({"strategy": strategy, "attention": LABELS[strategy], "classifier": DISPLAY.get(name, name),
-                         "accuracy_k1": None, "k": k, "accuracy_k": None, "saliency_seconds_per_object": None,
+            rows.append({"pose": "-", "strategy": strategy, "attention": LABELS[strategy],
+                         "classifier": DISPLAY.get(name, name), "accuracy_k1": None, "k": k, "accuracy_k": None,
+                         "minus_blind_k": None, "saliency_seconds_per_object": None,
                          "note": f"not built: {pcl_binary()} is absent (`make peers` builds it against libpcl-dev)"})
     return rows
 

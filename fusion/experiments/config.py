@@ -39,7 +39,8 @@ class Sizes:
             k-fold by object.
         unseen_per_class: instances per class of the unseen-objects part (None: all).
         touches: K, the contours per decision.
-        noise_contours: held-out contours per object for each noise level (same seed at every level).
+        noise_contours: contours per test object (of the unseen-objects folds) for each noise level (same seed at
+            every level).
         noise_levels: kind -> levels (see :data:`NOISE_KINDS`); level 0 (clean) is always added.
         attention_contours, attention_folds: per object, and the grouped k-fold by object, of the attention
             comparison (paper objects).
@@ -61,7 +62,7 @@ class Sizes:
     unseen_folds: int = 3
     unseen_per_class: int | None = None
     touches: tuple[int, ...] = (1, 2, 4, 8)
-    noise_contours: int = 10
+    noise_contours: int = 4
     noise_levels: dict = field(
         default_factory=lambda: {
             "taxel_noise": (0.1, 0.3, 1.0),

@@ -57,24 +57,27 @@ def plot_touches(rows: list[dict], path: str | Path) -> Path:
 
 
 def plot_noise(rows: list[dict], descriptions: dict[str, str], path: str | Path) -> Path:
-    """Accuracy vs noise level: a panel per kind, a line per classifier and strategy, 95 % intervals."""
+    """Accuracy vs noise level: a panel per (pose, kind), a line per classifier and strategy, 95 % intervals."""
     kinds = list(dict.fromkeys(r["kind"] for r in rows))
+    poses = list(dict.fromkeys(r.get("pose", "upright") for r in rows))
     colours = _colours(r["classifier"] for r in rows)
-    fig = Figure(figsize=(4.5 * len(kinds), 3.6), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(1, len(kinds), squeeze=False)[0])
-    for ax, kind in zip(axes, kinds):
-        for clf in colours:
-            for strategy, style in STYLE.items():
-                line = sorted((r for r in rows if r["kind"] == kind and r["classifier"] == clf
-                               and r["strategy"] == strategy), key=lambda r: r["level"])
-                if line:
-                    _errorbar(ax, [r["level"] for r in line], line, colours[clf], style,
-                              f"{clf}, {strategy}")
-        ax.set_xlabel(descriptions.get(kind, kind), fontsize=8)
-        ax.set_ylabel("accuracy %")
-        ax.set_title(kind.replace("_", " "), fontsize=9)
-        ax.grid(alpha=0.3)
-    axes[-1].legend(fontsize=7, loc="lower left")
+    fig = Figure(figsize=(4.5 * len(kinds), 3.6 * len(poses)), layout="constrained")
+    grid = fig.subplots(len(poses), len(kinds), squeeze=False)
+    for row_axes, pose in zip(grid, poses):
+        for ax, kind in zip(row_axes, kinds):
+            for clf in colours:
+                for strategy, style in STYLE.items():
+                    line = sorted((r for r in rows if r["kind"] == kind and r["classifier"] == clf
+                                   and r["strategy"] == strategy and r.get("pose", "upright") == pose),
+                                  key=lambda r: r["level"])
+                    if line:
+                        _errorbar(ax, [r["level"] for r in line], line, colours[clf], style,
+                                  f"{clf}, {strategy}")
+            ax.set_xlabel(descriptions.get(kind, kind), fontsize=8)
+            ax.set_ylabel("accuracy %")
+            ax.set_title(f"{kind.replace('_', ' ')}, {pose}", fontsize=9)
+            ax.grid(alpha=0.3)
+    grid[0, -1].legend(fontsize=7, loc="lower left")
     return save_figure(fig, path, dpi=120)
 
 

@@ -30,34 +30,27 @@ log = logging.getLogger(__name__)
 
 Factory = Callable[[], TactileClassifier]
 
-#: Display names of the classifiers and of the CNN's single modalities.
-DISPLAY = {"cnn": "CNN fusion", "cnn-invariant": "CNN fusion (invariant cues)", "svm": "SVM", "knn": "kNN"}
+#: Display names of the classifiers and of the CNN's single modalities. Plain names use the pose-free cues;
+#: ``-normals`` names the paper's kinesthetic cue (surface normals in the object's stored frame).
+DISPLAY = {"cnn": "CNN fusion", "svm": "SVM", "knn": "kNN", "cnn-normals": "CNN fusion (normals cue)",
+           "svm-normals": "SVM (normals cue)", "knn-normals": "kNN (normals cue)"}
 MODALITY_DISPLAY = {"cutaneous": "CNN cutaneous", "kinesthetic": "CNN kinesthetic"}
 
 
-def _conventional(kind: str, seed: int) -> TactileClassifier:
-    import inspect
-
-    from fusion.conventional import ConventionalClassifier
-
-    # The seed argument is ``random_state`` (scikit-learn's name) in some versions, ``seed`` in others.
-    params = inspect.signature(ConventionalClassifier).parameters
-    key = "seed" if "seed" in params else "random_state"
-    return ConventionalClassifier(kind=kind, cue="normals", **{key: seed})
-
-
 def default_classifiers(seed: int = 0, epochs: int | None = None, progress: bool = False) -> dict[str, Factory]:
-    """Factories of the toolkit's classifiers by name: ``cnn`` (the paper's normals as kinesthetic cue),
-    ``cnn-invariant`` (pose-invariant cues), ``svm``, ``knn`` (contourlet + wavelet features)."""
+    """Factories of the toolkit's classifiers by name: ``cnn`` (CNN pair), ``svm``, ``knn`` (contourlet +
+    wavelet features), all with the pose-free kinesthetic cues, and the same with the paper's normals cue
+    (``cnn-normals``, ``svm-normals``, ``knn-normals``), which depends on how each object is posed."""
     from fusion.classifiers import make_classifier
 
     cnn = {"epochs": epochs} if epochs else {}
-    return {
-        "cnn": lambda: make_classifier("cnn", cue="normals", seed=seed, progress=progress, **cnn),
-        "cnn-invariant": lambda: make_classifier("cnn", cue="invariant", seed=seed, progress=progress, **cnn),
-        "svm": lambda: _conventional("svm", seed),
-        "knn": lambda: _conventional("knn", seed),
-    }
+    factories = {}
+    for cue, suffix in (("invariant", ""), ("normals", "-normals")):
+        factories[f"cnn{suffix}"] = functools.partial(make_classifier, "cnn", cue=cue, seed=seed, progress=progress,
+                                                      **cnn)
+        for kind in ("svm", "knn"):
+            factories[f"{kind}{suffix}"] = functools.partial(make_classifier, kind, cue=cue, seed=seed)
+    return factories
 
 
 def pick(classifiers: dict[str, Factory], names) -> dict[str, Factory]:

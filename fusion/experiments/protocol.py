@@ -110,32 +110,50 @@ def unseen_objects(ctx: Context, objects, pose: str = "upright") -> dict[str, di
     Raises:
         InvalidArgumentError: an unknown pose.
     """
+    sizes = ctx.sizes
+    stores = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours)
+    classifiers = pick(ctx.classifiers, sizes.unseen_classifiers)
+    return {strategy: grouped_kfold(ctx, "unseen", stores, strategy, classifiers, sizes.unseen_folds)
+            for strategy in sizes.strategies}
+
+
+def pose_stores(ctx: Context, objects, pose: str, strategies, contours: int) -> tuple:
+    """(training store, its record, test store, its record): the objects as stored for training, and for
+    testing the same store (``"upright"``) or the objects each in its seeded random pose (``"any pose"``).
+
+    Raises:
+        InvalidArgumentError: an unknown pose.
+    """
     if pose not in POSES:
         raise InvalidArgumentError(f"unknown pose {pose!r}; choose one of {', '.join(POSES)}")
-    sizes = ctx.sizes
-    store = {"strategies": sizes.strategies, "contours": sizes.unseen_contours, "seed": ctx.seed, "workers": ctx.workers,
-                 "progress": ctx.progress}
-    ds, record = ensure_store(objects, ctx.path("stores"), **store)
-    test_ds, test_store = (ds, record) if pose == "upright" else ensure_store(
-        any_pose(objects, ctx.seed), ctx.path("stores"), **store)
-    preds: dict[str, dict[str, Predictions]] = {}
-    for strategy in sizes.strategies:
-        folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
-        parts: dict[str, list[Predictions]] = {}
-        for i, (train, test) in enumerate(folds):
-            test = test if test_ds is ds else same_objects(ds, test, test_ds, strategy)
-            batch = _loader(ds, train, test, test_ds)
+    settings = {"strategies": strategies, "contours": contours, "seed": ctx.seed, "workers": ctx.workers,
+                "progress": ctx.progress}
+    ds, record = ensure_store(objects, ctx.path("stores"), **settings)
+    if pose == "upright":
+        return ds, record, ds, record
+    return (ds, record, *ensure_store(any_pose(objects, ctx.seed), ctx.path("stores"), **settings))
 
-            train_record = {"part": "unseen", "store": digest(record), "strategy": strategy, "train": digest(train)}
-            test_record = {"tag": "test"} if pose == "upright" else {"tag": "anypose", "store": digest(test_store)}
-            for name, factory in pick(ctx.classifiers, sizes.unseen_classifiers).items():
-                log.info("unseen objects (%s), %s, fold %d: %s", pose, strategy, i + 1, name)
-                parts.setdefault(name, []).append(train_and_predict(
-                    name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
-                    ctx.path("models", "unseen", strategy, f"fold{i + 1}"), train_record,
-                    {**test_record, "test": digest(test)}))
-        preds[strategy] = {name: Predictions.concatenate(p) for name, p in parts.items()}
-    return preds
+
+def grouped_kfold(ctx: Context, part: str, stores: tuple, strategy: str, classifiers: dict, n_folds: int
+                  ) -> dict[str, Predictions]:
+    """Out-of-fold predictions {classifier name: Predictions} of one strategy: ``n_folds`` seeded folds by
+    object of the training store; each fold's models (cached under ``models/<part>/<strategy>/fold<i>/``)
+    predict that fold's test objects read from the test store (the same objects, maybe in another pose)."""
+    ds, record, test_ds, test_store = stores
+    folds = ds.kfold_by_object(n_folds, seed=ctx.seed, index=ds.indices(strategy))
+    parts: dict[str, list[Predictions]] = {}
+    for i, (train, test) in enumerate(folds):
+        test = test if test_ds is ds else same_objects(ds, test, test_ds, strategy)
+        batch = _loader(ds, train, test, test_ds)
+        train_record = {"part": part, "store": digest(record), "strategy": strategy, "train": digest(train)}
+        test_record = {"tag": "test"} if test_ds is ds else {"tag": "anypose", "store": digest(test_store)}
+        for name, factory in classifiers.items():
+            log.info("%s (%s), %s, fold %d: %s", part, "upright" if test_ds is ds else "any pose", strategy, i + 1,
+                     name)
+            parts.setdefault(name, []).append(train_and_predict(
+                name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
+                ctx.path("models", part, strategy, f"fold{i + 1}"), train_record, {**test_record, "test": digest(test)}))
+    return {name: Predictions.concatenate(p) for name, p in parts.items()}
 
 
 def same_objects(ds, index: np.ndarray, other, strategy: str) -> np.ndarray:
@@ -209,8 +227,10 @@ __all__ = [
     "STRATEGIES",
     "accuracy_rows",
     "confusion_figures",
+    "grouped_kfold",
     "paper_dataset",
     "paper_protocol",
+    "pose_stores",
     "same_objects",
     "store_record",
     "touches_rows",

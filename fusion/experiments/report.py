@@ -52,21 +52,28 @@ def difference_table(rows: list[dict], group: str) -> list[dict]:
         row = {group: key[0], "classifier": key[1]}
         for k in ks:
             hit = [r for r in rows if (r[group], r["classifier"]) == key and r["k"] == k]
-            row[f"K={k}"] = (f"{100 * hit[0]['difference']:+.1f} [{100 * hit[0]['low']:+.1f}, "
-                             f"{100 * hit[0]['high']:+.1f}] (+-{100 * hit[0]['detectable']:.1f})") if hit else "-"
+            row[f"K={k}"] = _difference(hit[0]) if hit else "-"
         out.append(row)
     return out
 
 
+def _difference(d: dict | None) -> str:
+    """'+3.1 [-0.5, +6.8] (+-4.2)' in percentage points, or '-'."""
+    if not d:
+        return "-"
+    return f"{100 * d['difference']:+.1f} [{100 * d['low']:+.1f}, {100 * d['high']:+.1f}] (+-{100 * d['detectable']:.1f})"
+
+
 def noise_table(rows: list[dict], kind: str) -> list[dict]:
-    """Accuracy per level (columns) of one noise kind, a row per (classifier, strategy)."""
+    """Accuracy per level (columns) of one noise kind, a row per (pose, classifier, strategy)."""
     sel = [r for r in rows if r["kind"] == kind]
     levels = sorted({r["level"] for r in sel})
     out = []
-    for key in dict.fromkeys((r["classifier"], r["strategy"]) for r in sel):
-        row = {"classifier": key[0], "strategy": key[1]}
+    for key in dict.fromkeys((r.get("pose", "upright"), r["classifier"], r["strategy"]) for r in sel):
+        row = {"pose": key[0], "classifier": key[1], "strategy": key[2]}
         for level in levels:
-            hit = [r for r in sel if (r["classifier"], r["strategy"]) == key and r["level"] == level]
+            hit = [r for r in sel if (r.get("pose", "upright"), r["classifier"], r["strategy"]) == key
+                   and r["level"] == level]
             row[f"{level:g}"] = pct(hit[0]["accuracy"]) if hit else "-"
         out.append(row)
     return out
@@ -132,23 +139,27 @@ def render(results: dict) -> str:
     noise = results.get("noise")
     if noise:
         lines += ["## Noise", "",
-                  "The paper-protocol models (trained on clean data) on held-out contours of the same objects "
-                  f"({noise['contours']} per object and strategy, the same contours at every level) read with: "
+                  "The unseen-objects models (trained on clean data) on the objects they never saw (each fold's "
+                  f"test objects, upright and in any pose), along contours of their own ({noise['contours']} per "
+                  "object and strategy, the same contours at every level) read with: "
                   + "; ".join(f"{k}: {v}" for k, v in noise["kinds"].items())
-                  + ". Interval: bootstrap over test sequences.", ""]
+                  + ". Interval: bootstrap over objects.", ""]
         for kind in dict.fromkeys(r["kind"] for r in noise["rows"]):
             lines += [f"### {kind.replace('_', ' ')} ({noise['kinds'].get(kind, '')})", "",
                       markdown_table(noise_table(noise["rows"], kind)), ""]
         lines += [_image(noise["figure"], "accuracy vs noise"), ""]
     attention = results.get("attention")
     if attention:
-        rows = [{"strategy": r["strategy"], "attention": r["attention"], "classifier": r["classifier"],
-                 "K=1": pct(r["accuracy_k1"]), f"K={r['k']}": pct(r["accuracy_k"]),
+        rows = [{"pose": r.get("pose", "upright"), "strategy": r["strategy"], "attention": r["attention"],
+                 "classifier": r["classifier"], "K=1": pct(r["accuracy_k1"]), f"K={r['k']}": pct(r["accuracy_k"]),
+                 f"minus blind, K={r['k']}": _difference(r.get("minus_blind_k")),
                  "saliency s/object": r["saliency_seconds_per_object"] if r["saliency_seconds_per_object"]
                  is not None else "-", "note": r.get("note", "")} for r in attention["rows"]]
         lines += ["## Attention models compared", "",
                   (f"Paper objects, {attention['contours']} contours per object per strategy, grouped "
-                  f"{attention['folds']}-fold by object (unseen objects); interval: bootstrap over objects. "
+                  f"{attention['folds']}-fold by object (unseen objects), trained as stored and tested upright and "
+                  "in any pose; interval: bootstrap over objects; 'minus blind': paired difference in percentage "
+                  "points over objects, 95 % interval, and (+-) the smallest difference the design detects. "
                   "Saliency time: median over the first object of each class."), "", markdown_table(rows), ""]
     runtime = results.get("runtime")
     if runtime:

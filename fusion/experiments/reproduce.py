@@ -3,8 +3,8 @@
 Parts (each can be chosen with ``parts``): ``paper`` (Table 1), ``unseen`` (grouped k-fold by object over all
 instances, each test object upright and in a seeded random pose, with paired guided-vs-blind and upright-vs-any-
 pose differences over objects), ``touches`` (K per decision, on the paper and unseen predictions), ``noise``, ``attention`` and
-``runtime`` (error vs time, Pareto front). ``touches`` and ``noise`` need ``paper`` (they reuse its models and
-predictions). Everything expensive is cached under the report folder (stores, models, predictions, part
+``runtime`` (error vs time, Pareto front). ``touches`` needs ``paper`` (it reuses its predictions), ``noise``
+needs ``unseen`` (it reuses its fold models on their test objects). Everything expensive is cached under the report folder (stores, models, predictions, part
 results), so an interrupted run resumes and the same seed gives the same numbers.
 """
 
@@ -22,12 +22,11 @@ from pathlib import Path
 from fusion.experiments import figures
 from fusion.experiments.config import FULL, NOISE_KINDS, QUICK, Sizes
 from fusion.experiments.context import Context
-from fusion.experiments.data import folder_objects, load_models
+from fusion.experiments.data import folder_objects
 from fusion.experiments.models import default_classifiers
 from fusion.experiments.protocol import (
     accuracy_rows,
     confusion_figures,
-    paper_dataset,
     paper_protocol,
     pose_differences,
     strategy_differences,
@@ -41,8 +40,8 @@ from perception.errors import InvalidArgumentError
 log = logging.getLogger(__name__)
 
 PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime")
-BOOTSTRAP_NOTE = ("over test sequences for the paper protocol and noise; over objects (whole objects resampled) "
-                  "for unseen objects, K touches, attention and the run-time part; differences (guided - blind, "
+BOOTSTRAP_NOTE = ("over test sequences for the paper protocol; over objects (whole objects resampled) "
+                  "for unseen objects, K touches, noise, attention and the run-time part; differences (guided - blind, "
                   "any pose - upright) are paired object by object and bootstrapped over objects.")
 
 
@@ -79,14 +78,16 @@ def reproduce(
 
     Raises:
         DatasetError: a bad data folder, unknown class, or too few instances.
-        InvalidArgumentError: an unknown part, or ``touches`` / ``noise`` without ``paper``.
+        InvalidArgumentError: an unknown part, ``touches`` without ``paper`` or ``noise`` without ``unseen``.
     """
     parts = tuple(parts)
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
         raise InvalidArgumentError(f"unknown parts {unknown}; choose from {', '.join(PARTS)}")
-    if {"touches", "noise"} & set(parts) and "paper" not in parts:
-        raise InvalidArgumentError("the touches and noise parts reuse the paper part: add 'paper' to parts")
+    if "touches" in parts and "paper" not in parts:
+        raise InvalidArgumentError("the touches part reuses the paper part: add 'paper' to parts")
+    if "noise" in parts and "unseen" not in parts:
+        raise InvalidArgumentError("the noise part reuses the unseen-objects models: add 'unseen' to parts")
     sizes = sizes or (QUICK if quick else FULL)
     if objects_per_class is not None:
         sizes = sizes.with_(objects_per_class=int(objects_per_class))
@@ -145,11 +146,11 @@ def reproduce(
     if "noise" in parts:
         from fusion.experiments.robustness import noise_rows
 
-        record = {"objects": [str(p) for p, _ in paper_objects], "sizes": sizes.to_dict(), "seed": ctx.seed,
-                  "models": _model_records(out, sizes)}
-        rows = timed("noise", lambda: ctx.cached_part("noise", record, lambda: {"rows": noise_rows(
-            ctx, load_models(paper_objects), results["paper"]["classes"],
-            paper_dataset(ctx, paper_objects)[0])}))["rows"]
+        unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
+        record = {"objects": [str(p) for p, _ in unseen_list], "sizes": sizes.to_dict(), "seed": ctx.seed,
+                  "models": _model_records(out)}
+        rows = timed("noise", lambda: ctx.cached_part("noise", record, lambda: {"rows": noise_rows(ctx, unseen_list)}))[
+            "rows"]
         figures.plot_noise(rows, NOISE_KINDS, out / "accuracy_vs_noise.png")
         results["noise"] = {"rows": rows, "contours": sizes.noise_contours, "kinds": NOISE_KINDS,
                             "figure": "accuracy_vs_noise.png"}
@@ -182,13 +183,13 @@ def _describe(ctx: Context, name: str) -> str:
 
 
 def _describe_first(ctx: Context, sizes: Sizes) -> str:
-    return _describe(ctx, sizes.paper_classifiers[0])
+    return _describe(ctx, sizes.unseen_classifiers[0])
 
 
-def _model_records(out: Path, sizes: Sizes) -> dict:
-    """The cache records of the paper models (the noise part is redone when they change)."""
+def _model_records(out: Path) -> dict:
+    """The cache records of the unseen-objects models (the noise part is redone when they change)."""
     records = {}
-    for path in sorted((out / "models" / "paper").glob("*/*.json")):
+    for path in sorted((out / "models" / "unseen").glob("*/*/*.json")):
         try:
             records[str(path.relative_to(out))] = json.loads(path.read_text())["record"]
         except (OSError, ValueError, KeyError):

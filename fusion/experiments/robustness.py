@@ -1,12 +1,13 @@
-"""Noise: models trained on clean data (the paper protocol's), tested on held-out contours of the same objects
-read with taxel noise, dead taxels or jittered probe poses, at growing levels. ``dead_taxels_repaired`` reads the
+"""Noise: models trained on clean data (the unseen-objects part's fold models), tested on objects they never
+saw (each fold's test objects), upright and in any pose, along contours of their own, read with taxel noise, dead
+taxels or jittered probe poses, at growing levels. ``dead_taxels_repaired`` reads the
 same frames as ``dead_taxels`` and repairs them (:func:`tactile.dead_taxels.repair_dead_taxels`) before the
 models see them; its level 0 is the clean reading repaired (what the repair costs where nothing is broken).
 
 Every level touches the same contours (planes and seeds from the run seed + ``TEST_SEED_OFFSET``, the object
 and the strategy, :func:`fusion.experiments.touch.touch_object`), so only the perturbation differs between
-levels; level 0 is the clean reading. Guided contours are drawn from the interest points the training store
-recorded for the object (no saliency is recomputed). Intervals: bootstrap over test sequences.
+levels; level 0 is the clean reading. Guided contours are drawn from the interest points the store recorded for
+the object in that pose (no saliency is recomputed). Intervals: bootstrap over objects.
 """
 
 from __future__ import annotations
@@ -19,12 +20,15 @@ import numpy as np
 from fusion.base import load_model
 from fusion.experiments.analysis import score
 from fusion.experiments.context import Context
-from fusion.experiments.models import DISPLAY, predict
+from fusion.experiments.data import any_pose, load_models
+from fusion.experiments.models import DISPLAY, Predictions, digest, predict
+from fusion.experiments.protocol import POSES, pose_stores
 from fusion.experiments.touch import load_batch, save_batch, touch_objects
 from fusion.modelfile import SUFFIX
 from perception.errors import SaliencyError
 from perception.geometry import ObjectModel
 from tactile.dead_taxels import repair_dead_taxels
+from tactile.explore import SequenceBatch
 from tactile.sampling import STRATEGIES as METHODS
 from tactile.sensor import FSRSensor
 
@@ -79,45 +83,74 @@ def _view(kind: str) -> str:
     return "repaired" if kind.endswith("_repaired") else "raw"
 
 
-def noise_rows(ctx: Context, models: list, class_names: list[str], ds=None) -> list[dict]:
-    """Accuracy rows {kind, level, strategy, classifier, accuracy} for every noise kind and level (0 included).
+def noise_rows(ctx: Context, objects) -> list[dict]:
+    """Accuracy rows {pose, kind, level, strategy, classifier, accuracy} for every noise kind and level (0
+    included): each fold's models of the unseen-objects part (which must have run) read that fold's test objects.
 
     Args:
-        ds: the paper protocol's dataset (its recorded interest points are reused for guided contours).
+        objects: the unseen-objects part's objects (the same list, so the folds are the same).
     """
     sizes = ctx.sizes
     levels = [("clean", 0.0)] + [(k, float(v)) for k, vs in sizes.noise_levels.items() for v in vs]
-    attention: dict[str, dict] = {}
     rows = []
-    for strategy in sizes.strategies:
-        estimators = {name: load_model(ctx.path("models", "paper", strategy, f"{name}{SUFFIX}"))
-                      for name in sizes.paper_classifiers}
-        for kind, level in levels:
-            sensor, jitter = _sensor_and_jitter(kind, level)
-            read = "dead_taxels" if kind == "dead_taxels_repaired" else kind  # the same frames, repaired below
-            key = {"objects": [m.name for m in models], "strategy": strategy, "kind": read, "level": level,
-                   "contours": sizes.noise_contours, "seed": ctx.seed + TEST_SEED_OFFSET, "sensor": sensor.spec()}
-            path = ctx.path("noise", f"{strategy}-{read}-{level:g}.npz")
-            batch = load_batch(path, key)
-            if batch is None:
-                if strategy not in attention:
-                    attention[strategy] = _attention(ds, models, strategy, ctx.seed)
-                batch = touch_objects(models, class_names, strategy, sizes.noise_contours, sensor=sensor,
-                                      seed=ctx.seed + TEST_SEED_OFFSET, jitter_mm=jitter,
-                                      attention=attention.get(strategy), progress=ctx.progress)
-                save_batch(batch, path, key)
-            kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
-            # The frames each kind's models read: as touched, or repaired; each predicted once.
-            views = {_view(k) for k in kinds}
-            inputs = {"raw": batch} if "raw" in views else {}
-            if "repaired" in views:
-                inputs["repaired"] = replace(batch, frames=repair_dead_taxels(batch.frames, sensor))
-            for name, estimator in estimators.items():
-                acc = {v: score(predict(estimator, data), by="decision", seed=ctx.seed) for v, data in inputs.items()}
-                for k in kinds:
-                    rows.append({"kind": k, "level": level, "strategy": strategy, "classifier": DISPLAY.get(name, name),
-                                 "name": name, "accuracy": acc[_view(k)].to_dict()})
+    for pose in POSES:
+        ds, _, test_ds, _ = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours)
+        models = {m.name: m for m in load_models(objects if pose == "upright" else any_pose(objects, ctx.seed))}
+        class_names = list(ds.class_names)
+        for strategy in sizes.strategies:
+            folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
+            fold_objects = [[models[ds.object_names[o]] for o in np.unique(ds.object_ids[test])] for _, test in folds]
+            estimators = [{name: load_model(ctx.path("models", "unseen", strategy, f"fold{i + 1}", f"{name}{SUFFIX}"))
+                           for name in sizes.unseen_classifiers} for i in range(len(folds))]
+            attention = _attention(test_ds, list(models.values()), strategy, ctx.seed)
+            for kind, level in levels:
+                preds: dict[tuple[str, str], list] = {}
+                for i, test_models in enumerate(fold_objects):
+                    batch = _noisy_batch(ctx, test_models, class_names, pose, strategy, kind, level, attention)
+                    sensor, _ = _sensor_and_jitter(kind, level)
+                    inputs = _inputs(batch, sensor, kind, sizes)
+                    for name, estimator in estimators[i].items():
+                        for view, data in inputs.items():
+                            preds.setdefault((name, view), []).append(predict(estimator, data))
+                kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
+                for name in sizes.unseen_classifiers:
+                    acc = {view: score(Predictions.concatenate(p), by="object", seed=ctx.seed)
+                           for (n, view), p in preds.items() if n == name}
+                    for k in kinds:
+                        rows.append({"pose": pose, "kind": k, "level": level, "strategy": strategy,
+                                     "classifier": DISPLAY.get(name, name), "name": name,
+                                     "accuracy": acc[_view(k)].to_dict()})
     return rows
+
+
+def _noisy_batch(ctx: Context, models: list, class_names: list[str], pose: str, strategy: str, kind: str,
+                 level: float, attention) -> SequenceBatch:
+    """The test objects touched with one noise kind and level (cached under ``noise/``); dead taxels repaired
+    later read the same frames as dead taxels."""
+    sizes = ctx.sizes
+    sensor, jitter = _sensor_and_jitter(kind, level)
+    read = "dead_taxels" if kind == "dead_taxels_repaired" else kind
+    names = [m.name for m in models]
+    key = {"objects": names, "pose": pose, "strategy": strategy, "kind": read, "level": level,
+           "contours": sizes.noise_contours, "seed": ctx.seed + TEST_SEED_OFFSET, "sensor": sensor.spec()}
+    path = ctx.path("noise", f"{pose.replace(' ', '')}-{strategy}-{read}-{level:g}-{digest(names)}.npz")
+    batch = load_batch(path, key)
+    if batch is None:
+        batch = touch_objects(models, class_names, strategy, sizes.noise_contours, sensor=sensor,
+                              seed=ctx.seed + TEST_SEED_OFFSET, jitter_mm=jitter, attention=attention,
+                              progress=ctx.progress)
+        save_batch(batch, path, key)
+    return batch
+
+
+def _inputs(batch: SequenceBatch, sensor: FSRSensor, kind: str, sizes) -> dict[str, SequenceBatch]:
+    """The frames the models read at this level: as touched ("raw") and/or repaired, each made once."""
+    kinds = list(sizes.noise_levels) if kind == "clean" else [kind]
+    views = {_view(k) for k in kinds}
+    inputs = {"raw": batch} if "raw" in views else {}
+    if "repaired" in views:
+        inputs["repaired"] = replace(batch, frames=repair_dead_taxels(batch.frames, sensor))
+    return inputs
 
 
 __all__ = ["TEST_SEED_OFFSET", "StoredAttention", "noise_rows"]

@@ -284,9 +284,17 @@ def test_reproduce_writes_a_complete_report(tiny_run):
     assert accs and all(0 <= a["low"] <= a["value"] <= a["high"] <= 1 for a in accs)
     assert {r["kind"] for r in saved["noise"]["rows"]} == {"taxel_noise", "dead_taxels", "dead_taxels_repaired",
                                                           "pose_jitter"}
-    # The repaired rows read the dead-taxel frames already touched: no batch of their own.
-    assert sorted(p.name for p in (out / "noise").glob("*.npz")) == [
-        "blind-clean-0.npz", "blind-dead_taxels-0.5.npz", "blind-pose_jitter-2.npz", "blind-taxel_noise-0.5.npz"]
+    assert {r["pose"] for r in saved["noise"]["rows"]} == {"upright", "any pose"}
+    # One batch per (pose, read, fold): the repaired rows read the dead-taxel frames already touched, and each
+    # fold's batch holds that fold's test objects only, so the objects split into the 3 folds exactly once.
+    batches = sorted((out / "noise").glob("*.npz"))
+    reads = {p.name.rsplit("-", 2)[0] for p in batches}  # "<pose>-<strategy>-<read>-<level>-<objects>.npz"
+    assert reads == {f"{pose}-blind-{read}" for pose in ("upright", "anypose")
+                     for read in ("clean", "dead_taxels", "pose_jitter", "taxel_noise")}
+    for pose in ("upright", "anypose"):
+        clean = [load_batch(p) for p in batches if p.name.startswith(f"{pose}-blind-clean-")]
+        names = [set(b.object_names) for b in clean]
+        assert len(clean) == 3 and sum(len(n) for n in names) == 6 and len(set.union(*names)) == 6
     report = (out / "report.md").read_text()
     for name in ["accuracy_vs_k.png", "accuracy_vs_noise.png", *saved["paper"]["figures"]]:
         assert f"]({name})" in report

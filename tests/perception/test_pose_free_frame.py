@@ -14,6 +14,7 @@ from perception.geometry import (
     load_object,
     normalize,
     random_rotation,
+    rescale,
     rotate,
     surface_centroid,
 )
@@ -146,6 +147,16 @@ class TestPoseFreeLoading:
         np.testing.assert_allclose(turned.center, mug.center, atol=1e-9)
         assert turned.size == pytest.approx(mug.size, rel=1e-12)
         np.testing.assert_allclose(turned.transform[:3, :3], rotation @ mug.transform[:3, :3], atol=1e-12)
+
+    def test_rescale_brings_a_capture_to_the_training_size(self):
+        """A 40 mm box (physical size, off the origin) rescaled to 150 mm: centred, enclosing diameter 150."""
+        small = box((40.0, 20.0, 10.0))
+        small = ObjectModel(small.vertices + [300.0, 0, 50.0], small.triangles, name="capture")
+        out = rescale(small)
+        np.testing.assert_allclose(out.center, 0, atol=1e-9)
+        np.testing.assert_allclose(np.linalg.norm(out.vertices, axis=1), 75.0, rtol=1e-12)  # every corner
+        mapped = small.vertices @ out.transform[:3, :3].T + out.transform[:3, 3]
+        np.testing.assert_allclose(mapped, out.vertices, atol=1e-9)
 
     def test_random_rotation_is_seeded_and_proper(self):
         a, b = random_rotation(4), random_rotation(4)
