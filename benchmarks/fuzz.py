@@ -505,6 +505,8 @@ def _selftest(kind: str):
 
 def _check_model(model, expect_size: float) -> str | None:
     """What is wrong with a loaded model (None if nothing): finiteness, ranges, unit normals, its size."""
+    from perception.geometry import surface_centroid
+
     v, t = np.asarray(model.vertices), np.asarray(model.triangles)
     if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0 or t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
         return f"bad shapes {v.shape} {t.shape}"
@@ -522,9 +524,10 @@ def _check_model(model, expect_size: float) -> str | None:
         length = np.linalg.norm(n, axis=1)
         if np.abs(length[unit] - 1).max(initial=0) > 1e-6 or (length[~unit] != 0).any():
             return f"{name}: not unit length (or not zero for a degenerate face)"
-    diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-    if abs(diagonal - expect_size) > 1e-6 * expect_size:
-        return f"bounding-box diagonal {diagonal!r}, expected {expect_size}"
+    # The pose-free size: the diameter of the sphere about the surface centroid that holds every vertex.
+    size = 2.0 * float(np.linalg.norm(v - surface_centroid(v, t), axis=1).max())
+    if abs(size - expect_size) > 1e-6 * expect_size:
+        return f"size (enclosing-sphere diameter about the surface centroid) {size!r}, expected {expect_size}"
     return None
 
 

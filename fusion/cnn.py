@@ -162,7 +162,9 @@ class CNNClassifier(TactileClassifier):
         batch_size: sequences per step.
         lr: Adam learning rate.
         patience: epochs without a better validation score before stopping.
-        val_fraction: part of the training data held out for early stopping (0: none, train all epochs).
+        val_fraction: part of the training data held out for early stopping (0: none, train all epochs): whole
+            objects of each class that has several (the epoch is chosen on objects not trained on, inside the
+            training data), else sequences.
         seed: seeds the split, the initial weights, the batch order and the augmentation.
         device: ``"auto"`` (CUDA when present), ``"cpu"`` or ``"cuda"``.
         threads: CPU threads during fit and predict (None: the cores this process may use).
@@ -254,13 +256,25 @@ class CNNClassifier(TactileClassifier):
         self.cue_std_ = np.where(std > 1e-6, std, 1.0).astype(np.float32)
 
     # ---------------------------------------------------------------------------------- training
-    def _split(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Seeded stratified train / validation indices (each class keeps at least one training sequence)."""
+    def _split(self, y: np.ndarray, objects: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Seeded stratified train / validation indices for early stopping. A class with two or more objects
+        holds out whole objects (``val_fraction`` of them, at least one, never all), so the epoch is chosen
+        by how well the nets recognise objects they did not train on; a class with one object holds out
+        sequences of it (each class keeps at least one training sequence)."""
         rng = np.random.default_rng(self.seed)
         train, val = [], []
+        objects = np.zeros(len(y), dtype=np.int64) if objects is None else np.asarray(objects)
         if self.val_fraction > 0:
             for c in np.unique(y):
-                members = rng.permutation(np.flatnonzero(y == c))
+                members = np.flatnonzero(y == c)
+                names = np.unique(objects[members])
+                if len(names) >= 2:
+                    n_val = min(max(1, round(self.val_fraction * len(names))), len(names) - 1)
+                    held = np.isin(objects[members], rng.permutation(names)[:n_val])
+                    val.append(members[held])
+                    train.append(members[~held])
+                    continue
+                members = rng.permutation(members)
                 n_val = min(round(self.val_fraction * len(members)), len(members) - 1)
                 val.append(members[:n_val])
                 train.append(members[n_val:])
@@ -363,7 +377,7 @@ class CNNClassifier(TactileClassifier):
         device = self._device()
         pooled = pool_frames(batch.frames, self.frame_size)
         self._fit_statistics(batch, pooled)
-        split = self._split(y_index)
+        split = self._split(y_index, batch.object_ids)
         n_classes = len(self.classes_)
         self.cutaneous_net_ = self.kinesthetic_net_ = None
         self.history_ = {}

@@ -176,7 +176,7 @@ def recognise(
     frames, truth, target, true_class = acquire(source, views, distance_mm, seed)
     timings["capture_s"] = time.perf_counter() - start
     # Only now the geometry stack: without a device the user hears so before Open3D has loaded.
-    from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
+    from perception.geometry import DEFAULT_SIZE_MM, rescale
     from perception.reconstruct.multiview import reconstruct_frames
     from perception.reconstruct.surface import surface_error
     from perception.reconstruct.tabletop import describe_objects
@@ -229,9 +229,8 @@ def recognise(
         clf = load_model(model_path, trust_pickle=trust_pickle)
     sensor = clf.sensor() if clf is not None else None
     probes = clf.probes if clf is not None else 25
-    # Touch the object at the size the classifiers were trained at (catalogue and loaders: 150 mm diagonal).
-    vertices, transform = normalize(rec.model.vertices, DEFAULT_SIZE_MM)
-    obj = ObjectModel(vertices, rec.model.triangles, name=rec.model.name, transform=transform)
+    # Touch the object at the size the classifiers were trained at (catalogue and loaders: 150 mm, pose-free).
+    obj = rescale(rec.model, DEFAULT_SIZE_MM)
     start = time.perf_counter()
     sequences = explore_object(obj, strategy=strategy, n_contours=contours, sensor=sensor, probes=probes, seed=seed)
     timings["touch_s"] = time.perf_counter() - start

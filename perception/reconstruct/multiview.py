@@ -16,7 +16,7 @@ import numpy as np
 import open3d as o3d
 
 from perception.errors import InvalidMeshError
-from perception.geometry import ObjectModel, normalize
+from perception.geometry import ObjectModel, rescale
 from perception.reconstruct.carving import carve
 from perception.reconstruct.points import MIN_POINTS, estimate_normals
 from perception.reconstruct.surface import points_to_model
@@ -210,8 +210,8 @@ def reconstruct_frames(
     else:
         model = build(points, normals)
     if size_mm is not None:
-        vertices, scale = normalize(model.vertices, size_mm)
-        model = ObjectModel(vertices, model.triangles, name=name, label=label, transform=scale)
+        model = rescale(model, size_mm, name=name)
+        model.label = label
     for w in warnings:
         log.warning("%s: %s", name, w)
     return Reconstruction(model, points, normals, scenes, corrections, support, index, first, warnings)

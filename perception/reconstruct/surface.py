@@ -148,7 +148,7 @@ def _to_model(vertices, triangles, *, name, label, size_mm, source, pre_transfor
     triangles, _ = orient_outward(vertices, triangles, where)
     transform = np.eye(4) if pre_transform is None else pre_transform
     if size_mm is not None:
-        vertices, scale = normalize(vertices, size_mm)
+        vertices, scale = normalize(vertices, size_mm, triangles=triangles)
         transform = scale @ transform
     return ObjectModel(vertices, triangles.astype(np.int32), name=name, label=label, transform=transform, source=source)
 

@@ -162,6 +162,19 @@ def test_early_stopping_keeps_the_best_epoch():
         assert history["val_accuracy"] == 1.0
 
 
+def test_early_stopping_holds_out_whole_objects():
+    """Classes with several objects give whole objects to validation (none of them also in training); a
+    class with one object gives sequences of it, and keeps some for training."""
+    y = np.repeat([0, 1, 2], 12)
+    objects = np.concatenate([np.repeat([0, 1, 2, 3], 3), np.repeat([4, 5, 6, 7], 3), np.full(12, 8)])
+    train, val = CNNClassifier(val_fraction=0.25, seed=3)._split(y, objects)
+    assert sorted(np.concatenate([train, val]).tolist()) == list(range(36))
+    for c, first in ((0, 0), (1, 4)):
+        held = set(objects[val][y[val] == c])
+        assert len(held) == 1 and held.isdisjoint(objects[train]) and held <= set(range(first, first + 4))
+    assert (y[val] == 2).sum() == 3 and (y[train] == 2).sum() == 9  # round(0.25 x 12) sequences of object 8
+
+
 def test_seeded_fits_give_identical_predictions_and_leave_torch_settings_alone():
     train, test = make_batch(seed=0), make_batch(n_per_class=4, seed=1)
     threads, deterministic = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
@@ -179,7 +192,7 @@ def test_seeded_fits_give_identical_predictions_and_leave_torch_settings_alone()
 
 def test_statistics_come_from_the_training_frames():
     train = make_batch(seed=0)
-    model = CNNClassifier(**{**FAST, "epochs": 1}).fit(train)
+    model = CNNClassifier(cue="normals", **{**FAST, "epochs": 1}).fit(train)
     assert model.frame_mean_ == pytest.approx(float(train.frames.astype(np.float64).mean()), rel=1e-6)
     np.testing.assert_allclose(model.cue_mean_, train.normals.reshape(-1, 3).mean(axis=0), atol=1e-6)
 

@@ -52,7 +52,7 @@ def test_same_seed_same_bytes_and_save_load(fitted, tmp_path):
     assert a.predict_proba(test).tobytes() == b.predict_proba(test).tobytes()
     path = a.save(tmp_path / "svm.vtm")
     loaded = load_model(path)
-    assert isinstance(loaded, ConventionalClassifier) and loaded.cue == "normals"
+    assert isinstance(loaded, ConventionalClassifier) and loaded.cue == a.cue == "invariant"
     assert loaded.predict_proba(test).tobytes() == a.predict_proba(test).tobytes()
 
 
@@ -113,7 +113,7 @@ def test_cross_validate_matches_sklearn():
     scores = cross_validate(clf, batch, folds=2, seed=3)
     assert scores.shape == (2,) and ((0 <= scores) & (scores <= 1)).all()
     # Peer: scikit-learn's own cross_val_score of the array half of the pipeline, same folds.
-    features = sequence_features(batch, "normals")
+    features = sequence_features(batch, clf.cue)
     cv = StratifiedKFold(2, shuffle=True, random_state=3)
     ref = cross_val_score(clf.make_pipeline(batch.labels[:20])[1:], features, batch.labels, cv=cv)
     np.testing.assert_allclose(scores, ref)

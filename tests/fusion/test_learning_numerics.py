@@ -152,7 +152,7 @@ def test_cnn_trained_on_huge_frames_and_constant_cues_predicts_finite_probabilit
     train = make_batch(n_per_class=3, probes=3, grid=(N, N), spec=spec)
     train.frames *= np.float32(1e30)
     train.normals[:] = np.float32([0.0, 0.6, 0.8])  # a constant cue: no spread to divide by
-    model = CNNClassifier(**{**FAST_CNN, "epochs": 1}).fit(train)
+    model = CNNClassifier(cue="normals", **{**FAST_CNN, "epochs": 1}).fit(train)
     blocks = train.frames.astype(np.float64).reshape(len(train), 3, 16, 2, 16, 2).mean(axis=(3, 5))
     assert model.frame_mean_ == pytest.approx(blocks.mean(), rel=1e-6)
     assert model.frame_std_ == pytest.approx(blocks.std(), rel=1e-5)

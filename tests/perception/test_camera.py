@@ -186,11 +186,12 @@ def test_occlusion_shadows_lie_along_the_baseline_beside_nearer_surfaces(box):
     assert shadow.sum() > 100 and not (stereo.valid & ~seen.valid).any()
     assert (seen.valid & ~edges.valid).sum() > shadow.sum()  # depth edges remove more
     # The mono cameras sit left and right of the colour camera: a pixel is hidden from one of them by a
-    # nearer surface in the same image row, at most f B (1/z_near - 1/z_far) < 60 px away.
+    # nearer surface in the same image row, at most f B (1/z_near - 1/z_far) < 60 px away. Nearer by more than
+    # the 1 mm depth step: a few shadows fall behind the box's own bevel, only 5-10 mm nearer.
     depth = seen.depth_mm
     for row, col in zip(*np.nonzero(shadow)):
         window = depth[row, max(col - 60, 0) : col + 61]
-        assert ((window > 0) & (window < depth[row, col] - 10.0)).any()
+        assert ((window > 0) & (window < depth[row, col] - 2.0)).any()
 
 
 def test_same_seed_same_bytes_other_seed_other_noise(box):

@@ -81,11 +81,12 @@ def test_alpha_shape_covers_a_catalogue_object():
 def test_default_size_and_transform_follow_load_object():
     cloud = fibonacci_sphere(2000, center=(500.0, -20.0, 30.0))
     model = load_points(cloud, poisson_depth=6)
-    assert model.diagonal == pytest.approx(150.0)
+    assert model.size == pytest.approx(150.0)
     assert np.allclose(model.center, 0.0, atol=1e-9)
     mapped = cloud[:5] @ model.transform[:3, :3].T + model.transform[:3, 3]
-    # The sphere's bounding box has diagonal 2 R sqrt(3): the cloud maps onto a sphere of 150 / (2 sqrt 3) mm.
-    assert np.abs(np.linalg.norm(mapped, axis=1) - 150 / (2 * np.sqrt(3))).max() < 1.0
+    # Size = the diameter of the sphere about the surface centroid holding the surface: the cloud of a sphere
+    # maps onto a sphere of radius 75 mm (within the Poisson surface's deviation from the points).
+    assert np.abs(np.linalg.norm(mapped, axis=1) - 75.0).max() < 1.0
 
 
 def test_same_input_same_bytes():

@@ -324,9 +324,9 @@ def test_far_from_the_origin_casts_rays_around_the_centre():
 def test_sphere_of_extreme_size_loads_scaled(tmp_path, radius):
     s = primitives.sphere(1.0, 2)
     model = load_object(write_off(tmp_path / "s.off", s.vertices * radius, s.triangles))
-    assert model.diagonal == pytest.approx(150.0)
+    assert model.size == pytest.approx(150.0)
     assert model.n_triangles == s.n_triangles
-    expected, _ = normalize(s.vertices)
+    expected, _ = normalize(s.vertices, triangles=s.triangles)
     np.testing.assert_allclose(model.vertices, expected, atol=1e-9)
 
 
@@ -334,6 +334,10 @@ def test_normalize_handles_opposite_extremes():
     v = np.array([[-1e308, 0, 0], [1e308, 0, 0], [0, 1e308, 0]])
     out, transform = normalize(v)
     assert np.isfinite(out).all() and np.isfinite(transform).all()
+    # Three points, no triangles: centred on their mean, the furthest 75 mm from it.
+    np.testing.assert_allclose(out.mean(axis=0), 0.0, atol=1e-9)
+    assert 2 * np.linalg.norm(out, axis=1).max() == pytest.approx(150.0)
+    out, _ = normalize(v, centering="bbox")
     assert np.linalg.norm(out.max(axis=0) - out.min(axis=0)) == pytest.approx(150.0)
 
 
