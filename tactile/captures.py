@@ -1,0 +1,166 @@
+"""Capture-like training objects: what a virtual OAK-D reconstructs of an object, as a dataset object.
+
+A classifier trained on CAD meshes meets, on the robot, the camera's reconstruction of an object: surfaces
+that ripple by tenths of a millimetre, a bottom closed against the table, insides (a mug's, a bowl's) that the
+cameras barely see and that come back filled or shallow. Training on *virtual captures* of the training
+instances shows the classifier those effects without ever showing it a test object:
+
+- :func:`virtual_capture`: an object placed on a table, captured by a :class:`~perception.camera.VirtualOakCamera`
+  from ``views`` orbit views, reconstructed by :func:`~perception.reconstruct.multiview.reconstruct_frames`
+  (closed against the table, as ``visuotactile camera`` does) and brought to the training size with
+  :func:`~perception.geometry.rescale`;
+- :func:`catalogue_capture`: the same for a catalogue instance, a picklable loader for
+  :class:`~tactile.dataset.objects.ObjectSpec`, so a :func:`~tactile.dataset.generate` worker reconstructs it;
+- :func:`training_specs`: the objects of a training store from catalogue pairs: their CAD meshes, their
+  captures, or both (``source``), captures named ``"<class>/<seed>@capture"``.
+
+Units are millimetres; the same object, settings and seed give the same bytes.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from perception.errors import InvalidArgumentError
+from perception.geometry import DEFAULT_SIZE_MM, ObjectModel
+
+#: Where the training objects come from (:func:`training_specs`).
+SOURCES = ("cad", "capture", "both")
+#: Suffix of a capture's object name.
+CAPTURE_SUFFIX = "@capture"
+
+
+@dataclass
+class Capture:
+    """What :func:`virtual_capture` made.
+
+    Attributes:
+        model: the reconstruction centred and scaled to ``size_mm`` (pose-free frame), named and labelled
+            like the object.
+        world: the reconstruction in the world frame at physical size (table top z = 0), mm.
+        truth: the object as placed on the table (world frame), mm; compare ``world`` with it.
+        seconds: capture and reconstruction wall time, s.
+    """
+
+    model: ObjectModel
+    world: ObjectModel
+    truth: ObjectModel
+    seconds: float
+
+
+def _check(views, distance_mm, size_mm) -> None:
+    if isinstance(views, bool) or not isinstance(views, (int, np.integer)) or views < 1:
+        raise InvalidArgumentError(f"virtual capture: views must be a positive integer, got {views!r}")
+    for name, value in (("distance_mm", distance_mm), ("size_mm", size_mm)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not np.isfinite(value) \
+                or value <= 0:
+            raise InvalidArgumentError(f"virtual capture: {name} must be a positive number, got {value!r}")
+
+
+def virtual_capture(
+    model: ObjectModel,
+    *,
+    views: int = 4,
+    distance_mm: float = 500.0,
+    size_mm: float = DEFAULT_SIZE_MM,
+    seed: int = 0,
+    name: str | None = None,
+) -> Capture:
+    """``model`` standing upright on a table, captured by a virtual OAK-D from ``views`` views evenly spaced in
+    azimuth at ``distance_mm`` (35 degrees elevation, stereo noise seeded by ``seed``), reconstructed closed
+    against the table and rescaled to ``size_mm`` (the enclosing-sphere diameter of the pose-free frame).
+
+    Args:
+        model: the object (mm), in the pose it stands on the table in (+z up).
+        views, distance_mm: the orbit of the camera.
+        size_mm: the size the reconstruction is brought to (that of the training objects).
+        seed: seeds the stereo noise and the reconstruction (RANSAC).
+        name: the reconstruction's name (default ``"<model name>@capture"``).
+
+    Raises:
+        InvalidArgumentError: views not a positive integer, or a non-positive distance or size.
+        InvalidMeshError: the frames hold no object that can be reconstructed.
+    """
+    from perception.camera import VirtualOakCamera
+    from perception.geometry import rescale
+    from perception.reconstruct.multiview import reconstruct_frames
+
+    _check(views, distance_mm, size_mm)
+    name = name or f"{model.name}{CAPTURE_SUFFIX}"
+    start = time.perf_counter()
+    camera = VirtualOakCamera(model, seed=int(seed))
+    rec = reconstruct_frames(camera.capture_views(int(views), float(distance_mm)), target=camera.target,
+                             name=name, label=model.label, seed=int(seed))
+    seconds = time.perf_counter() - start
+    scaled = rescale(rec.model, float(size_mm), name=name)
+    return Capture(scaled, rec.model, camera.truth, seconds)
+
+
+def catalogue_capture(
+    class_name: str, seed: int, *, views: int = 4, distance_mm: float = 500.0, size_mm: float = DEFAULT_SIZE_MM
+) -> ObjectModel:
+    """The virtual capture (:func:`virtual_capture`, camera seeded by ``seed``) of catalogue instance
+    ``(class_name, seed)``, at ``size_mm``: a loader for :class:`~tactile.dataset.objects.ObjectSpec`.
+
+    Raises:
+        DatasetError: unknown class or bad seed (from :func:`perception.shapes.make_object`).
+        InvalidArgumentError, InvalidMeshError: as :func:`virtual_capture`.
+    """
+    from perception.shapes import make_object
+
+    _check(views, distance_mm, size_mm)
+    return virtual_capture(make_object(class_name, seed), views=views, distance_mm=distance_mm, size_mm=size_mm,
+                           seed=seed).model
+
+
+def capture_name(name: str) -> str:
+    """The object name of the capture of the object named ``name``."""
+    return f"{name}{CAPTURE_SUFFIX}"
+
+
+def is_capture(name: str) -> bool:
+    """Whether an object name (of a store made by :func:`training_specs`) is a capture's."""
+    return str(name).endswith(CAPTURE_SUFFIX)
+
+
+def training_specs(objects, source: str = "both", *, views: int = 4, distance_mm: float = 500.0,
+                   size_mm: float = DEFAULT_SIZE_MM) -> list:
+    """The :class:`~tactile.dataset.objects.ObjectSpec` of a training store made of catalogue ``objects``
+    ((class, seed) pairs): their CAD meshes (``"cad"``, named ``"class/seed"`` as :func:`generate` names
+    them), their virtual captures (``"capture"``, named ``"class/seed@capture"``, reconstructed in the worker
+    by :func:`catalogue_capture`) or both, CAD first (``"both"``).
+
+    Raises:
+        InvalidArgumentError: unknown ``source``, bad capture settings, or an item that is not a (class, seed) pair.
+        DatasetError: an unknown class or a negative seed.
+    """
+    from tactile.dataset.objects import ObjectSpec, object_specs
+
+    if source not in SOURCES:
+        raise InvalidArgumentError(f"training_specs: unknown source {source!r}; choose one of {', '.join(SOURCES)}")
+    _check(views, distance_mm, size_mm)
+    pairs = list(objects)
+    for item in pairs:
+        if not (isinstance(item, (tuple, list)) and len(item) == 2 and isinstance(item[0], str)
+                and isinstance(item[1], (int, np.integer)) and not isinstance(item[1], bool)):
+            raise InvalidArgumentError(f"training_specs: expected (class, seed) pairs, got {item!r}")
+    cad = object_specs([(c, int(s)) for c, s in pairs])  # checks the classes and seeds
+    if source == "cad":
+        return cad
+    captures = [
+        ObjectSpec(capture_name(spec.name), spec.label,
+                   loader=functools.partial(catalogue_capture, spec.catalogue[0], spec.catalogue[1], views=int(views),
+                                            distance_mm=float(distance_mm), size_mm=float(size_mm)))
+        for spec in cad
+    ]
+    return captures if source == "capture" else cad + captures
+
+
+__all__ = [
+    "CAPTURE_SUFFIX", "SOURCES", "Capture", "capture_name", "catalogue_capture", "is_capture", "training_specs",
+    "virtual_capture",
+]
