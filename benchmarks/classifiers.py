@@ -75,7 +75,7 @@ def _accuracy(classes, proba, batch) -> float:
 def cnn_rows(train, test, cue: str, args) -> list[dict]:
     from fusion.cnn import CNNClassifier
 
-    model = CNNClassifier(cue=cue, epochs=args.epochs, seed=args.seed, threads=args.threads,
+    model = CNNClassifier(cue=cue, epochs=args.epochs, random_state=args.seed, threads=args.threads,
                           progress=not args.json)
     start = time.perf_counter()
     model.fit(train)
@@ -132,7 +132,7 @@ def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | 
         object_ids=np.zeros(n, np.int64), class_names=tuple(f"c{i}" for i in range(8)),
         sensor_spec=FSRSensor().spec(),
     )
-    model = CNNClassifier(epochs=1, val_fraction=0.0, threads=threads, progress=False, seed=seed)
+    model = CNNClassifier(epochs=1, val_fraction=0.0, threads=threads, progress=False, random_state=seed)
     model.fit(batch)
     paper_epoch_s = {k: h["epoch_seconds"] * PAPER_TRAIN / n for k, h in model.history_.items()}
     epochs = {k: (epochs_run or {}).get(k) or 50 for k in paper_epoch_s}

@@ -47,4 +47,4 @@ if model:
     from fusion.decide import fuse_touches
 
     proba = fuse_touches(model.predict_proba(batch), rule="log")
-    print("recognised:", model.classes_[int(proba.argmax())], f"({proba.max():.2f})")
+    print("recognized:", model.classes_[int(proba.argmax())], f"({proba.max():.2f})")

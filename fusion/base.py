@@ -77,6 +77,30 @@ def as_batch(X) -> SequenceBatch:
     return batch
 
 
+#: Parameters renamed since model files were first written: old name -> new name (applied when loading).
+RENAMED_PARAMS = {"seed": "random_state"}
+
+
+def renamed_seed(options: dict, random_state, where: str):
+    """``random_state``, or the value of a ``seed`` keyword in ``options`` (the name before scikit-learn's), with a
+    DeprecationWarning; ``options`` must hold nothing else.
+
+    Raises:
+        TypeError: another unexpected keyword, or both ``seed`` and a non-default ``random_state``.
+    """
+    unknown = sorted(set(options) - {"seed"})
+    if unknown:
+        raise TypeError(f"{where}() got unexpected keyword arguments {unknown}")
+    if "seed" not in options:
+        return random_state
+    import warnings
+
+    warnings.warn(f"{where}: 'seed' is now 'random_state'", DeprecationWarning, stacklevel=3)
+    if random_state not in (0, options["seed"]):
+        raise TypeError(f"{where}() got both seed={options['seed']!r} and random_state={random_state!r}")
+    return options.pop("seed")
+
+
 def _geometry_spec(spec: dict) -> dict:
     return {k: v for k, v in spec.items() if k not in READOUT_SETTINGS}
 
@@ -361,7 +385,9 @@ def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int |
     cls = _model_class(description.get("class"), path)
     classes, spec, probes, grid = _check_header(description, path)
     params = decode(_field(description, "params", dict, path), arrays, str(path))
-    unknown = sorted(set(params) - set(cls._get_param_names()))
+    names = set(cls._get_param_names())
+    params = {RENAMED_PARAMS.get(k, k) if k not in names else k: v for k, v in params.items()}
+    unknown = sorted(set(params) - names)
     if unknown:
         raise ModelFileError(f"{path}: {cls.__name__} has no parameters {unknown[:5]}")
     training = decode(description.get("training"), arrays, str(path))
@@ -403,5 +429,5 @@ def _load_pickle(path: Path) -> TactileClassifier:
     return content["model"]
 
 
-__all__ = ["READOUT_SETTINGS", "TactileClassifier", "as_batch", "class_name", "is_fitted_name", "library_versions",
+__all__ = ["READOUT_SETTINGS", "RENAMED_PARAMS", "TactileClassifier", "as_batch", "class_name", "is_fitted_name", "library_versions",
            "load_model", "set_fitted"]

@@ -8,20 +8,24 @@ from perception.errors import DatasetError
 CLASSIFIERS = ("cnn", "svm", "knn")
 
 
-def make_classifier(name: str, *, cue: str = "invariant", seed: int = 0, progress: bool = False, **options):
-    """A new, unfitted classifier ``name`` with kinesthetic ``cue`` and ``seed``; ``options`` go to its constructor.
+def make_classifier(name: str, *, cue: str = "invariant", random_state: int = 0, progress: bool = False, **options):
+    """A new, unfitted classifier ``name`` with kinesthetic ``cue`` and ``random_state``; ``options`` go to its
+    constructor.
 
     Raises:
         DatasetError: unknown name.
     """
+    from fusion.base import renamed_seed
+
+    random_state = renamed_seed(options, random_state, "make_classifier")
     if name == "cnn":
         from fusion.cnn import CNNClassifier
 
-        return CNNClassifier(cue=cue, seed=seed, progress=progress, **options)
+        return CNNClassifier(cue=cue, random_state=random_state, progress=progress, **options)
     if name in ("svm", "knn"):
         from fusion.conventional import ConventionalClassifier
 
-        return ConventionalClassifier(kind=name, cue=cue, random_state=seed, **options)
+        return ConventionalClassifier(kind=name, cue=cue, random_state=random_state, **options)
     raise DatasetError(f"unknown classifier {name!r}; choose one of {', '.join(CLASSIFIERS)}")
 
 

@@ -47,7 +47,7 @@ from torch import nn
 from torch.nn import functional as F
 from tqdm import tqdm
 
-from fusion.base import TactileClassifier
+from fusion.base import TactileClassifier, renamed_seed
 from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
 from perception.errors import DatasetError
 from tactile.explore import SequenceBatch
@@ -165,7 +165,7 @@ class CNNClassifier(TactileClassifier):
         val_fraction: part of the training data held out for early stopping (0: none, train all epochs): whole
             objects of each class that has several (the epoch is chosen on objects not trained on, inside the
             training data), else sequences.
-        seed: seeds the split, the initial weights, the batch order and the augmentation.
+        random_state: seeds the split, the initial weights, the batch order and the augmentation.
         device: ``"auto"`` (CUDA when present), ``"cpu"`` or ``"cuda"``.
         threads: CPU threads during fit and predict (None: the cores this process may use).
         progress: tqdm bar over the epochs.
@@ -180,16 +180,17 @@ class CNNClassifier(TactileClassifier):
     """
 
     def __init__(self, cue: str = "invariant", epochs: int = 50, batch_size: int = 64, lr: float = 1e-3,
-                 patience: int = 6, val_fraction: float = 0.1, seed: int = 0, device: str = "auto",
+                 patience: int = 6, val_fraction: float = 0.1, random_state: int = 0, device: str = "auto",
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
-                 frame_size: int = 16, augment: bool | str = "both"):
+                 frame_size: int = 16, augment: bool | str = "both", **renamed):
+        random_state = renamed_seed(renamed, random_state, type(self).__name__)
         self.cue = cue
         self.epochs = epochs
         self.batch_size = batch_size
         self.lr = lr
         self.patience = patience
         self.val_fraction = val_fraction
-        self.seed = seed
+        self.random_state = random_state
         self.device = device
         self.threads = threads
         self.progress = progress
@@ -259,9 +260,9 @@ class CNNClassifier(TactileClassifier):
     def _split(self, y: np.ndarray, objects: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Seeded stratified train / validation indices for early stopping. A class with two or more objects
         holds out whole objects (``val_fraction`` of them, at least one, never all), so the epoch is chosen
-        by how well the nets recognise objects they did not train on; a class with one object holds out
+        by how well the nets recognize objects they did not train on; a class with one object holds out
         sequences of it (each class keeps at least one training sequence)."""
-        rng = np.random.default_rng(self.seed)
+        rng = np.random.default_rng(self.random_state)
         train, val = [], []
         objects = np.zeros(len(y), dtype=np.int64) if objects is None else np.asarray(objects)
         if self.val_fraction > 0:
@@ -311,7 +312,7 @@ class CNNClassifier(TactileClassifier):
     def _train_net(self, net: nn.Module, x: torch.Tensor, y: np.ndarray, kind: str,
                    split: tuple[np.ndarray, np.ndarray], device: torch.device) -> dict:
         """Adam with early stopping; ``net`` ends on the CPU holding its best validation weights."""
-        gen = torch.Generator().manual_seed(self.seed + (0 if kind == "cutaneous" else 1))
+        gen = torch.Generator().manual_seed(self.random_state + (0 if kind == "cutaneous" else 1))
         train_idx, val_idx = split
         augment = self._augmented(kind)
         net.to(device)
@@ -385,14 +386,14 @@ class CNNClassifier(TactileClassifier):
         with _torch_settings(self.threads or default_threads(), deterministic=True), torch.random.fork_rng([]):
             if self._uses("cutaneous"):
                 x = self._frames(batch, pooled)
-                torch.manual_seed(self.seed)
+                torch.manual_seed(self.random_state)
                 self.cutaneous_net_ = CutaneousNet(batch.n_probes, tuple(x.shape[-2:]), n_classes)
                 self.history_["cutaneous"] = self._train_net(self.cutaneous_net_, x, y_index, "cutaneous",
                                                              split, device)
                 del x
             del pooled  # the float32 copy of the frames: free it before the next net
             if self._uses("kinesthetic"):
-                torch.manual_seed(self.seed + 1)
+                torch.manual_seed(self.random_state + 1)
                 self.kinesthetic_net_ = KinestheticNet(batch.n_probes, cue_width(self.cue), n_classes)
                 self.history_["kinesthetic"] = self._train_net(self.kinesthetic_net_, self._cues(batch),
                                                                y_index, "kinesthetic", split, device)

@@ -19,17 +19,17 @@ import json
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from fusion.evaluate import PAPER_TABLE1, confusion, markdown_table, plot_confusion
 from fusion.experiments.analysis import score
-from fusion.experiments.data import catalogue_objects, ensure_store
+from fusion.experiments.config import Sizes
+from fusion.experiments.data import catalogue_objects, ensure_store, split_loader
 from fusion.experiments.figures import plot_touches
 from fusion.experiments.models import DISPLAY, MODALITY_DISPLAY, Predictions, digest, train_and_predict
-from fusion.experiments.protocol import STRATEGIES, _loader, touches_rows
+from fusion.experiments.protocol import touches_rows
 from fusion.experiments.report import pct
 from perception.atomic import write_text
 from perception.errors import InvalidArgumentError
@@ -38,26 +38,26 @@ from perception.geometry import ObjectModel
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
-class DemoSizes:
-    """Sizes of the demo's recognition part (defaults fit in about 5 minutes on 2 CPU cores)."""
-
-    objects_per_class: int = 3
-    contours: int = 30
-    epochs: int = 12
-    touches: tuple[int, ...] = (1, 2, 4, 8)
-    classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
-    strategies: tuple[str, ...] = STRATEGIES
-
-    def __post_init__(self) -> None:
-        if self.objects_per_class < 2:
-            raise InvalidArgumentError(
-                f"the demo needs at least 2 objects per class (one is held out as unseen), got {self.objects_per_class}")
-        if self.contours < max(self.touches):
-            raise InvalidArgumentError(f"contours ({self.contours}) must be at least the largest K {max(self.touches)}")
+#: The demo's sizes: reproduce's unseen-objects part at demo scale. The demo reads ``objects_per_class``,
+#: ``unseen_contours`` (contours per object and strategy), ``epochs``, ``touches``, ``unseen_classifiers`` and
+#: ``strategies``.
+DEMO_SIZES = Sizes(unseen_contours=30, epochs=12)
 
 
-DEMO_SIZES = DemoSizes()
+def check_demo_sizes(sizes: Sizes) -> Sizes:
+    """``sizes`` if the demo can run with them.
+
+    Raises:
+        InvalidArgumentError: fewer than 2 objects per class (one is held out as unseen), or fewer contours per
+            object than the largest K.
+    """
+    if sizes.objects_per_class < 2:
+        raise InvalidArgumentError(
+            f"the demo needs at least 2 objects per class (one is held out as unseen), got {sizes.objects_per_class}")
+    if sizes.unseen_contours < max(sizes.touches):
+        raise InvalidArgumentError(
+            f"contours ({sizes.unseen_contours}) must be at least the largest K {max(sizes.touches)}")
+    return sizes
 
 
 def _build_catalogue(seed: int) -> tuple[dict[str, ObjectModel], list[dict]]:
@@ -93,7 +93,7 @@ def format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def run_demo(out: Path, seed: int = 0, *, sizes: DemoSizes = DEMO_SIZES, classifiers: dict | None = None,
+def run_demo(out: Path, seed: int = 0, *, sizes: Sizes = DEMO_SIZES, classifiers: dict | None = None,
              recognition: bool = True, workers: int | None = None, progress: bool = True,
              echo: Callable[[str], None] = print) -> dict:
     """Run the demo, writing figures, ``report.md`` and ``summary.json`` into ``out``; returns the summary.
@@ -121,7 +121,7 @@ def run_demo(out: Path, seed: int = 0, *, sizes: DemoSizes = DEMO_SIZES, classif
     summary.update(touched)
 
     if recognition:
-        result = recognise(out, seed, sizes, classifiers, workers=workers, progress=progress,
+        result = run_recognition(out, seed, sizes, classifiers, workers=workers, progress=progress,
                            classes=list(models), echo=echo)
         summary["figures"] += result.pop("figures")
         summary["recognition"] = result
@@ -134,7 +134,7 @@ def run_demo(out: Path, seed: int = 0, *, sizes: DemoSizes = DEMO_SIZES, classif
 def _touch(model, out: Path, seed: int, echo: Callable[[str], None] = print) -> dict:
     """Saliency on one object, then blind and guided exploration with the FSR array."""
     from perception.saliency import plot_saliency, saliency
-    from tactile import explore_object, make_contour
+    from tactile import make_contour, touch
     from tactile.figures import plot_sequence
 
     result: dict = {"figures": []}
@@ -148,7 +148,7 @@ def _touch(model, out: Path, seed: int, echo: Callable[[str], None] = print) -> 
 
     for strategy in ("blind", "guided"):
         start = time.perf_counter()
-        sequences = explore_object(model, strategy=strategy, n_contours=4, seed=seed, saliency=attention)
+        sequences = touch(model, strategy, 4, seed=seed, saliency=attention)
         seconds = time.perf_counter() - start
         sides = np.concatenate([s.pad_sides_mm for s in sequences])
         echo(f"{strategy:>6}: {len(sequences)} contours x {len(sequences[0].frames)} probes in {seconds:.2f} s, "
@@ -160,22 +160,27 @@ def _touch(model, out: Path, seed: int, echo: Callable[[str], None] = print) -> 
     return result
 
 
-def _default_classifiers(sizes: DemoSizes, seed: int, progress: bool) -> dict:
+def _default_classifiers(sizes: Sizes, seed: int, progress: bool) -> dict:
     from fusion.experiments.models import default_classifiers
 
     every = default_classifiers(seed, sizes.epochs, progress=progress)
-    return {name: every[name] for name in sizes.classifiers}
+    return {name: every[name] for name in sizes.unseen_classifiers}
 
 
-def recognise(out: Path, seed: int, sizes: DemoSizes, classifiers: dict | None, *, classes,
+def run_recognition(out: Path, seed: int, sizes: Sizes, classifiers: dict | None, *, classes,
               workers: int | None = None, progress: bool = True, echo: Callable[[str], None] = print) -> dict:
-    """The recognition part: data, training, tests by sequence and on unseen instances, K touches, figures."""
+    """The recognition part: data, training, tests by sequence and on unseen instances, K touches, figures.
+
+    Raises:
+        InvalidArgumentError: sizes the demo cannot run with (:func:`check_demo_sizes`).
+    """
+    check_demo_sizes(sizes)
     classifiers = classifiers or _default_classifiers(sizes, seed, progress)
     start = time.perf_counter()
     objects = catalogue_objects(classes, sizes.objects_per_class, first_seed=seed)
-    echo(f"\nRecognition: {len(objects)} objects ({sizes.objects_per_class} per class), {sizes.contours} contours "
+    echo(f"\nRecognition: {len(objects)} objects ({sizes.objects_per_class} per class), {sizes.unseen_contours} contours "
           "per object and strategy")
-    ds, record = ensure_store(objects, out / "stores", strategies=sizes.strategies, contours=sizes.contours,
+    ds, record = ensure_store(objects, out / "stores", strategies=sizes.strategies, contours=sizes.unseen_contours,
                       seed=seed, workers=workers, progress=progress)
     data_seconds = time.perf_counter() - start
     preds: dict[str, dict[str, dict[str, Predictions]]] = {"sequence": {}, "unseen": {}}
@@ -183,8 +188,8 @@ def recognise(out: Path, seed: int, sizes: DemoSizes, classifiers: dict | None, 
         index = ds.indices(strategy)
         seen, unseen = ds.split_by_object(1 / sizes.objects_per_class, seed=seed, index=index)
         train, test = ds.split_by_sequence(0.2, seed=seed, index=seen)
-        batch = _loader(ds, train, test)
-        unseen_batch = _loader(ds, train, unseen)
+        batch = split_loader(ds, train, test)
+        unseen_batch = split_loader(ds, train, unseen)
         folder = out / "models" if strategy == "guided" else out / "models" / strategy
         train_record = {"part": "demo", "store": digest(record), "strategy": strategy, "train": digest(train)}
         for name, factory in classifiers.items():
@@ -211,7 +216,10 @@ def recognise(out: Path, seed: int, sizes: DemoSizes, classifiers: dict | None, 
     echo(f"\nUnseen instances, K = {k_best} touches per decision (sum of log probabilities):")
     for r in k_rows:
         echo(f"  {r['classifier']:<16} {r['strategy']:<7} {pct(r['accuracy'])}")
-    return {"sizes": {**asdict(sizes), "classes": list(classes)}, "objects": [f"{c}/{s}" for c, s in objects],
+    demo_sizes = {"objects_per_class": sizes.objects_per_class, "contours": sizes.unseen_contours,
+                  "epochs": sizes.epochs, "touches": list(sizes.touches),
+                  "classifiers": list(sizes.unseen_classifiers), "strategies": list(sizes.strategies)}
+    return {"sizes": {**demo_sizes, "classes": list(classes)}, "objects": [f"{c}/{s}" for c, s in objects],
             "table": table, "touches": touches, "figures": figures, "data_seconds": round(data_seconds, 1),
             "seconds": round(time.perf_counter() - start, 1),
             "models": sorted(str(p.relative_to(out)) for p in (out / "models").rglob("*.vtm"))}
@@ -260,4 +268,4 @@ def _report(summary: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["DEMO_SIZES", "DemoSizes", "format_table", "recognise", "run_demo"]
+__all__ = ["DEMO_SIZES", "check_demo_sizes", "format_table", "run_demo", "run_recognition"]

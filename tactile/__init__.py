@@ -4,8 +4,9 @@ from tactile.contours import Contour, Plane, make_contour, plane_through, sectio
 from tactile.dataset import TactileDataset, generate, open_dataset
 from tactile.dead_taxels import find_dead_taxels, repair_dead_taxels
 from tactile.explore import SequenceBatch, TactileSequence, explore
-from tactile.sampling import explore_object, sample_planes
+from tactile.sampling import sample_planes
 from tactile.sensor import FSRSensor
+from tactile.touching import Toucher, TouchTiming, explore_object, touch
 
 __all__ = [
     "Contour",
@@ -14,6 +15,8 @@ __all__ = [
     "SequenceBatch",
     "TactileDataset",
     "TactileSequence",
+    "TouchTiming",
+    "Toucher",
     "explore",
     "explore_object",
     "find_dead_taxels",
@@ -24,4 +27,5 @@ __all__ = [
     "repair_dead_taxels",
     "sample_planes",
     "section",
+    "touch",
 ]

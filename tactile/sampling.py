@@ -11,28 +11,24 @@ Every contour plane passes through the object centre and two points (normal (p1 
 
 Interest points come from ``Saliency.interest_points(INTEREST_POOL)``. Draws whose points are near-collinear
 with the centre (:func:`tactile.contours.plane_through` refuses them) are re-drawn up to ``MAX_DRAWS`` times.
+Touching along the planes drawn here is :mod:`tactile.touching`.
 """
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
-from tqdm import tqdm
 
 from perception import saliency as attention
 from perception.errors import ContourError, SaliencyError
 from perception.geometry import ObjectModel
 from perception.validate import check_count, check_seed
-from tactile.contours import Contour, Plane, make_contour, plane_through
-from tactile.explore import TactileSequence, explore
-from tactile.sensor import FSRSensor
-
-log = logging.getLogger(__name__)
+from tactile.contours import Plane, plane_through
 
 #: Strategy -> the saliency method whose interest points it draws from (None: random vertices).
 STRATEGIES: dict[str, str | None] = {"blind": None, "guided": "multiview", "mesh": "mesh", "iss": "iss",
                                      "pcl_harris": "pcl_harris", "pcl_iss": "pcl_iss"}
+#: The two strategies the paper compares (and every experiment part but attention).
+PAPER_STRATEGIES = ("guided", "blind")
 #: Number of interest points the guided strategies draw pairs from.
 INTEREST_POOL = 10
 #: Draws per plane (near-collinear pairs) or per contour (planes that miss) before giving up.
@@ -41,12 +37,12 @@ MAX_DRAWS = 100
 FLAT_TOLERANCE = 1e-9
 
 
-def _check_strategy(strategy: str) -> None:
+def check_strategy(strategy: str) -> None:
     if strategy not in STRATEGIES:
         raise ContourError(f"unknown sampling strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
 
 
-def _check_not_flat(model: ObjectModel) -> None:
+def check_not_flat(model: ObjectModel) -> None:
     """Refuse an object whose vertices all lie in one plane (a flat plate): every plane through its centre
     and two of its points is the plate's own plane, which holds the surface instead of cutting it."""
     centred = model.vertices - model.center
@@ -60,7 +56,7 @@ def _check_not_flat(model: ObjectModel) -> None:
         )
 
 
-def _candidates(model: ObjectModel, strategy: str, sal: attention.Saliency | None) -> np.ndarray:
+def candidates(model: ObjectModel, strategy: str, sal: attention.Saliency | None) -> np.ndarray:
     """The points pairs are drawn from: all vertices (blind) or the interest points of the strategy's method."""
     method = STRATEGIES[strategy]
     if method is None:
@@ -75,7 +71,7 @@ def _candidates(model: ObjectModel, strategy: str, sal: attention.Saliency | Non
     return sal.interest_points(min(INTEREST_POOL, model.n_vertices))
 
 
-def _draw_plane(model: ObjectModel, points: np.ndarray, rng: np.random.Generator) -> Plane:
+def draw_plane(model: ObjectModel, points: np.ndarray, rng: np.random.Generator) -> Plane:
     for _ in range(MAX_DRAWS):
         i, j = rng.choice(len(points), size=2, replace=False)
         try:
@@ -105,79 +101,24 @@ def sample_planes(
             Generator, or only near-collinear draws.
         SaliencyError: ``saliency`` is of another method or object.
     """
-    _check_strategy(strategy)
+    check_strategy(strategy)
     n = check_count(n, "n", model.name, ContourError)
     seed = check_seed(seed, model.name, ContourError)
     if len(model.vertices) < 2:
         raise ContourError(f"{model.name}: need at least two vertices to draw planes")
     rng = np.random.default_rng(seed)
-    points = _candidates(model, strategy, saliency)
-    return [_draw_plane(model, points, rng) for _ in range(n)]
+    points = candidates(model, strategy, saliency)
+    return [draw_plane(model, points, rng) for _ in range(n)]
 
 
-def draw_contour(
-    model: ObjectModel, points: np.ndarray, rng: np.random.Generator, probes: int = 25, cache: dict | None = None
-) -> Contour:
-    """One contour through ``model.center`` and two of ``points`` drawn with ``rng``; planes that miss the
-    object (or cut a zero-length contour) are re-drawn, up to ``MAX_DRAWS`` times.
+def __getattr__(name: str):
+    # ``explore_object`` moved to :mod:`tactile.touching` (the one touching road); scripts still import it here.
+    if name == "explore_object":
+        from tactile.touching import explore_object
 
-    ``cache`` (a dict kept by the caller for one model and ``probes``) maps planes already cut to their
-    contour or failure: guided strategies draw from 10 interest points, so a few hundred draws repeat the
-    same 90 ordered pairs, and a repeated plane is cut once. The draws from ``rng`` are the same either way.
-
-    Raises:
-        ContourError: ``MAX_DRAWS`` planes in a row missed the object.
-    """
-    for _ in range(MAX_DRAWS):
-        plane = _draw_plane(model, points, rng)
-        key = (plane.point.tobytes(), plane.normal.tobytes())
-        found = cache.get(key) if cache is not None else None
-        if found is None:
-            try:
-                found = make_contour(model, plane, probes)
-            except ContourError as exc:
-                found = exc
-            if cache is not None:
-                cache[key] = found
-        if isinstance(found, Contour):
-            return found
-        log.debug("%s: re-drawing a plane (%s)", model.name, found)
-    raise ContourError(f"{model.name}: {MAX_DRAWS} planes in a row missed the object")
+        return explore_object
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def explore_object(
-    model: ObjectModel,
-    strategy: str = "guided",
-    n_contours: int = 10,
-    sensor: FSRSensor | None = None,
-    probes: int = 25,
-    seed: int | np.random.Generator | None = 0,
-    saliency: attention.Saliency | None = None,
-    *,
-    progress: bool = False,
-) -> list[TactileSequence]:
-    """Explore ``model`` along ``n_contours`` contours chosen by ``strategy``: one tactile sequence each.
-
-    Planes that miss the object (or cut a zero-length contour) are re-drawn, up to ``MAX_DRAWS`` per
-    contour. Each sequence records the strategy and its own sensor-noise seed, drawn from ``seed`` after
-    its plane; same seed -> same sequences.
-
-    Raises:
-        ContourError: unknown strategy, n_contours not an integer >= 1, probes not an integer >= 2, a seed
-            that is not a non-negative integer or Generator, a flat object, or no usable plane after
-            ``MAX_DRAWS`` draws.
-        SaliencyError: ``saliency`` is of another method or object.
-    """
-    _check_strategy(strategy)
-    n_contours = check_count(n_contours, "n_contours", model.name, ContourError)
-    probes = check_count(probes, "probes", model.name, ContourError, minimum=2)
-    seed = check_seed(seed, model.name, ContourError)
-    _check_not_flat(model)
-    rng = np.random.default_rng(seed)
-    points = _candidates(model, strategy, saliency)
-    sequences, cache = [], {}
-    for _ in tqdm(range(n_contours), desc=f"explore {model.name}", disable=not progress):
-        contour = draw_contour(model, points, rng, probes, cache)
-        contour_seed = int(rng.integers(2**31 - 1))
-        sequences.append(explore(model, contour, sensor, seed=contour_seed, strategy=strategy))
-    return sequences
+__all__ = ["FLAT_TOLERANCE", "INTEREST_POOL", "MAX_DRAWS", "PAPER_STRATEGIES", "STRATEGIES", "candidates", "check_not_flat",
+           "check_strategy", "draw_plane", "sample_planes"]

@@ -126,7 +126,7 @@ def models():
 
     out = []
     for version in (0, 1):
-        model = make_classifier("knn", seed=0)
+        model = make_classifier("knn", random_state=0)
         model.fit(circle_batch([10, 11, 20, 21, 30 + version, 31], labels=[0, 0, 1, 1, 2, 2], seed=version))
         out.append(model)
     return out

@@ -61,7 +61,7 @@ def classifiers():
             sequences += explore_object(make_object(name, 10 * c + seed), "blind", 4, sensor=SENSOR, seed=seed)
     batch = SequenceBatch.from_sequences(sequences, TRAIN_CLASSES, sensor_spec=SENSOR.spec())
     knn = ConventionalClassifier(kind="knn", n_neighbors=3, som_iterations=200, n_select=20).fit(batch)
-    cnn = CNNClassifier(epochs=1, batch_size=8, progress=False, threads=1, seed=0).fit(batch)
+    cnn = CNNClassifier(epochs=1, batch_size=8, progress=False, threads=1, random_state=0).fit(batch)
     return knn, cnn
 
 

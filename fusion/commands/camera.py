@@ -1,4 +1,4 @@
-"""``visuotactile camera``: recognise an object from an RGB-D capture (virtual OAK, live OAK or a recording).
+"""``visuotactile camera``: recognize an object from an RGB-D capture (virtual OAK, live OAK or a recording).
 
 capture -> table removed, object segmented, views fused -> surface (Poisson), closed where no camera saw it
 (the bottom on the table) from the carved space -> scaled like the training objects (150 mm diagonal) ->
@@ -152,7 +152,7 @@ def _figure(frames, rec, model, contours, path: Path) -> Path:
     return save_figure(fig, path, dpi=110)
 
 
-def recognise(
+def recognize_capture(
     source: str,
     *,
     views: int = 4,
@@ -182,8 +182,8 @@ def recognise(
     from perception.reconstruct.tabletop import describe_objects
     from tactile.contours import make_contour
     from tactile.explore import SequenceBatch
-    from tactile.sampling import explore_object
     from tactile.sensor import FSRSensor
+    from tactile.touching import touch
     virtual = truth is not None
     start = time.perf_counter()
     if target_pixel is None and target is None:
@@ -232,7 +232,7 @@ def recognise(
     # Touch the object at the size the classifiers were trained at (catalogue and loaders: 150 mm, pose-free).
     obj = rescale(rec.model, DEFAULT_SIZE_MM)
     start = time.perf_counter()
-    sequences = explore_object(obj, strategy=strategy, n_contours=contours, sensor=sensor, probes=probes, seed=seed)
+    sequences = touch(obj, strategy, contours, sensor, probes, seed)
     timings["touch_s"] = time.perf_counter() - start
     class_names = [str(c) for c in clf.classes_] if clf is not None else None
     spec = (sensor if sensor is not None else FSRSensor()).spec()
@@ -269,7 +269,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.commands import print_json
 
     pixel = parse_pixel(args.target) if args.target is not None else None
-    summary = recognise(
+    summary = recognize_capture(
         args.source, views=args.views, distance_mm=args.distance, model_path=args.model, contours=args.contours,
         strategy=args.strategy, seed=args.seed, out=args.out, target_pixel=pixel, trust_pickle=args.trust_pickle,
     )
@@ -297,7 +297,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
         print("no --model given: recognition skipped (train one with `visuotactile train`)")
     else:
         pred = summary["prediction"]
-        print(f"recognised: {pred['class']}")
+        print(f"recognized: {pred['class']}")
         for name, p in pred["probabilities"].items():
             print(f"  {name:12s} {p:.3f}")
     if "figure" in summary:
@@ -307,7 +307,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
 def register(sub) -> None:
     camera = sub.add_parser(
-        "camera", help="recognise an object from an RGB-D capture (virtual OAK, live OAK, or a recording folder)"
+        "camera", help="recognize an object from an RGB-D capture (virtual OAK, live OAK, or a recording folder)"
     )
     camera.add_argument(
         "--source", required=True,

@@ -10,12 +10,12 @@ from pathlib import Path
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.commands import print_json
-    from fusion.demo import DEMO_SIZES, run_demo
+    from fusion.demo import DEMO_SIZES, check_demo_sizes, run_demo
 
-    changes = {k: v for k, v in (("objects_per_class", args.objects_per_class), ("contours", args.contours),
+    changes = {k: v for k, v in (("objects_per_class", args.objects_per_class), ("unseen_contours", args.contours),
                                  ("epochs", args.epochs)) if v is not None}
     echo = (lambda line: print(line, file=sys.stderr)) if args.json else print
-    summary = run_demo(Path(args.out), seed=args.seed, sizes=replace(DEMO_SIZES, **changes),
+    summary = run_demo(Path(args.out), seed=args.seed, sizes=check_demo_sizes(replace(DEMO_SIZES, **changes)),
                        recognition=not args.no_recognition, progress=not args.no_progress, echo=echo)
     if args.json:
         print_json(summary)
@@ -23,7 +23,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
 
 def register(sub) -> None:
-    demo = sub.add_parser("demo", help="recognise built-in objects by touch, end to end (report, figures, models)")
+    demo = sub.add_parser("demo", help="recognize built-in objects by touch, end to end (report, figures, models)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     demo.add_argument("--seed", type=int, default=0, help="seed of objects, data, splits and models (default 0)")
     demo.add_argument("--objects-per-class", type=int, help="built-in instances per class (default 3)")

@@ -7,8 +7,6 @@ import sys
 from pathlib import Path
 
 DEFAULT_MODEL = "out/demo/models/cnn.vtm"
-#: tactile.sampling.STRATEGIES, spelled out so that the command line starts without importing Open3D.
-STRATEGIES = ("blind", "guided", "mesh", "iss", "pcl_harris", "pcl_iss")
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
@@ -17,6 +15,9 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.experiments.recognize import plot_recognition, recognize
     from perception.errors import DatasetError
     from perception.geometry import load_object
+    from tactile.sampling import check_strategy
+
+    check_strategy(args.strategy)  # before the model and mesh load
 
     model_path = Path(args.model)
     if not model_path.is_file():
@@ -45,7 +46,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
 
 def register(sub) -> None:
-    parser = sub.add_parser("recognize", help="recognise a mesh file by touch (class, probabilities, contours)",
+    parser = sub.add_parser("recognize", help="recognize a mesh file by touch (class, probabilities, contours)",
                             description="Touch a mesh (OFF, OBJ, PLY, STL) along K contours with the model's "
                                         "sensor and fuse the K decisions (sum of log probabilities).")
     parser.add_argument("mesh", help="the mesh file")
@@ -54,9 +55,10 @@ def register(sub) -> None:
     parser.add_argument("--trust-pickle", action="store_true",
                         help="also load an old pickled model (runs code from the file: only for files you made)")
     parser.add_argument("--touches", "-k", type=int, default=4, help="contours per decision K (default 4)")
-    parser.add_argument("--strategy", choices=STRATEGIES, default="guided",
-                        help="where to touch: blind, guided (multiview saliency), mesh, iss, pcl_harris, pcl_iss "
-                             "(PCL keypoints: `make peers` first) (default: guided)")
+    parser.add_argument("--strategy", default="guided",
+                        help="where to touch: a key of tactile.sampling.STRATEGIES, e.g. blind, guided (multiview "
+                             "saliency), mesh, iss, pcl_harris, pcl_iss (PCL keypoints: `make peers` first) "
+                             "(default: guided)")
     parser.add_argument("--rule", choices=("log", "sum"), default="log",
                         help="fusion of the K touches (default log: sum of log probabilities)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the contour choice (default 0)")

@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, replace
 
 from perception.errors import InvalidArgumentError
+from tactile.sampling import PAPER_STRATEGIES
+from tactile.touching import TILT_DEG_PER_MM
 
 #: Noise kinds of the robustness part and what their level means.
 NOISE_KINDS = {
@@ -17,10 +19,8 @@ NOISE_KINDS = {
     "dead_taxels": "fraction of dead taxels (read the sensing range)",
     "dead_taxels_repaired": "the same dead taxels, found in each sequence and filled in from their live "
                             "neighbours before classifying (tactile.dead_taxels)",
-    "pose_jitter": "probe position jitter std in mm (tilt std: 2.5 degrees per mm)",
+    "pose_jitter": f"probe position jitter std in mm (tilt std: {TILT_DEG_PER_MM} degrees per mm)",
 }
-#: Pose jitter: normal tilt std (degrees) per mm of position jitter std.
-TILT_DEG_PER_MM = 2.5
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,7 @@ class Sizes:
             part trains; the noise, K and run-time parts reuse the paper ones, attention the first of them.
     """
 
-    strategies: tuple[str, ...] = ("guided", "blind")
+    strategies: tuple[str, ...] = PAPER_STRATEGIES
     paper_classes: int = 8
     objects_per_class: int = 3
     paper_contours: int = 950

@@ -130,5 +130,18 @@ def load_models(objects) -> list:
     return [spec.load() for spec in object_specs(objects)]
 
 
-__all__ = ["any_pose", "catalogue_objects", "ensure_store", "folder_objects", "load_models", "store_record",
+def split_loader(ds, train, test, test_ds=None):
+    """``load("train" | "test")``: the split's batch, read from the store once and only when asked for (the
+    test indices from ``test_ds`` when given)."""
+    cache: dict = {}
+
+    def load(which: str):
+        if which not in cache:
+            cache[which] = ds.load(train) if which == "train" else (test_ds or ds).load(test)
+        return cache[which]
+
+    return load
+
+
+__all__ = ["any_pose", "catalogue_objects", "ensure_store", "folder_objects", "load_models", "split_loader", "store_record",
            "unique_meshes"]

@@ -46,10 +46,10 @@ def default_classifiers(seed: int = 0, epochs: int | None = None, progress: bool
     cnn = {"epochs": epochs} if epochs else {}
     factories = {}
     for cue, suffix in (("invariant", ""), ("normals", "-normals")):
-        factories[f"cnn{suffix}"] = functools.partial(make_classifier, "cnn", cue=cue, seed=seed, progress=progress,
+        factories[f"cnn{suffix}"] = functools.partial(make_classifier, "cnn", cue=cue, random_state=seed, progress=progress,
                                                       **cnn)
         for kind in ("svm", "knn"):
-            factories[f"{kind}{suffix}"] = functools.partial(make_classifier, kind, cue=cue, seed=seed)
+            factories[f"{kind}{suffix}"] = functools.partial(make_classifier, kind, cue=cue, random_state=seed)
     return factories
 
 

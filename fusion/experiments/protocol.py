@@ -13,13 +13,11 @@ import numpy as np
 from fusion.evaluate import confusion, plot_confusion
 from fusion.experiments.analysis import paired_difference, score, touch_curve
 from fusion.experiments.context import Context
-from fusion.experiments.data import any_pose, ensure_store, store_record
+from fusion.experiments.data import any_pose, ensure_store, split_loader, store_record
 from fusion.experiments.models import DISPLAY, MODALITY_DISPLAY, Predictions, digest, pick, train_and_predict
 from perception.errors import DatasetError, InvalidArgumentError
 
 log = logging.getLogger(__name__)
-
-STRATEGIES = ("guided", "blind")
 
 
 def accuracy_rows(preds: dict[str, dict[str, Predictions]], by: str, seed: int) -> list[dict]:
@@ -50,19 +48,6 @@ def confusion_figures(ctx: Context, preds: dict[str, dict[str, Predictions]], se
     return names
 
 
-def _loader(ds, train, test, test_ds=None):
-    """``load("train" | "test")``: the split's batch, read from the store once and only when asked for (the
-    test indices from ``test_ds`` when given)."""
-    cache: dict = {}
-
-    def load(which: str):
-        if which not in cache:
-            cache[which] = ds.load(train) if which == "train" else (test_ds or ds).load(test)
-        return cache[which]
-
-    return load
-
-
 def paper_dataset(ctx: Context, objects):
     """The paper protocol's dataset (generated, resumed or reused) and its store record."""
     sizes = ctx.sizes
@@ -80,7 +65,7 @@ def paper_protocol(ctx: Context, objects) -> dict[str, dict[str, Predictions]]:
     preds: dict[str, dict[str, Predictions]] = {}
     for strategy in sizes.strategies:
         train, test = ds.split_by_sequence(sizes.test_fraction, seed=ctx.seed, index=ds.indices(strategy))
-        batch = _loader(ds, train, test)
+        batch = split_loader(ds, train, test)
 
         train_record = {"part": "paper", "store": digest(record), "strategy": strategy, "train": digest(train)}
         test_record = {"tag": "test", "test": digest(test)}
@@ -144,7 +129,7 @@ def grouped_kfold(ctx: Context, part: str, stores: tuple, strategy: str, classif
     parts: dict[str, list[Predictions]] = {}
     for i, (train, test) in enumerate(folds):
         test = test if test_ds is ds else same_objects(ds, test, test_ds, strategy)
-        batch = _loader(ds, train, test, test_ds)
+        batch = split_loader(ds, train, test, test_ds)
         train_record = {"part": part, "store": digest(record), "strategy": strategy, "train": digest(train)}
         test_record = {"tag": "test"} if test_ds is ds else {"tag": "anypose", "store": digest(test_store)}
         for name, factory in classifiers.items():
@@ -224,7 +209,6 @@ def _min_per_object(pred: Predictions) -> int:
 
 __all__ = [
     "POSES",
-    "STRATEGIES",
     "accuracy_rows",
     "confusion_figures",
     "grouped_kfold",

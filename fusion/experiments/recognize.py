@@ -1,4 +1,4 @@
-"""Recognising one object: touch a mesh along K contours, classify each sequence, fuse the K decisions.
+"""Recognizing one object: touch a mesh along K contours, classify each sequence, fuse the K decisions.
 
 What ``visuotactile recognize`` runs: the model's own sensor and probe count are used, contours are chosen by
 a sampling strategy (guided: the multiview saliency's interest points), and the per-touch probabilities are
@@ -16,12 +16,12 @@ import numpy as np
 
 from fusion.base import TactileClassifier
 from fusion.decide import fuse_touches
-from fusion.experiments.touch import TouchTiming, touch_object
 from perception.atomic import save_figure
 from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
 from tactile.contours import Contour
 from tactile.explore import SequenceBatch
+from tactile.touching import TouchTiming, touch
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +31,7 @@ class Recognition:
     """The outcome of :func:`recognize`.
 
     Attributes:
-        label: the recognised class.
+        label: the recognized class.
         probabilities: class -> fused probability (sums to 1).
         per_touch: (K, C) probabilities of each touch, columns in ``classes`` order.
         classes: the model's classes.
@@ -72,8 +72,9 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
     if isinstance(touches, bool) or int(touches) != touches or touches < 1:
         raise InvalidArgumentError(f"touches must be a positive integer, got {touches!r}")
     timing = TouchTiming()
-    sequences, contours = touch_object(obj, strategy, int(touches), sensor=model.sensor(), probes=model.probes,
-                                       seed=seed, timing=timing)
+    contours: list[Contour] = []
+    sequences = touch(obj, strategy, int(touches), model.sensor(), model.probes, seed, seeding="object",
+                      timing=timing, contours=contours)
     batch = SequenceBatch.from_sequences(sequences, class_names=[str(c) for c in model.classes_],
                                          sensor_spec=model.sensor().spec())
     start = time.perf_counter()
@@ -120,7 +121,7 @@ def plot_recognition(obj: ObjectModel, result: Recognition, path: str | Path, to
     bars.set_xlim(0, 100)
     bars.set_xlabel(f"probability % (K = {len(result.contours)} touches, rule: "
                     f"{'sum of log' if result.rule == 'log' else 'sum'})")
-    bars.set_title(f"recognised: {result.label}", fontsize=10)
+    bars.set_title(f"recognized: {result.label}", fontsize=10)
     return save_figure(fig, path, dpi=120)
 
 

@@ -20,13 +20,14 @@ import numpy as np
 
 from fusion.experiments.analysis import name_operating_points, pareto_front, touches_score
 from fusion.experiments.context import Context
-from fusion.experiments.data import ensure_store, load_models
+from fusion.experiments.data import ensure_store, load_models, split_loader
 from fusion.experiments.models import DISPLAY, digest, pick, train_and_predict
-from fusion.experiments.protocol import STRATEGIES, _loader
-from fusion.experiments.touch import TouchTiming, touch_object
+from fusion.experiments.touch import touch_object
 from perception.errors import VisuotactileError
+from tactile.sampling import PAPER_STRATEGIES
 from tactile.sampling import STRATEGIES as METHODS
 from tactile.sensor import FSRSensor
+from tactile.touching import TouchTiming
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +52,7 @@ def saliency_for(models: list, strategies, seed: int) -> tuple[dict, dict]:
 
 
 def touch_seconds(models: list, probes: int, grid: int, seed: int, attention: dict,
-                  strategies=STRATEGIES) -> dict[str, float]:
+                  strategies=PAPER_STRATEGIES) -> dict[str, float]:
     """Median seconds per contour (cut + press) of each strategy with a P-probe, G x G sensor."""
     sensor = FSRSensor(rows=grid, cols=grid)
     out = {}
@@ -83,7 +84,7 @@ def runtime_rows(ctx: Context, objects) -> dict:
                 index = ds.indices(strategy)
                 split = ds.split_by_object if by_object else ds.split_by_sequence
                 train, test = split(1 / 3 if by_object else 0.2, seed=ctx.seed, index=index)
-                batch = _loader(ds, train, test)
+                batch = split_loader(ds, train, test)
                 for name, factory in pick(ctx.classifiers, sizes.paper_classifiers).items():
                     try:
                         pred = train_and_predict(

@@ -1,8 +1,8 @@
 """Exploring one object into its rows of a store: what every worker (local process or Ray task) runs.
 
 Sequence k of strategy s of an object is, by construction, what
-``explore_object(model, s, 1, sensor, probes, seed=contour_seed(seed, name, s, k), saliency=...)`` returns:
-the plane-drawing loop of :func:`tactile.sampling.explore_object` runs with that contour's own generator.
+``touch(model, s, 1, sensor, probes, seed=contour_seed(seed, name, s, k), saliency=...)`` returns: the
+"stream" seed scheme of :mod:`tactile.touching`, run by one :class:`~tactile.touching.Toucher` per strategy.
 All contours of one strategy are drawn first (a plane drawn again is cut once: guided strategies draw pairs
 of 10 interest points, so 950 draws hold at most 90 distinct planes), then pressed in large batches (one
 ray-casting call per ~1,000 probes). When the sensor has no noise and no dead taxels its read-out does not
@@ -36,25 +36,12 @@ from tactile.dataset.store import (
     write_record,
 )
 from tactile.sensor import FSRSensor
+from tactile.touching import Toucher
 
 log = logging.getLogger(__name__)
 
 #: Contours pressed per batch (25 probes each: ~6,000 probes, ~25 MB of float32 frames).
 PRESS_BATCH = 256
-
-
-def draw_contour(
-    model: ObjectModel, points: np.ndarray, probes: int, seed: int, cache: dict | None = None
-) -> tuple[Contour, int]:
-    """The contour and sensor-noise seed that ``explore_object`` draws for one contour from ``seed``
-    (``cache``: see :func:`tactile.sampling.draw_contour`).
-
-    Raises:
-        ContourError: MAX_DRAWS planes in a row missed the object.
-    """
-    rng = np.random.default_rng(seed)
-    contour = sampling.draw_contour(model, points, rng, probes, cache)
-    return contour, int(rng.integers(2**31 - 1))
 
 
 def _seed_free(sensor: FSRSensor) -> bool:
@@ -107,9 +94,7 @@ def explore_into_store(
     probes, seed = int(settings["probes"]), int(settings["seed"])
     label = settings["class_names"].index(spec.label)
     model = spec.load()
-    check_not_flat = getattr(sampling, "_check_not_flat", None)
-    if check_not_flat is not None:  # as explore_object: a flat plate fails at once, not after MAX_DRAWS
-        check_not_flat(model)
+    sampling.check_not_flat(model)  # as touch: a flat plate fails at once, not after MAX_DRAWS
     import zarr
 
     # Named, not listed: listing the group would trip over the records folder (not a zarr node).
@@ -119,14 +104,12 @@ def explore_into_store(
     interest: dict[str, list] = {}
     for s, strategy in enumerate(layout.strategies):
         method = sampling.STRATEGIES[strategy]
-        if method is not None and method not in saliencies:
-            saliencies[method] = attention.saliency(model, method)
-        points = sampling._candidates(model, strategy, saliencies.get(method))
+        toucher = Toucher(model, strategy, probes=probes, saliency=saliencies.get(method))
         if method is not None:
-            interest[strategy] = points.tolist()
+            saliencies[method] = toucher.saliency
+            interest[strategy] = toucher.points.tolist()
         rows = layout.rows(index, s)
         n = layout.contours
-        cuts: dict = {}  # plane -> contour, for this object and strategy
         out = {
             "frames": np.empty((n, probes, sensor.rows, sensor.cols), np.uint16),
             "pad_sides_mm": np.empty((n, probes), np.float32),
@@ -137,7 +120,8 @@ def explore_into_store(
         contours = []
         for k in range(n):
             cseed = contour_seed(seed, spec.name, strategy, k)
-            contour, nseed = draw_contour(model, points, probes, cseed, cuts)
+            (planned,) = toucher.stream(1, cseed)
+            contour, nseed = planned.contour, planned.noise_seed
             contours.append(contour)
             out["contour_seeds"][k], out["noise_seeds"][k] = cseed, nseed
             out["plane_points"][k], out["plane_normals"][k] = contour.plane.point, contour.plane.normal
@@ -182,4 +166,4 @@ def explore_into_store(
     return record
 
 
-__all__ = ["PRESS_BATCH", "draw_contour", "explore_into_store"]
+__all__ = ["PRESS_BATCH", "explore_into_store"]

@@ -25,7 +25,7 @@ def test_oak_without_a_device_exits_non_zero_within_5_s_and_says_what_to_do(no_o
     assert len(lines) == 1  # one line (+ depthai's own USB warning)
 
 
-def test_reconstructed_object_is_recognised_by_a_model_trained_on_cad_meshes(tmp_path, capsys):
+def test_reconstructed_object_is_recognized_by_a_model_trained_on_cad_meshes(tmp_path, capsys):
     from fusion.conventional import ConventionalClassifier
     from tactile.dataset import generate, open_dataset
     from tactile.sensor import FSRSensor

@@ -167,7 +167,7 @@ def test_early_stopping_holds_out_whole_objects():
     class with one object gives sequences of it, and keeps some for training."""
     y = np.repeat([0, 1, 2], 12)
     objects = np.concatenate([np.repeat([0, 1, 2, 3], 3), np.repeat([4, 5, 6, 7], 3), np.full(12, 8)])
-    train, val = CNNClassifier(val_fraction=0.25, seed=3)._split(y, objects)
+    train, val = CNNClassifier(val_fraction=0.25, random_state=3)._split(y, objects)
     assert sorted(np.concatenate([train, val]).tolist()) == list(range(36))
     for c, first in ((0, 0), (1, 4)):
         held = set(objects[val][y[val] == c])
@@ -180,9 +180,9 @@ def test_seeded_fits_give_identical_predictions_and_leave_torch_settings_alone()
     threads, deterministic = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
     rng_state = torch.random.get_rng_state()
     kw = {**FAST, "epochs": 3, "augment": True}
-    a = CNNClassifier(seed=5, **kw).fit(train).predict_proba_modalities(test)
-    b = CNNClassifier(seed=5, **kw).fit(train).predict_proba_modalities(test)
-    c = CNNClassifier(seed=6, **kw).fit(train).predict_proba_modalities(test)
+    a = CNNClassifier(random_state=5, **kw).fit(train).predict_proba_modalities(test)
+    b = CNNClassifier(random_state=5, **kw).fit(train).predict_proba_modalities(test)
+    c = CNNClassifier(random_state=6, **kw).fit(train).predict_proba_modalities(test)
     for key in a:
         np.testing.assert_array_equal(a[key], b[key])
     assert not np.array_equal(a["cutaneous"], c["cutaneous"])
@@ -248,7 +248,7 @@ def test_bad_input_is_refused():
 
 # ------------------------------------------------------------------------------------ catalogue data
 @pytest.mark.slow
-def test_recognises_guided_catalogue_contours():
+def test_recognizes_guided_catalogue_contours():
     # 10 catalogue classes x 2 objects x 20 guided contours, 80/20 by sequence (the paper's protocol, small).
     from benchmarks.classifiers import catalogue_batch, split
 

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from fusion.demo import DemoSizes, recognise, run_demo
+from fusion.demo import DEMO_SIZES, check_demo_sizes, run_demo, run_recognition
 from perception.errors import InvalidArgumentError
 from tests.fusion.test_experiments import STANDINS
 
@@ -15,8 +15,9 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 def test_demo_recognition_trains_tests_and_saves_models(tmp_path):
     lines: list[str] = []
-    sizes = DemoSizes(objects_per_class=2, contours=8, touches=(1, 2, 4), classifiers=("nm",), strategies=("blind",))
-    result = recognise(tmp_path, 0, sizes, {"nm": STANDINS["nm"]}, classes=["box", "ring"],
+    sizes = DEMO_SIZES.with_(objects_per_class=2, unseen_contours=8, touches=(1, 2, 4), unseen_classifiers=("nm",),
+                             strategies=("blind",))
+    result = run_recognition(tmp_path, 0, sizes, {"nm": STANDINS["nm"]}, classes=["box", "ring"],
                        workers=2, progress=False, echo=lines.append)
     (row,) = result["table"]
     assert set(row) == {"classifier", "sequence blind", "unseen blind", "paper guided / blind"}
@@ -33,14 +34,14 @@ def test_demo_recognition_trains_tests_and_saves_models(tmp_path):
 
 def test_demo_sizes_refuse_too_few_objects():
     with pytest.raises(InvalidArgumentError, match="at least 2 objects per class"):
-        DemoSizes(objects_per_class=1)
+        check_demo_sizes(DEMO_SIZES.with_(objects_per_class=1))
     with pytest.raises(InvalidArgumentError, match="largest K"):
-        DemoSizes(contours=4, touches=(1, 8))
+        check_demo_sizes(DEMO_SIZES.with_(unseen_contours=4, touches=(1, 8)))
 
 
 @pytest.mark.slow
 def test_whole_demo_with_a_stand_in_classifier(tmp_path):
-    sizes = DemoSizes(objects_per_class=2, contours=8, touches=(1, 2), classifiers=("nm",))
+    sizes = DEMO_SIZES.with_(objects_per_class=2, unseen_contours=8, touches=(1, 2), unseen_classifiers=("nm",))
     summary = run_demo(tmp_path, seed=0, sizes=sizes, classifiers={"nm": STANDINS["nm"]}, workers=2,
                        progress=False, echo=lambda line: None)
     assert summary["figures"][:4] == ["catalogue.png", "saliency.png", "contour_blind.png", "contour_guided.png"]

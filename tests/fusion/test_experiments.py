@@ -24,21 +24,14 @@ from fusion.experiments.analysis import (
     score,
     touches_score,
 )
-from fusion.experiments.config import TILT_DEG_PER_MM
 from fusion.experiments.data import folder_objects
 from fusion.experiments.models import Predictions
 from fusion.experiments.report import table1
-from fusion.experiments.touch import (
-    TouchTiming,
-    jitter_contour,
-    load_batch,
-    save_batch,
-    touch_object,
-    touch_objects,
-)
+from fusion.experiments.touch import load_batch, save_batch, touch_object, touch_objects
 from perception.errors import DatasetError, InvalidArgumentError
 from perception.shapes import make_object
 from tactile.contours import Contour, Plane
+from tactile.touching import TILT_DEG_PER_MM, TouchTiming, jitter_contour
 
 
 # ------------------------------------------------------------------------------------------ stand-in

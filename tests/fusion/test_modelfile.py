@@ -353,3 +353,25 @@ def test_damaged_model_on_the_command_line_is_one_line_and_exit_2(circles, tmp_p
     assert main(["evaluate", "--model", str(path), "--store", str(tmp_path / "s.zarr")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "c.vtm" in err[0] and "visuotactile evaluate: error" in err[0]
+
+
+class TestParameterNames:
+    """Classifiers take scikit-learn's ``random_state``; files and scripts from before still work."""
+
+    def test_a_file_that_names_the_seed_loads_as_random_state(self, models, tmp_path):
+        cnn = models[0]["cnn"]
+        path = cnn.save(tmp_path / "old.vtm")
+
+        def old_names(description, arrays):
+            params = description["params"]["dict"]
+            params["seed"] = params.pop("random_state")
+
+        rewrite(path, old_names)
+        assert load_model(path).random_state == cnn.random_state
+
+    def test_seed_keyword_is_random_state_with_a_warning(self):
+        with pytest.warns(DeprecationWarning, match="random_state"):
+            model = CNNClassifier(seed=4)
+        assert model.random_state == 4 and "seed" not in model.get_params()
+        with pytest.raises(TypeError, match="unexpected"):
+            CNNClassifier(colour="red")

@@ -77,12 +77,11 @@ def test_recognize_errors_are_one_line_and_exit_2(model_and_meshes, tmp_path, ca
     assert "missing.off" in capsys.readouterr().err
     assert main(["recognize", str(meshes["box"]), "--model", str(path), "--touches", "0"]) == 2
     assert "touches must be a positive integer" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main(["recognize", str(meshes["box"]), "--strategy", "psychic"])
 
 
-def test_recognize_offers_exactly_the_sampling_strategies():
-    from fusion.commands.recognize import STRATEGIES
-    from tactile.sampling import STRATEGIES as SAMPLING
-
-    assert set(STRATEGIES) == set(SAMPLING)
+def test_recognize_refuses_an_unknown_strategy_before_loading_anything(tmp_path, capsys):
+    """An unknown strategy is one line on stderr and exit 2, even when the model does not exist."""
+    assert main(["recognize", str(tmp_path / "absent.off"), "--model", str(tmp_path / "absent.vtm"),
+                 "--strategy", "psychic"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown sampling strategy 'psychic'" in err[0]

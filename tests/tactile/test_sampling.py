@@ -10,9 +10,11 @@ from perception import primitives
 from perception.errors import ContourError, SaliencyError
 from perception.geometry import ObjectModel
 from perception.shapes import make_object
-from tactile import sampling
-from tactile.sampling import INTEREST_POOL, MAX_DRAWS, explore_object, sample_planes
+from tactile import sampling, touching
+from tactile.contours import make_contour
+from tactile.sampling import INTEREST_POOL, MAX_DRAWS, sample_planes
 from tactile.sensor import FSRSensor
+from tactile.touching import Toucher, explore_object
 from tests.perception.test_saliency import rounded_cube
 
 
@@ -75,10 +77,10 @@ def test_precomputed_saliency_is_reused_and_checked(cube, no_saliency, strategy,
         sample_planes(cube, strategy, 3, saliency=wrong)
 
 
-def fail_first(monkeypatch, name: str, times: int, message: str) -> dict:
-    """Make ``sampling.<name>`` raise ContourError(message) on its first ``times`` calls; returns the
+def fail_first(monkeypatch, name: str, times: int, message: str, module=sampling) -> dict:
+    """Make ``module.<name>`` raise ContourError(message) on its first ``times`` calls; returns the
     counter of failures still to come."""
-    original = getattr(sampling, name)
+    original = getattr(module, name)
     left = {"left": times}
 
     def flaky(*args, **kwargs):
@@ -87,7 +89,7 @@ def fail_first(monkeypatch, name: str, times: int, message: str) -> dict:
             raise ContourError(message)
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(sampling, name, flaky)
+    monkeypatch.setattr(module, name, flaky)
     return left
 
 
@@ -107,7 +109,7 @@ def test_near_collinear_draws_are_redrawn_then_refused(cube, monkeypatch):
 
 
 def test_planes_that_miss_are_redrawn(cube, monkeypatch):
-    misses = fail_first(monkeypatch, "make_contour", 3, "misses the object")
+    misses = fail_first(monkeypatch, "make_contour", 3, "misses the object", module=touching)
     sequences = explore_object(
         cube, "blind", n_contours=2, probes=6, seed=2, sensor=FSRSensor(rows=8, cols=8)
     )
@@ -116,7 +118,7 @@ def test_planes_that_miss_are_redrawn(cube, monkeypatch):
     def always_miss(*args, **kwargs):
         raise ContourError("misses the object")
 
-    monkeypatch.setattr(sampling, "make_contour", always_miss)
+    monkeypatch.setattr(touching, "make_contour", always_miss)
     with pytest.raises(ContourError, match=str(MAX_DRAWS)):
         explore_object(cube, "blind", n_contours=1, seed=2)
 
@@ -153,18 +155,23 @@ def test_guided_exploration_on_a_primitive_touches_the_object():
     assert distance.max() < 1e-3 * model.diagonal and seq.strategy == "guided"
 
 
-def test_draw_contour_cache_cuts_a_repeated_plane_once_and_draws_the_same(monkeypatch):
+def test_toucher_cuts_a_repeated_plane_once_and_draws_the_same(monkeypatch):
+    """A Toucher cuts each distinct plane once; the contours drawn equal fresh cuts of the same draws."""
     model = make_object("mug", 2)
     points = model.vertices[[0, 50, 100]]  # 3 points: 6 ordered pairs, so 40 draws must repeat planes
+    plain = []
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        plain.append(make_contour(model, sampling.draw_plane(model, points, rng), 8))
     cuts = []
-    original = sampling.make_contour
-    monkeypatch.setattr(sampling, "make_contour", lambda *a, **k: cuts.append(a[1]) or original(*a, **k))
-    plain = [sampling.draw_contour(model, points, rng, 8) for rng in [np.random.default_rng(5)] for _ in range(40)]
-    assert len(cuts) == 40
-    cuts.clear()
-    cache = {}
-    cached = [sampling.draw_contour(model, points, rng, 8, cache) for rng in [np.random.default_rng(5)] for _ in range(40)]
-    assert len(cuts) == len(cache) <= 6
+    original = touching.make_contour
+    monkeypatch.setattr(touching, "make_contour", lambda *a, **k: cuts.append(a[1]) or original(*a, **k))
+    toucher = Toucher(model, "blind", probes=8)
+    toucher.points = points
+    rng = np.random.default_rng(5)
+    cached = [toucher.draw(rng) for _ in range(40)]
+    assert len(cuts) <= 6
+    assert len({id(c) for c in cached}) == len(cuts)
     for a, b in zip(plain, cached):
         np.testing.assert_array_equal(a.positions, b.positions)
         np.testing.assert_array_equal(a.normals, b.normals)

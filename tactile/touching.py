@@ -1,0 +1,317 @@
+"""Touching an object along K contours: the one road every caller takes (datasets, experiments, ``recognize``,
+the camera path and touch policies).
+
+:func:`touch` draws contour planes by a sampling strategy (:mod:`tactile.sampling`), cuts them (a plane cut once
+per :class:`Toucher`), optionally jitters the probe poses, presses the FSR pad along each contour and returns the
+tactile sequences. Two seed schemes define the bytes, and both are kept exactly:
+
+- ``seeding="stream"`` (:func:`explore_object`, dataset stores): one generator from ``seed``; for each contour the
+  planes are drawn from it (a plane that misses the object is re-drawn, up to ``MAX_DRAWS`` times), then the
+  contour's sensor-noise seed. Row k of a store is the first contour of this scheme seeded with
+  :func:`tactile.dataset.contour_seed` (seed, object, strategy, k).
+- ``seeding="object"`` (the experiments, ``visuotactile recognize``): three streams spawned from (seed, object
+  name, strategy) (:func:`object_seed`): ``n + SPARE_PLANES`` planes drawn at once (those that miss are
+  skipped), the noise seeds indexed by plane, and the pose jitter. Every jitter or noise level touches the same
+  contours.
+
+Pose jitter of level ``j`` mm (:func:`jitter_contour`): each probe's pad centre moves by N(0, j) mm along the
+pad's two axes and its normal tilts by N(0, ``TILT_DEG_PER_MM`` * j) degrees about a random axis in the pad
+plane; the pad is pressed at that pose, while the sequence records the *planned* pose (the robot does not know
+its error).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from perception import saliency as attention
+from perception.errors import ContourError, DatasetError
+from perception.geometry import ObjectModel
+from perception.validate import check_count, check_seed
+from tactile import sampling
+from tactile.contours import Contour, make_contour
+from tactile.explore import TactileSequence, explore
+from tactile.sensor import FSRSensor
+
+log = logging.getLogger(__name__)
+
+#: The seed schemes of :func:`touch` (see the module docstring).
+SEEDINGS = ("stream", "object")
+#: Extra planes drawn per object by the "object" scheme in case some miss (a plane can miss a ring's hole).
+SPARE_PLANES = 20
+#: Pose jitter: normal tilt std (degrees) per mm of position jitter std.
+TILT_DEG_PER_MM = 2.5
+
+
+@dataclass
+class TouchTiming:
+    """Wall-clock seconds of simulated touching: per contour (cut + press) and per object (saliency)."""
+
+    contour_seconds: list[float] = field(default_factory=list)
+    saliency_seconds: list[float] = field(default_factory=list)
+
+    def median_contour(self) -> float:
+        return float(np.median(self.contour_seconds)) if self.contour_seconds else 0.0
+
+    def median_saliency(self) -> float:
+        return float(np.median(self.saliency_seconds)) if self.saliency_seconds else 0.0
+
+
+def object_seed(seed: int, name: str, strategy: str) -> np.random.SeedSequence:
+    """The seed sequence of one object's contours in the "object" scheme: (seed, object name, strategy) only."""
+    return np.random.SeedSequence([int(seed), zlib.crc32(name.encode()), zlib.crc32(strategy.encode())])
+
+
+def jitter_contour(contour: Contour, position_mm: float, rng: np.random.Generator) -> Contour:
+    """``contour`` with each probe moved by N(0, position_mm) along the pad axes and its normal tilted by
+    N(0, TILT_DEG_PER_MM * position_mm) degrees (see the module docstring); position_mm 0 returns it as is
+    (and draws nothing from ``rng``).
+
+    Raises:
+        DatasetError: position_mm negative or not finite.
+    """
+    if position_mm < 0 or not np.isfinite(position_mm):
+        raise DatasetError(f"pose jitter must be a finite number >= 0 mm, got {position_mm!r}")
+    if position_mm == 0:
+        return contour
+    n = contour.n_probes
+    t, b, normal = contour.tangents, contour.binormals, contour.normals
+    shift = rng.normal(0.0, position_mm, (n, 2))
+    positions = contour.positions + shift[:, :1] * t + shift[:, 1:] * b
+    angle = np.radians(rng.normal(0.0, TILT_DEG_PER_MM * position_mm, n))[:, None]
+    phi = rng.uniform(0.0, 2 * np.pi, n)[:, None]
+    axis = np.cos(phi) * t + np.sin(phi) * b  # unit, in the pad plane
+    normals = np.cos(angle) * normal + np.sin(angle) * axis
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    tangents = t - np.sum(t * normals, axis=1, keepdims=True) * normals
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    return Contour(contour.plane, contour.polyline, contour.closed, positions, normals, tangents,
+                   contour.triangle_ids)
+
+
+@dataclass(frozen=True)
+class Planned:
+    """One contour to touch and the integer seed of its sensor noise."""
+
+    contour: Contour
+    noise_seed: int
+
+
+class Toucher:
+    """One object touched by one strategy: its candidate points found once, each plane cut once.
+
+    Guided strategies draw pairs of ``INTEREST_POOL`` interest points, so a few hundred draws repeat the same 90
+    ordered pairs; a repeated plane is cut once (the draws from a generator are the same either way) and gives
+    the same :class:`~tactile.contours.Contour` object.
+
+    Args:
+        model: the object.
+        strategy: a key of :data:`tactile.sampling.STRATEGIES`.
+        probes: probes per contour (>= 2).
+        saliency: a precomputed :class:`~perception.saliency.Saliency` of the strategy's method, to reuse;
+            else computed here with ``saliency_seed`` (and timed into ``timing``).
+
+    Raises:
+        ContourError: unknown strategy, probes not an integer >= 2, a flat object.
+        SaliencyError: ``saliency`` is of another method or object.
+    """
+
+    def __init__(
+        self,
+        model: ObjectModel,
+        strategy: str = "guided",
+        *,
+        probes: int = 25,
+        saliency: attention.Saliency | None = None,
+        saliency_seed: int = 0,
+        timing: TouchTiming | None = None,
+    ) -> None:
+        sampling.check_strategy(strategy)
+        self.model, self.strategy = model, strategy
+        self.probes = check_count(probes, "probes", model.name, ContourError, minimum=2)
+        sampling.check_not_flat(model)
+        method = sampling.STRATEGIES[strategy]
+        if method is not None and saliency is None:
+            start = time.perf_counter()
+            saliency = attention.saliency(model, method, seed=saliency_seed)
+            if timing is not None:
+                timing.saliency_seconds.append(time.perf_counter() - start)
+        self.saliency = saliency
+        self.points = sampling.candidates(model, strategy, saliency)
+        self._cuts: dict[tuple[bytes, bytes], Contour | ContourError] = {}
+
+    def cut(self, plane) -> Contour:
+        """The contour of ``plane`` (cut once per plane).
+
+        Raises:
+            ContourError: the plane misses the object or cuts a zero-length contour.
+        """
+        key = (plane.point.tobytes(), plane.normal.tobytes())
+        found = self._cuts.get(key)
+        if found is None:
+            try:
+                found = make_contour(self.model, plane, self.probes)
+            except ContourError as exc:
+                found = exc
+            self._cuts[key] = found
+        if isinstance(found, ContourError):
+            raise found
+        return found
+
+    def draw(self, rng: np.random.Generator) -> Contour:
+        """One contour through two candidate points drawn with ``rng``; planes that miss the object are re-drawn.
+
+        Raises:
+            ContourError: ``MAX_DRAWS`` planes in a row missed the object.
+        """
+        for _ in range(sampling.MAX_DRAWS):
+            plane = sampling.draw_plane(self.model, self.points, rng)
+            try:
+                return self.cut(plane)
+            except ContourError as exc:
+                log.debug("%s: re-drawing a plane (%s)", self.model.name, exc)
+        raise ContourError(f"{self.model.name}: {sampling.MAX_DRAWS} planes in a row missed the object")
+
+    def stream(self, n: int, seed: int | np.random.Generator | None) -> Iterator[Planned]:
+        """``n`` contours of the "stream" scheme (module docstring), drawn lazily from one generator."""
+        rng = np.random.default_rng(seed)
+        for _ in range(n):
+            contour = self.draw(rng)
+            yield Planned(contour, int(rng.integers(2**31 - 1)))
+
+    def by_object(self, n: int, seed: int) -> tuple[Iterator[Planned], np.random.Generator]:
+        """``n`` contours of the "object" scheme (module docstring) and the generator of its pose jitter.
+
+        The iterator raises ContourError when fewer than ``n`` of the ``n + SPARE_PLANES`` planes cut the object.
+        """
+        plane_seed, noise_seed, jitter_seed = object_seed(seed, self.model.name, self.strategy).spawn(3)
+        plane_rng = np.random.default_rng(plane_seed)
+        planes = [sampling.draw_plane(self.model, self.points, plane_rng) for _ in range(n + SPARE_PLANES)]
+        noise_seeds = np.random.default_rng(noise_seed).integers(2**31 - 1, size=len(planes))
+
+        def planned() -> Iterator[Planned]:
+            found = 0
+            for plane, noise in zip(planes, noise_seeds):
+                if found == n:
+                    return
+                try:
+                    contour = self.cut(plane)
+                except ContourError as exc:
+                    log.debug("%s: skipping a plane (%s)", self.model.name, exc)
+                    continue
+                found += 1
+                yield Planned(contour, int(noise))
+            if found < n:
+                raise ContourError(f"{self.model.name}: only {found} of {n} planes cut the object")
+
+        return planned(), np.random.default_rng(jitter_seed)
+
+
+def _stream_jitter_rng(seed: int | np.random.Generator | None) -> np.random.Generator:
+    """The pose-jitter generator of the "stream" scheme: independent of the plane and noise draws, which it
+    leaves untouched (a Generator is spawned, which does not advance it)."""
+    if isinstance(seed, np.random.Generator):
+        return seed.spawn(1)[0]
+    return np.random.default_rng(None if seed is None else [int(seed), zlib.crc32(b"jitter")])
+
+
+def touch(
+    model: ObjectModel,
+    strategy: str = "guided",
+    n_contours: int = 10,
+    sensor: FSRSensor | None = None,
+    probes: int = 25,
+    seed: int | np.random.Generator | None = 0,
+    saliency: attention.Saliency | None = None,
+    *,
+    seeding: str = "stream",
+    jitter_mm: float = 0.0,
+    timing: TouchTiming | None = None,
+    contours: list[Contour] | None = None,
+    progress: bool = False,
+) -> list[TactileSequence]:
+    """Touch ``model`` along ``n_contours`` contours chosen by ``strategy``: one tactile sequence each.
+
+    Args:
+        sensor: the FSR pad (default ``FSRSensor()``); probes: probes per contour.
+        seed: an integer (or, for ``seeding="stream"``, a Generator); same seed -> same sequences.
+        saliency: a precomputed Saliency of the strategy's method (else computed: "stream" with seed 0,
+            "object" with ``seed``).
+        seeding: "stream" or "object" (see the module docstring).
+        jitter_mm: pose jitter std, mm (0: press where planned). The sequences record the planned poses.
+        timing: collects saliency and per-contour (cut + press) wall seconds.
+        contours: if given, the planned contours are appended to it.
+        progress: show a tqdm bar.
+
+    Raises:
+        ContourError: unknown strategy, n_contours not an integer >= 1, probes not an integer >= 2, a bad
+            seed or seeding, a flat object, or too many planes that miss the object.
+        SaliencyError: ``saliency`` is of another method or object.
+        DatasetError: a negative or non-finite jitter.
+    """
+    sampling.check_strategy(strategy)
+    if seeding not in SEEDINGS:
+        raise ContourError(f"unknown seeding {seeding!r}; choose one of {', '.join(SEEDINGS)}")
+    n_contours = check_count(n_contours, "n_contours", model.name, ContourError)
+    seed = check_seed(seed, model.name, ContourError)
+    if seeding == "object" and not isinstance(seed, int):
+        raise ContourError(f"{model.name}: seeding 'object' needs an integer seed, got {seed!r}")
+    if jitter_mm < 0 or not np.isfinite(jitter_mm):
+        raise DatasetError(f"pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
+    sensor = sensor or FSRSensor()
+    toucher = Toucher(model, strategy, probes=probes, saliency=saliency,
+                      saliency_seed=seed if seeding == "object" else 0, timing=timing)
+    if seeding == "object":
+        planned, jitter_rng = toucher.by_object(n_contours, seed)
+    else:
+        planned = toucher.stream(n_contours, seed)
+        jitter_rng = None
+    sequences = []
+    steps = iter(tqdm(range(n_contours), desc=f"touch {model.name}", disable=not progress))
+    while True:
+        start = time.perf_counter()
+        item = next(planned, None)
+        if item is None:
+            break
+        next(steps, None)
+        contour = item.contour
+        if jitter_mm > 0 and jitter_rng is None:  # the "stream" scheme's jitter: its own stream, made when needed
+            jitter_rng = _stream_jitter_rng(seed)
+        pressed = jitter_contour(contour, jitter_mm, jitter_rng)
+        sequence = explore(model, pressed, sensor, seed=item.noise_seed, strategy=strategy)
+        if timing is not None:
+            timing.contour_seconds.append(time.perf_counter() - start)
+        if pressed is not contour:  # record the planned pose
+            sequence.normals, sequence.positions = contour.normals.copy(), contour.positions.copy()
+            sequence.tangents = contour.tangents.copy()
+        sequences.append(sequence)
+        if contours is not None:
+            contours.append(contour)
+    return sequences
+
+
+def explore_object(
+    model: ObjectModel,
+    strategy: str = "guided",
+    n_contours: int = 10,
+    sensor: FSRSensor | None = None,
+    probes: int = 25,
+    seed: int | np.random.Generator | None = 0,
+    saliency: attention.Saliency | None = None,
+    *,
+    progress: bool = False,
+) -> list[TactileSequence]:
+    """:func:`touch` with the "stream" seed scheme: what the dataset stores hold (kept under this name for the
+    scripts that use it)."""
+    return touch(model, strategy, n_contours, sensor, probes, seed, saliency, progress=progress)
+
+
+__all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher", "explore_object",
+           "jitter_contour", "object_seed", "touch"]

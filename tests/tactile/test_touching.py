@@ -1,0 +1,110 @@
+"""Touching an object along K contours: the two seed schemes give exactly the contours and frames their
+definitions say, whoever calls them (explore_object, touch_object, recognize, the dataset worker)."""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+import pytest
+
+from fusion.experiments.touch import touch_object
+from perception.errors import ContourError
+from perception.shapes import make_object
+from tactile.contours import make_contour, plane_through
+from tactile.explore import explore
+from tactile.sensor import FSRSensor
+from tactile.touching import SPARE_PLANES, Toucher, explore_object, touch
+
+SENSOR = FSRSensor(rows=8, cols=8)
+NOISY = FSRSensor(rows=8, cols=8, noise_std=0.05, dead_taxel_rate=0.05)
+
+
+@pytest.fixture(scope="module")
+def box():
+    return make_object("box", 1)
+
+
+def _plane(model, rng):
+    """Two distinct random vertices and the plane through them and the centre (what 'blind' draws)."""
+    i, j = rng.choice(model.n_vertices, size=2, replace=False)
+    return plane_through(model.center, model.vertices[i], model.vertices[j])
+
+
+def _assert_same(a, b):
+    for name in ("frames", "normals", "positions", "tangents", "pad_sides_mm"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert a.seed == b.seed and a.strategy == b.strategy
+
+
+class TestStreamSeeding:
+    def test_known_noise_seeds(self, box):
+        """The noise seeds drawn for seed 7 are fixed numbers: a change of the stream changes the data."""
+        sequences = explore_object(box, "blind", 3, SENSOR, 10, seed=7)
+        assert [s.seed for s in sequences] == [1926751965, 483628757, 1875941738]
+
+    @pytest.mark.parametrize("sensor", [SENSOR, NOISY], ids=["clean", "noisy"])
+    def test_each_contour_is_a_plane_then_a_noise_seed_from_one_generator(self, box, sensor):
+        """Contour k: two vertices drawn from default_rng(seed), cut at 10 probes, then its noise seed."""
+        rng = np.random.default_rng(7)
+        expected = []
+        for _ in range(3):
+            contour = make_contour(box, _plane(box, rng), 10)  # a box: every plane through the centre cuts it
+            expected.append(explore(box, contour, sensor, seed=int(rng.integers(2**31 - 1)), strategy="blind"))
+        for got, want in zip(touch(box, "blind", 3, sensor, 10, seed=7), expected):
+            _assert_same(got, want)
+        for got, want in zip(explore_object(box, "blind", 3, sensor, 10, seed=7), expected):
+            _assert_same(got, want)
+
+    def test_a_store_row_is_the_first_contour_of_its_own_seed(self, box):
+        """The dataset worker's per-contour draw is the stream scheme with n=1."""
+        toucher = Toucher(box, "blind", probes=10)
+        (planned,) = toucher.stream(1, 12345)
+        (sequence,) = touch(box, "blind", 1, NOISY, 10, seed=12345)
+        assert planned.noise_seed == sequence.seed
+        np.testing.assert_array_equal(planned.contour.positions, sequence.positions)
+
+
+class TestObjectSeeding:
+    def test_known_noise_seeds(self, box):
+        sequences, _ = touch_object(box, "blind", 3, sensor=SENSOR, probes=10, seed=7)
+        assert [s.seed for s in sequences] == [1686718773, 1762783595, 1440013262]
+
+    @pytest.mark.parametrize("sensor", [SENSOR, NOISY], ids=["clean", "noisy"])
+    def test_planes_noise_and_jitter_come_from_three_streams_of_the_object_seed(self, box, sensor):
+        """(seed, crc32(name), crc32(strategy)) spawns planes (K + spare drawn at once), noise seeds, jitter."""
+        plane_seed, noise_seed, _ = np.random.SeedSequence(
+            [7, zlib.crc32(box.name.encode()), zlib.crc32(b"blind")]).spawn(3)
+        rng = np.random.default_rng(plane_seed)
+        planes = [_plane(box, rng) for _ in range(3 + SPARE_PLANES)]
+        seeds = np.random.default_rng(noise_seed).integers(2**31 - 1, size=len(planes))
+        expected = [explore(box, make_contour(box, p, 10), sensor, seed=int(s), strategy="blind")
+                    for p, s in zip(planes[:3], seeds[:3])]
+        got, contours = touch_object(box, "blind", 3, sensor=sensor, probes=10, seed=7)
+        same = touch(box, "blind", 3, sensor, 10, 7, seeding="object")
+        for a, b, want in zip(got, same, expected):
+            _assert_same(a, want)
+            _assert_same(b, want)
+        assert [c.plane.normal.tolist() for c in contours] == [p.normal.tolist() for p in planes[:3]]
+
+    def test_jitter_moves_the_press_not_the_plan(self, box):
+        """Jittered touches press elsewhere but record the planned poses of the same contours."""
+        clean = touch(box, "blind", 3, SENSOR, 10, 7, seeding="object")
+        moved = touch(box, "blind", 3, SENSOR, 10, 7, seeding="object", jitter_mm=2.0)
+        for a, b in zip(clean, moved):
+            np.testing.assert_array_equal(a.positions, b.positions)
+            assert a.seed == b.seed
+        assert any(not np.array_equal(a.frames, b.frames) for a, b in zip(clean, moved))
+
+
+class TestArguments:
+    def test_unknown_seeding_is_refused(self, box):
+        with pytest.raises(ContourError, match="seeding"):
+            touch(box, "blind", 1, seeding="sometimes")
+
+    def test_stream_jitter_leaves_the_contours(self, box):
+        """Jitter in the stream scheme has its own generator: the planned contours do not move."""
+        clean = touch(box, "blind", 2, SENSOR, 10, 3)
+        moved = touch(box, "blind", 2, SENSOR, 10, 3, jitter_mm=1.0)
+        for a, b in zip(clean, moved):
+            np.testing.assert_array_equal(a.positions, b.positions)
