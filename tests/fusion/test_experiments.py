@@ -24,7 +24,7 @@ from fusion.experiments.analysis import (
     score,
     touches_score,
 )
-from fusion.experiments.data import folder_objects
+from fusion.experiments.data import any_pose, folder_objects
 from fusion.experiments.models import Predictions
 from fusion.experiments.report import table1
 from fusion.experiments.touch import load_batch, save_batch, touch_object, touch_objects
@@ -142,6 +142,15 @@ def test_paired_difference_by_hand():
     assert out["difference"] == pytest.approx(0.25) and out["n_objects"] == 2
     assert 0 <= out["low"] <= 0.25 <= out["high"] <= 0.5
     assert out["detectable"] == pytest.approx(2.8 * np.std([0.5, 0.0], ddof=1) / np.sqrt(2))
+
+
+def test_any_pose_gives_each_object_its_own_seeded_rotation():
+    objects = [("mug", 0), ("box", 1)]
+    a, b, other = any_pose(objects, 3), any_pose(objects, 3), any_pose(objects, 4)
+    assert [s.name for s in a] == ["mug/0", "box/1"] and [s.label for s in a] == ["mug", "box"]
+    assert [s.rotation_seed for s in a] == [s.rotation_seed for s in b]  # same seed, same poses
+    assert len({s.rotation_seed for s in a}) == 2  # each object its own
+    assert all(x.rotation_seed != y.rotation_seed for x, y in zip(a, other, strict=True))
 
 
 def test_byte_identical_meshes_count_as_one_object(tmp_path):

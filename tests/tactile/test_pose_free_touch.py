@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fusion.cues import INVARIANT_NAMES, kinesthetic_cues
+from perception.errors import DatasetError
 from perception.geometry import load_object, random_rotation
 from perception.shapes import make_object
 from tactile.contours import Plane, make_contour
@@ -86,6 +87,9 @@ def test_object_spec_presents_the_object_in_its_seeded_pose(bottle_file):
     np.testing.assert_allclose(model.vertices, expected.vertices, atol=1e-12)
     assert spec.to_dict()["rotation_seed"] == 17 and "rotation_seed" not in ObjectSpec(
         "mug/4", "mug", path=str(bottle_file)).to_dict()
+    for bad in (-1, 1.5, True, "7"):
+        with pytest.raises(DatasetError, match="rotation_seed"):
+            ObjectSpec("mug/4", "mug", path=str(bottle_file), rotation_seed=bad)
     catalogue = ObjectSpec("mug/4", "mug", catalogue=("mug", 4), rotation_seed=17).load()
     upright = make_object("mug", 4)
     np.testing.assert_allclose(catalogue.vertices, upright.vertices @ random_rotation(17).T, atol=1e-9)
