@@ -27,7 +27,13 @@ from pathlib import Path
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
-from perception.errors import DatasetError, ModelFileError, ModelMismatchError, VisuotactileError
+from perception.errors import (
+    DatasetError,
+    ModelFileError,
+    ModelMismatchError,
+    NotFittedError,
+    VisuotactileError,
+)
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 
@@ -163,7 +169,8 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
 
     def predict(self, X) -> np.ndarray:
         """(S,) predicted class names."""
-        return self.classes_[np.argmax(self.predict_proba(X), axis=1)]
+        proba = self.predict_proba(X)  # first: it refuses an unfitted model
+        return self.classes_[np.argmax(proba, axis=1)]
 
     def score(self, X, y=None, sample_weight=None) -> float:
         """Accuracy on ``X`` (labels from the batch unless ``y`` is given)."""
@@ -182,8 +189,6 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
     def check_compatible(self, batch: SequenceBatch) -> None:
         """Raise :class:`ModelMismatchError` unless ``batch`` comes from the sensor, probes and grid of training."""
         if not hasattr(self, "classes_"):
-            from sklearn.exceptions import NotFittedError
-
             raise NotFittedError(f"{type(self).__name__} is not fitted yet; call fit first")
         ours, theirs = _geometry_spec(self.sensor_spec_), _geometry_spec(batch.sensor_spec)
         if theirs and ours != theirs:
@@ -226,12 +231,12 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         """Write the fitted model to ``path`` atomically as a model file (``.vtm``; see :mod:`fusion.modelfile`).
 
         Raises:
-            DatasetError: the model is not fitted. ModelFileError: a fitted attribute that is not plain data.
+            NotFittedError: the model is not fitted. ModelFileError: a fitted attribute that is not plain data.
         """
         from fusion.modelfile import FORMAT_NAME, FORMAT_VERSION, SUFFIX, encode, write_model_file
 
         if not hasattr(self, "classes_"):
-            raise DatasetError(f"{type(self).__name__}: fit the model before saving it")
+            raise NotFittedError(f"{type(self).__name__}: fit the model before saving it")
         path = Path(path)
         if path.suffix == ".pkl":
             log.warning("%s: model files are no longer pickles; the suffix %s is the usual one", path, SUFFIX)

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from perception.errors import DatasetError
+from perception.errors import InvalidArgumentError
 
 CLASSIFIERS = ("cnn", "svm", "knn")
 
@@ -26,7 +26,7 @@ def make_classifier(name: str, *, cue: str = "invariant", random_state: int = 0,
         from fusion.conventional import ConventionalClassifier
 
         return ConventionalClassifier(kind=name, cue=cue, random_state=random_state, **options)
-    raise DatasetError(f"unknown classifier {name!r}; choose one of {', '.join(CLASSIFIERS)}")
+    raise InvalidArgumentError(f"unknown classifier {name!r}; choose one of {', '.join(CLASSIFIERS)}")
 
 
 __all__ = ["CLASSIFIERS", "make_classifier"]

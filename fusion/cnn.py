@@ -49,7 +49,7 @@ from tqdm import tqdm
 
 from fusion.base import TactileClassifier, renamed_seed
 from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from tactile.explore import SequenceBatch
 
 log = logging.getLogger(__name__)
@@ -202,19 +202,19 @@ class CNNClassifier(TactileClassifier):
     def _check_params(self) -> None:
         check_cue(self.cue)
         if self.modality not in MODALITIES:
-            raise DatasetError(f"CNNClassifier: unknown modality {self.modality!r}; choose one of {MODALITIES}")
+            raise InvalidArgumentError(f"CNNClassifier: unknown modality {self.modality!r}; choose one of {MODALITIES}")
         for name in ("epochs", "batch_size", "frame_size", "patience"):
             value = getattr(self, name)
             if int(value) != value or value < 1:
-                raise DatasetError(f"CNNClassifier: {name} must be a positive integer, got {value!r}")
+                raise InvalidArgumentError(f"CNNClassifier: {name} must be a positive integer, got {value!r}")
         if self.augment not in (True, False, *AUGMENT):
-            raise DatasetError(f"CNNClassifier: augment must be a bool or one of {AUGMENT}, got {self.augment!r}")
+            raise InvalidArgumentError(f"CNNClassifier: augment must be a bool or one of {AUGMENT}, got {self.augment!r}")
         if not 0 <= self.val_fraction < 1:
-            raise DatasetError(f"CNNClassifier: val_fraction must be in [0, 1), got {self.val_fraction!r}")
+            raise InvalidArgumentError(f"CNNClassifier: val_fraction must be in [0, 1), got {self.val_fraction!r}")
         if not (self.lr > 0 and np.isfinite(self.lr)):
-            raise DatasetError(f"CNNClassifier: lr must be a positive number, got {self.lr!r}")
+            raise InvalidArgumentError(f"CNNClassifier: lr must be a positive number, got {self.lr!r}")
         if self.device not in ("auto", "cpu", "cuda"):
-            raise DatasetError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
+            raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
             raise DatasetError("CNNClassifier: device='cuda' but PyTorch sees no CUDA device")
 

@@ -34,7 +34,7 @@ from functools import cache
 import numpy as np
 import pywt
 
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 
 #: DFB levels per pyramid level, coarse to fine (Do's toolbox ``nlevs``): 8 then 16 directions.
 DEFAULT_LEVELS = (3, 4)
@@ -177,7 +177,7 @@ def _check_frames(frames, levels: tuple[int, ...], check_values: bool = True) ->
     if x.ndim < 2 or x.shape[-1] == 0 or x.shape[-2] == 0:
         raise DatasetError(f"contourlet: expected (..., rows, cols) frames, got shape {x.shape}")
     if any(lv < 0 for lv in levels):
-        raise DatasetError(f"contourlet: DFB levels must be >= 0, got {levels}")
+        raise InvalidArgumentError(f"contourlet: DFB levels must be >= 0, got {levels}")
     step = 2 ** len(levels)
     if x.shape[-2] % step or x.shape[-1] % step:
         raise DatasetError(

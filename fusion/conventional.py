@@ -39,7 +39,7 @@ from fusion.features import (
     n_series,
     sequence_features,
 )
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from tactile.explore import SequenceBatch
 
 log = logging.getLogger(__name__)
@@ -50,7 +50,7 @@ REDUCERS = ("som", "pca")
 
 def _check_choice(name: str, value, choices) -> None:
     if value not in choices:
-        raise DatasetError(f"unknown {name} {value!r}; choose one of {', '.join(choices)}")
+        raise InvalidArgumentError(f"unknown {name} {value!r}; choose one of {', '.join(choices)}")
 
 
 def conventional_pipeline(

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from perception.errors import DatasetError
+from perception.errors import InvalidArgumentError
 
 if TYPE_CHECKING:  # the command line imports CUES without loading the geometry stack
     from tactile.explore import SequenceBatch
@@ -34,7 +34,7 @@ def cue_width(cue: str) -> int:
 
 def check_cue(cue: str) -> None:
     if cue not in CUES:
-        raise DatasetError(f"unknown kinesthetic cue {cue!r}; choose one of {', '.join(CUES)}")
+        raise InvalidArgumentError(f"unknown kinesthetic cue {cue!r}; choose one of {', '.join(CUES)}")
 
 
 def kinesthetic_cues(batch: SequenceBatch, cue: str = "normals") -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 
 RULES = ("log", "sum")
 #: Probabilities below this count as this much in the log rule (keeps every sum finite).
@@ -23,7 +23,7 @@ def fuse_touches(proba: np.ndarray, rule: str = "log") -> np.ndarray:
         DatasetError: unknown rule, bad shape, or non-finite / negative probabilities.
     """
     if rule not in RULES:
-        raise DatasetError(f"unknown fusion rule {rule!r}; choose one of {', '.join(RULES)}")
+        raise InvalidArgumentError(f"unknown fusion rule {rule!r}; choose one of {', '.join(RULES)}")
     proba = np.asarray(proba, dtype=np.float64)
     if proba.ndim not in (2, 3) or proba.shape[-2] < 1 or proba.shape[-1] < 1:
         raise DatasetError(f"fuse_touches: expected (K, C) or (N, K, C) probabilities, got shape {proba.shape}")
@@ -49,7 +49,7 @@ def touch_groups(object_ids: np.ndarray, k: int, seed: int = 0, *, repeats: int 
         DatasetError: k < 1, or no object has k sequences.
     """
     if int(k) != k or k < 1:
-        raise DatasetError(f"touch_groups: k must be a positive integer, got {k!r}")
+        raise InvalidArgumentError(f"touch_groups: k must be a positive integer, got {k!r}")
     object_ids = np.asarray(object_ids)
     rng = np.random.default_rng(seed)
     groups = []

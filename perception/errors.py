@@ -12,6 +12,12 @@ class VisuotactileError(Exception):
     """Base class of all visuotactile errors."""
 
 
+class InvalidArgumentError(VisuotactileError, ValueError):
+    """An argument names an unknown method or channel, or is of the wrong type or out of range (a seed, a
+    count, an image size). Also a ``ValueError``, which these cases raised before. Every argument check
+    raises it (or a subclass), whichever package it is in."""
+
+
 class MeshLoadError(VisuotactileError):
     """A mesh file is missing, unreadable, of an unknown type, or cannot be parsed."""
 
@@ -24,8 +30,9 @@ class ContourError(VisuotactileError):
     """A cutting plane is degenerate (near-collinear points) or misses the object, or a contour is unusable."""
 
 
-class SensorSpecError(VisuotactileError):
-    """A tactile sensor specification or a probe list is invalid (zero/negative sizes, empty list, ...)."""
+class SensorSpecError(InvalidArgumentError):
+    """A tactile sensor specification or a probe list is invalid (zero/negative sizes, empty list, ...): an
+    argument check of the sensor's declared parameters."""
 
 
 class SaliencyError(VisuotactileError):
@@ -45,13 +52,13 @@ class ModelFileError(ModelMismatchError):
     pickle (refused: unpickling can run code)."""
 
 
+class NotFittedError(VisuotactileError, ValueError, AttributeError):
+    """A classifier is used (predict, save, compare) before it was fitted. Also a ``ValueError`` and an
+    ``AttributeError``, as scikit-learn's ``NotFittedError`` that it replaces."""
+
+
 class DeviceNotFoundError(VisuotactileError):
     """No depth camera is connected (or it cannot be opened)."""
-
-
-class InvalidArgumentError(VisuotactileError, ValueError):
-    """An argument names an unknown method or channel, or is of the wrong type or out of range (a seed, a
-    count, an image size). Also a ``ValueError``, which these cases raised before."""
 
 
 __all__ = [
@@ -63,6 +70,7 @@ __all__ = [
     "MeshLoadError",
     "ModelFileError",
     "ModelMismatchError",
+    "NotFittedError",
     "SaliencyError",
     "SensorSpecError",
     "VisuotactileError",

@@ -43,7 +43,7 @@ from scipy.stats import rankdata
 from perception import mesh_saliency
 from perception.atomic import save_figure
 from perception.channels import ALL_CHANNELS, COLOR_CHANNELS, GEOMETRY_CHANNELS, compute_channels
-from perception.errors import SaliencyError
+from perception.errors import InvalidArgumentError, SaliencyError
 from perception.geometry import ObjectModel
 from perception.render import (
     DEFAULT_N_VIEWS,
@@ -123,14 +123,14 @@ class Saliency:
         """
         points, scores = self._candidates(n)
         if n < 1 or n > len(points):
-            raise SaliencyError(
+            raise InvalidArgumentError(
                 f"{self.model.name}: cannot pick {n} interest points from {len(points)} candidates"
             )
         distance = (
             DEFAULT_SEPARATION_FRACTION * self.model.size if min_distance_mm is None else min_distance_mm
         )
         if not np.isfinite(distance) or distance < 0:
-            raise SaliencyError(f"{self.model.name}: min_distance_mm must be >= 0, got {min_distance_mm!r}")
+            raise InvalidArgumentError(f"{self.model.name}: min_distance_mm must be >= 0, got {min_distance_mm!r}")
         order = np.argsort(-scores, kind="stable")
         chosen: list[int] = []
         while len(chosen) < n:
@@ -163,12 +163,12 @@ def _check_weights(
         return {c: 1.0 for c in channels}
     unknown = sorted(set(weights) - set(ALL_CHANNELS))
     if unknown:
-        raise SaliencyError(f"{name}: unknown channel weight(s) {unknown}; known: {', '.join(ALL_CHANNELS)}")
+        raise InvalidArgumentError(f"{name}: unknown channel weight(s) {unknown}; known: {', '.join(ALL_CHANNELS)}")
     values = {c: float(weights.get(c, 0.0)) for c in channels}
     if any(not np.isfinite(v) or v < 0 for v in values.values()):
-        raise SaliencyError(f"{name}: channel weights must be finite and >= 0, got {weights}")
+        raise InvalidArgumentError(f"{name}: channel weights must be finite and >= 0, got {weights}")
     if sum(values.values()) <= 0:
-        raise SaliencyError(f"{name}: the weights of the computed channels {channels} sum to zero")
+        raise InvalidArgumentError(f"{name}: the weights of the computed channels {channels} sum to zero")
     return values
 
 
@@ -193,13 +193,13 @@ def multiview_maps(
     the object turns the views with it, so its saliency does not depend on its pose.
 
     Raises:
-        SaliencyError: bad weights or view settings.
+        InvalidArgumentError: bad weights or view settings.
     """
-    seed = check_seed(seed, model.name, SaliencyError, allow_none=False)
-    n_views = DEFAULT_N_VIEWS if n_views is None else check_count(n_views, "n_views", model.name, SaliencyError)
-    size_px = DEFAULT_SIZE_PX if size_px is None else check_count(size_px, "size_px", model.name, SaliencyError, minimum=8)
+    seed = check_seed(seed, model.name, allow_none=False)
+    n_views = DEFAULT_N_VIEWS if n_views is None else check_count(n_views, "n_views", model.name)
+    size_px = DEFAULT_SIZE_PX if size_px is None else check_count(size_px, "size_px", model.name, minimum=8)
     if n_views * size_px * size_px > MAX_PIXELS:
-        raise SaliencyError(
+        raise InvalidArgumentError(
             f"{model.name}: {n_views} views of {size_px} x {size_px} pixels exceed {MAX_PIXELS:,} rays in all"
         )
     channels, _ = _channels_for(model)
@@ -273,12 +273,12 @@ def saliency(
         seed: turns the multiview view sphere; the 3D methods do not use it.
 
     Raises:
-        SaliencyError: unknown method, bad weights or view settings, a seed that is not a non-negative integer;
-            for a PCL method, the peer program absent, failing or past its time limit.
+        InvalidArgumentError: unknown method, bad weights or view settings, a seed that is not a non-negative
+            integer. SaliencyError: for a PCL method, the peer program absent, failing or past its time limit.
     """
-    seed = check_seed(seed, model.name, SaliencyError, allow_none=False)
+    seed = check_seed(seed, model.name, allow_none=False)
     if method not in METHODS + PCL_METHODS:
-        raise SaliencyError(
+        raise InvalidArgumentError(
             f"{model.name}: unknown saliency method {method!r}; choose one of {', '.join(METHODS + PCL_METHODS)}"
         )
     if method in PCL_METHODS:
@@ -331,7 +331,7 @@ def pcl_keypoints(
             or output that does not match the input.
     """
     if detector not in ("harris", "iss"):
-        raise SaliencyError(f"{model.name}: unknown PCL detector {detector!r}; choose harris or iss")
+        raise InvalidArgumentError(f"{model.name}: unknown PCL detector {detector!r}; choose harris or iss")
     binary = pcl_binary()
     if not pcl_available():
         raise SaliencyError(

@@ -32,7 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from perception.atomic import save_figure
-from perception.errors import DatasetError, InvalidMeshError
+from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
 from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize, surface_centroid
 
 log = logging.getLogger(__name__)
@@ -886,7 +886,7 @@ def make_dataset(
         DatasetError: an unknown class or a negative ``n_per_class``.
     """
     if n_per_class < 0:
-        raise DatasetError(f"n_per_class must be >= 0, got {n_per_class}")
+        raise InvalidArgumentError(f"n_per_class must be >= 0, got {n_per_class}")
     jobs = [(c, seed + i) for c in classes for i in range(n_per_class)]
     return [
         make_object(c, s, size_mm=size_mm)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.errors import ContourError
+from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
 
 #: Vertices closer to the plane than this fraction of the object size count as lying on it.
@@ -55,7 +55,7 @@ class Plane:
         point = np.asarray(self.point, dtype=np.float64)
         normal = np.asarray(self.normal, dtype=np.float64)
         if point.shape != (3,) or normal.shape != (3,):
-            raise ContourError(f"plane point and normal must be 3-vectors, got {point.shape}, {normal.shape}")
+            raise InvalidArgumentError(f"plane point and normal must be 3-vectors, got {point.shape}, {normal.shape}")
         if not (np.isfinite(point).all() and np.isfinite(normal).all()):
             raise ContourError(f"plane has a non-finite point {point} or normal {normal}")
         if np.abs(point).max() > MAX_PLANE_POINT_MM:
@@ -421,7 +421,7 @@ def make_contour(model: ObjectModel, plane: Plane, n_probes: int = 25, *, start=
         ContourError: the plane misses the object, ``n_probes`` < 2, or the cut has zero length.
     """
     if int(n_probes) != n_probes or n_probes < 2:
-        raise ContourError(f"{model.name}: n_probes must be an integer >= 2, got {n_probes!r}")
+        raise InvalidArgumentError(f"{model.name}: n_probes must be an integer >= 2, got {n_probes!r}")
     n_probes = int(n_probes)
     chains = section_chains(model, plane)
     if not chains:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from perception import saliency as attention
-from perception.errors import ContourError, SaliencyError
+from perception.errors import ContourError, InvalidArgumentError, SaliencyError
 from perception.geometry import ObjectModel
 from perception.validate import check_count, check_seed
 from tactile.contours import Plane, plane_through
@@ -39,7 +39,7 @@ FLAT_TOLERANCE = 1e-9
 
 def check_strategy(strategy: str) -> None:
     if strategy not in STRATEGIES:
-        raise ContourError(f"unknown sampling strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
+        raise InvalidArgumentError(f"unknown sampling strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
 
 
 def check_not_flat(model: ObjectModel) -> None:
@@ -97,13 +97,13 @@ def sample_planes(
         saliency: a precomputed :class:`~perception.saliency.Saliency` of the strategy's method, to reuse.
 
     Raises:
-        ContourError: unknown strategy, n not an integer >= 1, a seed that is not a non-negative integer or
-            Generator, or only near-collinear draws.
+        InvalidArgumentError: unknown strategy, n not an integer >= 1, a seed that is not a non-negative integer
+            or Generator. ContourError: only near-collinear draws.
         SaliencyError: ``saliency`` is of another method or object.
     """
     check_strategy(strategy)
-    n = check_count(n, "n", model.name, ContourError)
-    seed = check_seed(seed, model.name, ContourError)
+    n = check_count(n, "n", model.name)
+    seed = check_seed(seed, model.name)
     if len(model.vertices) < 2:
         raise ContourError(f"{model.name}: need at least two vertices to draw planes")
     rng = np.random.default_rng(seed)

@@ -32,7 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from perception import saliency as attention
-from perception.errors import ContourError, DatasetError
+from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
 from perception.validate import check_count, check_seed
 from tactile import sampling
@@ -75,10 +75,10 @@ def jitter_contour(contour: Contour, position_mm: float, rng: np.random.Generato
     (and draws nothing from ``rng``).
 
     Raises:
-        DatasetError: position_mm negative or not finite.
+        InvalidArgumentError: position_mm negative or not finite.
     """
     if position_mm < 0 or not np.isfinite(position_mm):
-        raise DatasetError(f"pose jitter must be a finite number >= 0 mm, got {position_mm!r}")
+        raise InvalidArgumentError(f"pose jitter must be a finite number >= 0 mm, got {position_mm!r}")
     if position_mm == 0:
         return contour
     n = contour.n_probes
@@ -119,7 +119,7 @@ class Toucher:
             else computed here with ``saliency_seed`` (and timed into ``timing``).
 
     Raises:
-        ContourError: unknown strategy, probes not an integer >= 2, a flat object.
+        InvalidArgumentError: unknown strategy, probes not an integer >= 2. ContourError: a flat object.
         SaliencyError: ``saliency`` is of another method or object.
     """
 
@@ -135,7 +135,7 @@ class Toucher:
     ) -> None:
         sampling.check_strategy(strategy)
         self.model, self.strategy = model, strategy
-        self.probes = check_count(probes, "probes", model.name, ContourError, minimum=2)
+        self.probes = check_count(probes, "probes", model.name, minimum=2)
         sampling.check_not_flat(model)
         method = sampling.STRATEGIES[strategy]
         if method is not None and saliency is None:
@@ -251,20 +251,20 @@ def touch(
         progress: show a tqdm bar.
 
     Raises:
-        ContourError: unknown strategy, n_contours not an integer >= 1, probes not an integer >= 2, a bad
-            seed or seeding, a flat object, or too many planes that miss the object.
+        InvalidArgumentError: unknown strategy or seeding, n_contours not an integer >= 1, probes not an
+            integer >= 2, a bad seed, a negative or non-finite jitter.
+        ContourError: a flat object, or too many planes that miss the object.
         SaliencyError: ``saliency`` is of another method or object.
-        DatasetError: a negative or non-finite jitter.
     """
     sampling.check_strategy(strategy)
     if seeding not in SEEDINGS:
-        raise ContourError(f"unknown seeding {seeding!r}; choose one of {', '.join(SEEDINGS)}")
-    n_contours = check_count(n_contours, "n_contours", model.name, ContourError)
-    seed = check_seed(seed, model.name, ContourError)
+        raise InvalidArgumentError(f"unknown seeding {seeding!r}; choose one of {', '.join(SEEDINGS)}")
+    n_contours = check_count(n_contours, "n_contours", model.name)
+    seed = check_seed(seed, model.name)
     if seeding == "object" and not isinstance(seed, int):
-        raise ContourError(f"{model.name}: seeding 'object' needs an integer seed, got {seed!r}")
+        raise InvalidArgumentError(f"{model.name}: seeding 'object' needs an integer seed, got {seed!r}")
     if jitter_mm < 0 or not np.isfinite(jitter_mm):
-        raise DatasetError(f"pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
+        raise InvalidArgumentError(f"pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
     sensor = sensor or FSRSensor()
     toucher = Toucher(model, strategy, probes=probes, saliency=saliency,
                       saliency_seed=seed if seeding == "object" else 0, timing=timing)

@@ -20,7 +20,7 @@ from fusion.commands import print_json
 
 def _objects(args: argparse.Namespace) -> list:
     """(path, class) or (class, seed) pairs from the arguments. Raises DatasetError for unknown classes."""
-    from perception.errors import DatasetError
+    from perception.errors import DatasetError, InvalidArgumentError
 
     if args.catalogue is not None:
         from perception.shapes import CLASSES
@@ -28,7 +28,7 @@ def _objects(args: argparse.Namespace) -> list:
         classes = args.classes or list(CLASSES)
         unknown = sorted(set(classes) - set(CLASSES))
         if unknown:
-            raise DatasetError(f"unknown catalogue classes {unknown}; the built-in classes are {', '.join(CLASSES)}")
+            raise InvalidArgumentError(f"unknown catalogue classes {unknown}; the built-in classes are {', '.join(CLASSES)}")
         if args.catalogue < 1:
             raise DatasetError(f"--catalogue needs at least 1 object per class, got {args.catalogue}")
         return [(c, seed) for c in classes for seed in range(args.catalogue)]
@@ -43,7 +43,7 @@ def _objects(args: argparse.Namespace) -> list:
         items = [(p, c) for p, c in items if c in set(args.classes)]
     if args.objects_per_class is not None:
         if args.objects_per_class < 1:
-            raise DatasetError(f"--objects-per-class must be >= 1, got {args.objects_per_class}")
+            raise InvalidArgumentError(f"--objects-per-class must be >= 1, got {args.objects_per_class}")
         # load_dataset sorts by class then file name: the first N files of each class.
         kept, count = [], {}
         for path, label in items:

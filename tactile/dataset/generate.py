@@ -25,7 +25,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from tactile import sampling
 from tactile.dataset.objects import ObjectSpec, object_specs
 from tactile.dataset.store import (
@@ -94,19 +94,19 @@ def _package_version() -> str:
 def _check(strategies, contours_per_object, sensor, probes, seed, workers, executor) -> tuple[str, ...]:
     strategies = (strategies,) if isinstance(strategies, str) else tuple(strategies)
     if not strategies or len(set(strategies)) != len(strategies):
-        raise DatasetError(f"strategies must be a non-empty list without repeats, got {list(strategies)}")
+        raise InvalidArgumentError(f"strategies must be a non-empty list without repeats, got {list(strategies)}")
     unknown = [s for s in strategies if s not in sampling.STRATEGIES]
     if unknown:
-        raise DatasetError(f"unknown strategies {unknown}; choose from {', '.join(sampling.STRATEGIES)}")
+        raise InvalidArgumentError(f"unknown strategies {unknown}; choose from {', '.join(sampling.STRATEGIES)}")
     for name, value, low in (("contours_per_object", contours_per_object, 1), ("probes", probes, 2), ("seed", seed, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise DatasetError(f"{name} must be an integer >= {low}, got {value!r}")
+            raise InvalidArgumentError(f"{name} must be an integer >= {low}, got {value!r}")
     if not isinstance(sensor, FSRSensor):
-        raise DatasetError(f"sensor must be an FSRSensor, got {type(sensor).__name__}")
+        raise InvalidArgumentError(f"sensor must be an FSRSensor, got {type(sensor).__name__}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise DatasetError(f"workers must be a positive integer or None, got {workers!r}")
+        raise InvalidArgumentError(f"workers must be a positive integer or None, got {workers!r}")
     if executor not in EXECUTORS:
-        raise DatasetError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+        raise InvalidArgumentError(f"executor must be one of {EXECUTORS}, got {executor!r}")
     return strategies
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from tactile.dataset.store import (
     ZARR_READ,
     decode_frames,
@@ -143,7 +143,7 @@ class TactileDataset:
                 raise DatasetError(f"{self.path}: boolean index of shape {idx.shape}, expected ({len(self)},)")
             return np.flatnonzero(idx).astype(np.int64)
         if idx.ndim != 1 or not (idx.size == 0 or np.issubdtype(idx.dtype, np.integer)):
-            raise DatasetError(f"{self.path}: index must be a 1-D integer or boolean array, got {idx.dtype} {idx.shape}")
+            raise InvalidArgumentError(f"{self.path}: index must be a 1-D integer or boolean array, got {idx.dtype} {idx.shape}")
         idx = idx.astype(np.int64)
         if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
             raise DatasetError(f"{self.path}: index out of range 0..{len(self) - 1}")
@@ -214,7 +214,7 @@ class TactileDataset:
     @staticmethod
     def _check_fraction(test_fraction: float) -> float:
         if not (isinstance(test_fraction, (int, float)) and 0 < test_fraction < 1):
-            raise DatasetError(f"test_fraction must be in (0, 1), got {test_fraction!r}")
+            raise InvalidArgumentError(f"test_fraction must be in (0, 1), got {test_fraction!r}")
         return float(test_fraction)
 
     def split_by_sequence(self, test_fraction: float = 0.2, seed: int = 0, index=None) -> tuple[np.ndarray, np.ndarray]:
@@ -273,7 +273,7 @@ class TactileDataset:
             DatasetError: k < 2, fewer objects than k, or a bad index.
         """
         if isinstance(k, bool) or not isinstance(k, int) or k < 2:
-            raise DatasetError(f"k must be an integer >= 2, got {k!r}")
+            raise InvalidArgumentError(f"k must be an integer >= 2, got {k!r}")
         idx = np.unique(self._index(index))
         fold_of = {}
         turn = 0

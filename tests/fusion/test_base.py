@@ -96,3 +96,19 @@ def test_loading_garbage_or_missing_files_is_refused(tmp_path):
     (tmp_path / "junk.vtm").write_bytes(b"not a pickle at all")
     with pytest.raises(ModelFileError, match="junk.vtm: not a readable visuotactile model file"):
         load_model(tmp_path / "junk.vtm")
+
+
+class TestNotFitted:
+    """A classifier used before fit raises the project's NotFittedError (which the CLI turns into exit 2)."""
+
+    def test_predict_and_save_before_fit(self, batch, tmp_path):
+        from perception.errors import NotFittedError, VisuotactileError
+
+        model = MeanFrame()
+        with pytest.raises(NotFittedError, match="fit"):
+            model.predict(batch)
+        with pytest.raises(NotFittedError, match="fit"):
+            model.save(tmp_path / "m.vtm")
+        with pytest.raises(NotFittedError) as info:
+            model.predict_proba(batch)
+        assert isinstance(info.value, VisuotactileError) and isinstance(info.value, ValueError)

@@ -9,7 +9,7 @@ import torch
 from fusion.base import load_model
 from fusion.cnn import CNNClassifier, CutaneousNet, KinestheticNet, _circular_probes, pool_frames
 from fusion.cues import kinesthetic_cues
-from perception.errors import DatasetError, ModelMismatchError
+from perception.errors import DatasetError, InvalidArgumentError, ModelMismatchError
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 
@@ -233,13 +233,13 @@ def test_bad_input_is_refused():
         CNNClassifier(**FAST).fit(nan)
     with pytest.raises(DatasetError, match="one class"):
         CNNClassifier(**FAST).fit(train.subset(train.labels == 0))
-    with pytest.raises(DatasetError, match="cue"):
+    with pytest.raises(InvalidArgumentError, match="cue"):
         CNNClassifier(cue="colour", **FAST).fit(train)
-    with pytest.raises(DatasetError, match="modality"):
+    with pytest.raises(InvalidArgumentError, match="modality"):
         CNNClassifier(modality="smell", **FAST).fit(train)
-    with pytest.raises(DatasetError, match="augment"):
+    with pytest.raises(InvalidArgumentError, match="augment"):
         CNNClassifier(augment="sometimes", **FAST).fit(train)
-    with pytest.raises(DatasetError, match="val_fraction"):
+    with pytest.raises(InvalidArgumentError, match="val_fraction"):
         CNNClassifier(**{**FAST, "val_fraction": 1.0}).fit(train)
     model = CNNClassifier(**{**FAST, "epochs": 1}).fit(train)
     with pytest.raises(DatasetError, match="NaN"):

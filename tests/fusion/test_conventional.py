@@ -9,7 +9,7 @@ from sklearn.model_selection import StratifiedKFold, cross_val_score
 from fusion.base import load_model
 from fusion.conventional import ConventionalClassifier, conventional_pipeline, cross_validate
 from fusion.features import sequence_features
-from perception.errors import DatasetError, ModelMismatchError
+from perception.errors import DatasetError, InvalidArgumentError, ModelMismatchError
 from tests.fusion.test_features import small_batch
 
 FAST = {"som_iterations": 300, "n_select": 30}
@@ -101,9 +101,9 @@ def test_constant_video_and_bad_input(fitted):
     single = batch.subset(batch.labels == 0)
     with pytest.raises(DatasetError, match="only one class"):
         ConventionalClassifier(**FAST).fit(single)
-    with pytest.raises(DatasetError, match="unknown classifier kind"):
+    with pytest.raises(InvalidArgumentError, match="unknown classifier kind"):
         ConventionalClassifier(kind="forest").fit(train)
-    with pytest.raises(DatasetError, match="unknown kinesthetic cue"):
+    with pytest.raises(InvalidArgumentError, match="unknown kinesthetic cue"):
         conventional_pipeline(cue="colour")
 
 

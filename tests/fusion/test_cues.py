@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fusion.cues import INVARIANT_NAMES, cue_width, kinesthetic_cues
-from perception.errors import DatasetError
+from perception.errors import InvalidArgumentError
 from tests.fusion._synthetic import circle_batch, rotation
 
 
@@ -49,5 +49,5 @@ def test_a_probe_at_the_centre_gives_finite_cues():
 
 
 def test_unknown_cue_is_refused():
-    with pytest.raises(DatasetError, match="unknown kinesthetic cue"):
+    with pytest.raises(InvalidArgumentError, match="unknown kinesthetic cue"):
         kinesthetic_cues(circle_batch([10.0]), "curvature")

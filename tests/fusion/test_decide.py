@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fusion.decide import fuse_touches, touch_groups
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 
 
 def test_sum_rule_averages_probabilities():
@@ -40,7 +40,7 @@ def test_bad_probabilities_are_refused(bad):
 
 
 def test_unknown_rule_is_refused():
-    with pytest.raises(DatasetError, match="unknown fusion rule"):
+    with pytest.raises(InvalidArgumentError, match="unknown fusion rule"):
         fuse_touches([[1.0, 0.0]], "max")
 
 
@@ -58,5 +58,5 @@ def test_touch_groups_hold_distinct_sequences_of_one_object():
 def test_touch_groups_refuse_impossible_requests():
     with pytest.raises(DatasetError, match="no object has 5"):
         touch_groups([0, 0, 1], 5)
-    with pytest.raises(DatasetError, match="positive integer"):
+    with pytest.raises(InvalidArgumentError, match="positive integer"):
         touch_groups([0, 0, 1], 0)

@@ -191,7 +191,7 @@ def test_jitter_moves_probes_in_the_pad_plane_with_the_stated_spread():
     assert math.sqrt(np.mean(tilt**2)) == pytest.approx(TILT_DEG_PER_MM * 2.0, rel=0.06)
     assert np.allclose(np.linalg.norm(moved.normals, axis=1), 1)
     assert np.abs(np.sum(moved.normals * moved.tangents, axis=1)).max() < 1e-12
-    with pytest.raises(DatasetError):
+    with pytest.raises(InvalidArgumentError):
         jitter_contour(contour, -1.0, np.random.default_rng(0))
 
 

@@ -24,7 +24,7 @@ from fusion.features import (
     safe_skew,
     sequence_features,
 )
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from perception.shapes import CLASSES, make_object
 from tactile.explore import SequenceBatch
 from tactile.sampling import explore_object
@@ -63,7 +63,7 @@ def test_sequence_features_layout_and_cache():
 
 def test_sequence_features_bad_input():
     batch = small_batch()
-    with pytest.raises(DatasetError, match="unknown kinesthetic cue"):
+    with pytest.raises(InvalidArgumentError, match="unknown kinesthetic cue"):
         sequence_features(batch, "colour")
     with pytest.raises(DatasetError, match="SequenceBatch"):
         sequence_features(np.zeros((2, 25, 16, 16)))

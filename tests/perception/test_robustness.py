@@ -360,16 +360,15 @@ def test_unknown_methods_raise_project_errors_that_are_value_errors():
 
 def test_bad_seeds_counts_and_channels_raise_project_errors():
     from perception.channels import compute_channels
-    from perception.errors import SaliencyError
     from perception.render import render_views, view_directions
 
     model = primitives.sphere(R_MM, 1)
     for seed in (-1, 1.5, "0", True):
-        with pytest.raises(SaliencyError, match="seed"):
+        with pytest.raises(InvalidArgumentError, match="seed"):
             saliency(model, "mesh", seed=seed)
-    with pytest.raises(SaliencyError, match="n_views"):
+    with pytest.raises(InvalidArgumentError, match="n_views"):
         saliency(model, n_views=2.5)
-    with pytest.raises(SaliencyError, match="unknown saliency method"):
+    with pytest.raises(InvalidArgumentError, match="unknown saliency method"):
         saliency(model, "bogus")
     for call in (
         lambda: render_views(model, width=0),

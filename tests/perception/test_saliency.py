@@ -10,7 +10,7 @@ import pytest
 
 from perception import channels, primitives
 from perception.channels import COLOR_CHANNELS, GEOMETRY_CHANNELS, itti_normalize
-from perception.errors import SaliencyError
+from perception.errors import InvalidArgumentError, SaliencyError
 from perception.geometry import ObjectModel, load_object
 from perception.mesh_saliency import _gaussian_means, iss_keypoints
 from perception.saliency import METHODS, fit_channel_weights, load_marked_points, saliency
@@ -92,11 +92,11 @@ def test_interest_points_relax_the_separation_and_validate(cube_saliency):
     sal = cube_saliency["mesh"]
     # 60 points cannot be 15 mm apart on this cube: the distance is halved until they fit.
     assert len(np.unique(sal.interest_points(60), axis=0)) == 60
-    with pytest.raises(SaliencyError):
+    with pytest.raises(InvalidArgumentError):
         sal.interest_points(0)
-    with pytest.raises(SaliencyError):
+    with pytest.raises(InvalidArgumentError):
         sal.interest_points(10**7)
-    with pytest.raises(SaliencyError):
+    with pytest.raises(InvalidArgumentError):
         sal.interest_points(3, min_distance_mm=-1.0)
 
 
@@ -155,8 +155,8 @@ def test_single_weight_reproduces_that_channel(cube):
         {"weights": {"dkl": 1.0}},
     ],
 )
-def test_bad_requests_raise_saliency_error(cube, kwargs):
-    with pytest.raises(SaliencyError, match="rounded_cube"):
+def test_bad_requests_are_invalid_arguments_naming_the_object(cube, kwargs):
+    with pytest.raises(InvalidArgumentError, match="rounded_cube"):
         saliency(cube, **kwargs)
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from perception import shapes
-from perception.errors import DatasetError, InvalidMeshError, VisuotactileError
+from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError, VisuotactileError
 from perception.geometry import ObjectModel, surface_centroid
 from perception.shapes import CLASSES, catalogue_figure, make_dataset, make_object
 
@@ -316,7 +316,7 @@ def test_make_dataset_rebuilds_each_object_from_its_name():
         class_name, seed = m.name.split("/")
         assert m.vertices.tobytes() == make_object(class_name, int(seed)).vertices.tobytes()
     assert make_dataset(0) == []
-    with pytest.raises(DatasetError):
+    with pytest.raises(InvalidArgumentError):
         make_dataset(-1)
     with pytest.raises(DatasetError, match="teapot"):
         make_dataset(1, classes=("teapot",))

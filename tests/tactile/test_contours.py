@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from perception import primitives
-from perception.errors import ContourError
+from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import load_dataset, load_object
 from tactile.contours import (
     Plane,
@@ -244,7 +244,7 @@ def test_tangent_plane_touching_one_vertex_is_a_miss(sphere):
 
 @pytest.mark.parametrize("n", [0, 1, -3, 2.5])
 def test_too_few_probes(sphere, n):
-    with pytest.raises(ContourError):
+    with pytest.raises(InvalidArgumentError):
         make_contour(sphere, Plane([0, 0, 0], [0, 0, 1]), n_probes=n)
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import perception.saliency as attention
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from perception.shapes import make_object
 from tactile.dataset import ObjectSpec, contour_seed, frame_encoding, generate, open_dataset
 from tactile.dataset.store import decode_frames, encode_frames
@@ -279,7 +279,7 @@ def test_blind_never_computes_saliency_and_guided_computes_it_once(tmp_path):
     ],
 )
 def test_bad_generate_arguments(tmp_path, kwargs, message):
-    with pytest.raises(DatasetError, match=message):
+    with pytest.raises(InvalidArgumentError, match=message):
         generate([("mug", 0)], tmp_path / "s", **{**BLIND, **kwargs})
     assert not (tmp_path / "s").exists()
 
@@ -336,7 +336,7 @@ def test_splits_by_sequence_are_stratified_seeded_and_disjoint(guided_store):
     guided = ds.indices("guided")
     train, test = ds.split_by_sequence(0.5, seed=1, index=guided)
     assert set(train) | set(test) == set(guided)
-    with pytest.raises(DatasetError, match=r"test_fraction must be in \(0, 1\)"):
+    with pytest.raises(InvalidArgumentError, match=r"test_fraction must be in \(0, 1\)"):
         ds.split_by_sequence(1.0)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from perception import primitives
-from perception.errors import ContourError, SensorSpecError
+from perception.errors import ContourError, InvalidArgumentError, SensorSpecError
 from perception.geometry import ObjectModel, load_object
 from tactile.contours import Plane, make_contour, plane_through
 from tactile.sampling import explore_object, sample_planes
@@ -57,15 +57,15 @@ def test_negative_and_fractional_arguments_raise_project_errors(ball):
     contour = make_contour(ball, plane_through(ball.center, [1, 0, 0], [0, 1, 0]), 4)
     with pytest.raises(SensorSpecError, match="seed"):
         FSRSensor(**SMALL).press(ball, contour.positions, contour.normals, contour.tangents, seed=-1)
-    with pytest.raises(ContourError, match="seed"):
+    with pytest.raises(InvalidArgumentError, match="seed"):
         explore_object(ball, "blind", 1, seed=-1)
-    with pytest.raises(ContourError, match="n_contours"):
+    with pytest.raises(InvalidArgumentError, match="n_contours"):
         explore_object(ball, "blind", 2.5)
-    with pytest.raises(ContourError, match="probes"):
+    with pytest.raises(InvalidArgumentError, match="probes"):
         explore_object(ball, "blind", 1, probes=3.5)
-    with pytest.raises(ContourError, match="n must"):
+    with pytest.raises(InvalidArgumentError, match="n must"):
         sample_planes(ball, "blind", 2.5)
-    with pytest.raises(ContourError, match="seed"):
+    with pytest.raises(InvalidArgumentError, match="seed"):
         sample_planes(ball, "blind", 1, seed=1.5)
     assert len(sample_planes(ball, "blind", 2.0)) == 2  # an integral float is a count
 

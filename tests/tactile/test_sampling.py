@@ -7,7 +7,7 @@ import pytest
 
 import perception.saliency as attention
 from perception import primitives
-from perception.errors import ContourError, SaliencyError
+from perception.errors import ContourError, InvalidArgumentError, SaliencyError
 from perception.geometry import ObjectModel
 from perception.shapes import make_object
 from tactile import sampling, touching
@@ -138,13 +138,13 @@ def test_explore_object_is_seeded_and_records_strategy(cube):
 
 
 def test_bad_requests(cube):
-    with pytest.raises(ContourError, match="strategy"):
+    with pytest.raises(InvalidArgumentError, match="strategy"):
         sample_planes(cube, "psychic", 2)
-    with pytest.raises(ContourError):
+    with pytest.raises(InvalidArgumentError):
         sample_planes(cube, "blind", 0)
-    with pytest.raises(ContourError):
+    with pytest.raises(InvalidArgumentError):
         explore_object(cube, "blind", n_contours=0)
-    with pytest.raises(ContourError, match="probes"):
+    with pytest.raises(InvalidArgumentError, match="probes"):
         explore_object(cube, "blind", probes=1)
 
 

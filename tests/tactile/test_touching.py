@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fusion.experiments.touch import touch_object
-from perception.errors import ContourError
+from perception.errors import InvalidArgumentError
 from perception.shapes import make_object
 from tactile.contours import make_contour, plane_through
 from tactile.explore import explore
@@ -99,7 +99,7 @@ class TestObjectSeeding:
 
 class TestArguments:
     def test_unknown_seeding_is_refused(self, box):
-        with pytest.raises(ContourError, match="seeding"):
+        with pytest.raises(InvalidArgumentError, match="seeding"):
             touch(box, "blind", 1, seeding="sometimes")
 
     def test_stream_jitter_leaves_the_contours(self, box):
