@@ -3,33 +3,21 @@
 from __future__ import annotations
 
 import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
-from importlib.metadata import version
 from pathlib import Path
-
-import numpy as np
 
 #: The shared real data (``$VISUOTACTILE_DATA``, default ``../shared/data`` beside the repository).
 DATA = Path(os.environ.get("VISUOTACTILE_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 
 def machine() -> dict:
-    """Where the numbers were measured: platform, cores, library versions."""
-    import open3d
+    """Where the numbers were measured: platform, cores, library versions (:mod:`perception.runtime`)."""
+    from perception.runtime import machine as this_machine
+    from perception.runtime import versions
 
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "cores_available": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "open3d": open3d.__version__,
-        "pymeshlab": version("pymeshlab"),
-    }
+    return {**this_machine(), **versions("open3d", "pymeshlab")}
 
 
 def median_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:

@@ -20,7 +20,6 @@ Old pickled models are refused unless ``trust_pickle=True`` (for files you made 
 from __future__ import annotations
 
 import logging
-import platform
 import re
 from pathlib import Path
 
@@ -112,18 +111,10 @@ def _geometry_spec(spec: dict) -> dict:
 
 
 def library_versions() -> dict:
-    import sklearn
-    import torch
+    """The versions a model file records and compares on loading (:func:`perception.runtime.versions`)."""
+    from perception.runtime import versions
 
-    import perception
-
-    return {
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "scikit-learn": sklearn.__version__,
-        "torch": torch.__version__,
-        "visuotactile": getattr(perception, "__version__", "0.1.0"),
-    }
+    return versions("scikit-learn", "torch")
 
 
 class TactileClassifier(ClassifierMixin, BaseEstimator):

@@ -2,7 +2,9 @@
 
 Each subcommand lives in its own module under :mod:`fusion.commands` and defines
 ``register(subparsers)``, which adds its parser and sets ``func(args, rest) -> exit code``. This file only
-assembles them, sets up logging and turns a :class:`VisuotactileError` into one line on stderr and exit 2.
+assembles them, gives every subcommand ``--no-progress`` (the one progress switch,
+:func:`perception.runtime.set_progress`; ``--json`` turns the bars off too), sets up logging and turns a
+:class:`VisuotactileError` into one line on stderr and exit 2.
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
                 raise
             continue
         module.register(sub)
+    for command in sub.choices.values():
+        command.add_argument("--no-progress", action="store_true", help="no progress bars")
     return parser
 
 
@@ -47,6 +51,9 @@ def main(argv: list[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    from perception.runtime import set_progress
+
+    set_progress(False if args.no_progress or getattr(args, "json", False) else None)
     try:
         return int(args.func(args, rest) or 0)
     except VisuotactileError as exc:
@@ -55,6 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"visuotactile {args.command}: interrupted; finished work is kept, re-run to resume", file=sys.stderr)
         return 130
+    finally:
+        set_progress(None)
 
 
 if __name__ == "__main__":

@@ -45,11 +45,11 @@ import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
-from tqdm import tqdm
 
 from fusion.base import TactileClassifier, renamed_seed
 from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
 from perception.errors import DatasetError, InvalidArgumentError
+from perception.runtime import progress_bar
 from tactile.explore import SequenceBatch
 
 log = logging.getLogger(__name__)
@@ -320,7 +320,7 @@ class CNNClassifier(TactileClassifier):
         y_t = torch.from_numpy(y.astype(np.int64))
         best, best_state, best_epoch, since = (-1.0, np.inf), None, 0, 0
         epoch_times = []
-        epochs = tqdm(range(self.epochs), desc=f"train {kind}", disable=not self.progress, leave=False)
+        epochs = progress_bar(range(self.epochs), enabled=self.progress, desc=f"train {kind}", leave=False)
         for epoch in epochs:
             net.train()
             started = time.perf_counter()

@@ -8,6 +8,11 @@ from __future__ import annotations
 
 import importlib
 
+from perception.runtime import package_version
+
+#: The toolkit's version (installed metadata, else the checkout's setup.cfg); models and stores record it.
+__version__ = package_version()
+
 _EXPORTS = {
     "VisuotactileError": "errors",
     "Curvature": "geometry",
@@ -19,7 +24,7 @@ _EXPORTS = {
     "load_points": "reconstruct.surface",
 }
 
-__all__ = ["CLASSES", "Curvature", "ObjectModel", "VisuotactileError", "load_dataset", "load_object", "load_points", "make_object"]
+__all__ = ["CLASSES", "Curvature", "ObjectModel", "VisuotactileError", "__version__", "load_dataset", "load_object", "load_points", "make_object"]
 
 
 def __getattr__(name: str):

@@ -29,11 +29,11 @@ from pathlib import Path
 
 import manifold3d as mf
 import numpy as np
-from tqdm import tqdm
 
 from perception.atomic import save_figure
 from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
 from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize, surface_centroid
+from perception.runtime import progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -890,7 +890,7 @@ def make_dataset(
     jobs = [(c, seed + i) for c in classes for i in range(n_per_class)]
     return [
         make_object(c, s, size_mm=size_mm)
-        for c, s in tqdm(jobs, desc="objects", unit="obj", disable=not progress)
+        for c, s in progress_bar(jobs, enabled=progress, desc="objects", unit="obj")
     ]
 
 

@@ -29,11 +29,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm import tqdm
 
 from perception import saliency as attention
 from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
+from perception.runtime import progress_bar
 from perception.validate import check_count, check_seed
 from tactile import sampling
 from tactile.contours import Contour, make_contour
@@ -274,7 +274,7 @@ def touch(
         planned = toucher.stream(n_contours, seed)
         jitter_rng = None
     sequences = []
-    steps = iter(tqdm(range(n_contours), desc=f"touch {model.name}", disable=not progress))
+    steps = iter(progress_bar(range(n_contours), enabled=progress, desc=f"touch {model.name}"))
     while True:
         start = time.perf_counter()
         item = next(planned, None)

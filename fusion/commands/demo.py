@@ -16,7 +16,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
                                  ("epochs", args.epochs)) if v is not None}
     echo = (lambda line: print(line, file=sys.stderr)) if args.json else print
     summary = run_demo(Path(args.out), seed=args.seed, sizes=check_demo_sizes(replace(DEMO_SIZES, **changes)),
-                       recognition=not args.no_recognition, progress=not args.no_progress, echo=echo)
+                       recognition=not args.no_recognition, echo=echo)
     if args.json:
         print_json(summary)
     return 0
@@ -30,6 +30,5 @@ def register(sub) -> None:
     demo.add_argument("--contours", type=int, help="contours per object and strategy (default 30)")
     demo.add_argument("--epochs", type=int, help="CNN epochs at most (default 12)")
     demo.add_argument("--no-recognition", action="store_true", help="only the catalogue, saliency and touch figures")
-    demo.add_argument("--no-progress", action="store_true", help="no progress bars")
     demo.add_argument("--json", action="store_true", help="print summary.json on stdout (tables go to stderr)")
     demo.set_defaults(func=run)

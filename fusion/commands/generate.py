@@ -81,7 +81,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     report = generate(
         objects, args.out, strategies=tuple(args.strategies), contours_per_object=args.contours,
         probes=args.probes, seed=args.seed, workers=args.workers, executor=args.executor, strict=args.strict,
-        progress=not args.quiet, object_timeout_s=args.timeout,
+        object_timeout_s=args.timeout,
         command=_command(args),
     )
     dataset = open_dataset(report.path)
@@ -141,6 +141,5 @@ def register(sub) -> None:
     p.add_argument("--strict", action="store_true", help="stop at the first failed object")
     p.add_argument("--timeout", type=float, default=None, metavar="S",
                    help="give up on an object after S seconds (local executor)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)

@@ -15,7 +15,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     out = args.out or ("out/reproduce-quick" if args.quick else "out/reproduce")
     results = reproduce(args.data, out, classes=args.classes, objects_per_class=args.objects_per_class,
                         quick=args.quick, seed=args.seed, parts=args.parts, workers=args.workers,
-                        progress=not args.no_progress, command=" ".join(["visuotactile", *sys.argv[1:]]))
+                        command=" ".join(["visuotactile", *sys.argv[1:]]))
     if args.json:
         print_json(results)
         return 0
@@ -63,5 +63,4 @@ def register(sub) -> None:
     parser.add_argument("--workers", type=int, default=None, help="data generation workers (default: the cores)")
     parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.set_defaults(func=run)

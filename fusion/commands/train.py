@@ -33,7 +33,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
     dataset = open_dataset(args.store)
     train, test = split_indices(dataset, args.split, args.strategy, args.test_fraction, args.seed)
-    model = make_classifier(args.model, cue=args.cue, random_state=args.seed, progress=not args.json)
+    model = make_classifier(args.model, cue=args.cue, random_state=args.seed)
     start = time.perf_counter()
     model.fit(dataset.load(train))
     fit_s = time.perf_counter() - start

@@ -16,7 +16,7 @@ from fusion.commands import print_json
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from tactile.dataset import verify_store
 
-    report = verify_store(args.store, progress=not args.quiet and not args.json)
+    report = verify_store(args.store)
     if args.json:
         print_json(report.to_dict())
     else:
@@ -34,6 +34,5 @@ def register(sub) -> None:
     p = sub.add_parser("verify", help="check a dataset store for missing or damaged chunks (checksums, digests)",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("store", help="dataset store written by `visuotactile generate`")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print a JSON report on stdout")
     p.set_defaults(func=run)

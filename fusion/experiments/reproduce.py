@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import platform
 import sys
 import time
 from datetime import UTC, datetime
@@ -36,6 +34,7 @@ from fusion.experiments.protocol import (
 from fusion.experiments.report import render
 from perception.atomic import write_text
 from perception.errors import InvalidArgumentError
+from perception.runtime import machine_line as machine
 
 log = logging.getLogger(__name__)
 
@@ -43,12 +42,6 @@ PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime")
 BOOTSTRAP_NOTE = ("over test sequences for the paper protocol; over objects (whole objects resampled) "
                   "for unseen objects, K touches, noise, attention and the run-time part; differences (guided - blind, "
                   "any pose - upright) are paired object by object and bootstrapped over objects.")
-
-
-def machine() -> str:
-    """A one-line description of this machine."""
-    return f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} logical CPUs, " \
-           f"{len(os.sched_getaffinity(0))} usable, Python {platform.python_version()}".replace("  ", " ")
 
 
 def reproduce(

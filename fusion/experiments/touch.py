@@ -15,10 +15,10 @@ import logging
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from perception.atomic import atomic_path
 from perception.geometry import ObjectModel
+from perception.runtime import progress_bar
 from tactile.contours import Contour
 from tactile.explore import SequenceBatch, TactileSequence
 from tactile.sensor import FSRSensor
@@ -76,7 +76,7 @@ def touch_objects(
     """
     sensor = sensor or FSRSensor()
     sequences = []
-    for model in tqdm(models, desc=f"touch {strategy}", unit="obj", disable=not progress):
+    for model in progress_bar(models, enabled=progress, desc=f"touch {strategy}", unit="obj"):
         found, _ = touch_object(model, strategy, n_contours, sensor=sensor, probes=probes, seed=seed,
                                 jitter_mm=jitter_mm, attention=(attention or {}).get(model.name), timing=timing)
         sequences += found

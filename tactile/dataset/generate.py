@@ -23,9 +23,8 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from tqdm import tqdm
-
 from perception.errors import DatasetError, InvalidArgumentError
+from perception.runtime import package_version, progress_bar
 from tactile import sampling
 from tactile.dataset.objects import ObjectSpec, object_specs
 from tactile.dataset.store import (
@@ -82,15 +81,6 @@ class GenerationReport:
         }
 
 
-def _package_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("visuotactile")
-    except PackageNotFoundError:
-        return "unknown"
-
-
 def _check(strategies, contours_per_object, sensor, probes, seed, workers, executor) -> tuple[str, ...]:
     strategies = (strategies,) if isinstance(strategies, str) else tuple(strategies)
     if not strategies or len(set(strategies)) != len(strategies):
@@ -122,12 +112,12 @@ def _open_or_create(out: Path, settings: dict, command: str | None) -> None:
                 f"{out}: the store was generated with other settings ({'; '.join(diffs)}); "
                 "re-run with the same settings to resume, or choose another output path"
             )
-        if attrs.get("package_version") != _package_version():
+        if attrs.get("package_version") != package_version():
             log.warning("%s: made by visuotactile %s, resuming with %s", out, attrs.get("package_version"),
-                        _package_version())
+                        package_version())
         return
     meta = {
-        "package_version": _package_version(),
+        "package_version": package_version(),
         "command": command if command is not None else shlex.join(sys.argv),
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "store_id": uuid.uuid4().hex,  # tells two stores of the same settings apart (models record it)
@@ -209,7 +199,7 @@ def generate(
         report.seconds = time.perf_counter() - start
         return report
     n_workers = min(workers or _usable_cores(), len(todo))
-    bar = tqdm(total=len(todo) * layout.block, desc="generate", unit="seq", disable=not progress, smoothing=0.1)
+    bar = progress_bar(total=len(todo) * layout.block, enabled=progress, desc="generate", unit="seq", smoothing=0.1)
     bar.set_postfix_str(f"objects {report.skipped}/{len(specs)}")
 
     def finished(index: int, ok: bool, detail) -> None:

@@ -15,9 +15,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tqdm import tqdm
-
 from perception.errors import DatasetError
+from perception.runtime import progress_bar
 from tactile.dataset.store import (
     ARRAYS,
     RECORDS,
@@ -132,7 +131,7 @@ def damaged_objects(path: str | Path, progress: bool = False) -> dict[int, str]:
     complete = [i for i in sorted(records) if records[i].get("status") == "complete"]
     arrays = _arrays(path) if complete else {}
     damaged = {}
-    for index in tqdm(complete, desc="verify", unit="object", disable=not progress):
+    for index in progress_bar(complete, enabled=progress, desc="verify", unit="object"):
         problem = object_damage(path, arrays, settings, index, records[index])
         if problem is not None:
             damaged[index] = problem

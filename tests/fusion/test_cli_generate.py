@@ -13,7 +13,7 @@ from tactile.dataset import open_dataset
 CUBE_OFF = "OFF\n8 6 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n" + "".join(
     f"4 {f}\n" for f in ("0 3 2 1", "4 5 6 7", "0 1 5 4", "1 2 6 5", "2 3 7 6", "3 0 4 7")
 )
-SMALL = ["--strategies", "blind", "--contours", "3", "--probes", "4", "--workers", "2", "--quiet"]
+SMALL = ["--strategies", "blind", "--contours", "3", "--probes", "4", "--workers", "2", "--no-progress"]
 
 
 def test_catalogue_generation_prints_a_json_summary_and_resumes(tmp_path, capsys):

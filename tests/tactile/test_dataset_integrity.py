@@ -122,7 +122,7 @@ def test_reading_a_damaged_object_raises_naming_it(copy, case, capsys):
             ds.frames(np.flatnonzero(ds.object_ids == obj)[:1])
         with pytest.raises(DatasetError, match=f"object '{name}' is damaged"):
             ds.torch_dataset(np.flatnonzero(ds.object_ids == obj))[0]
-    assert main(["verify", str(copy), "--quiet"]) == 1
+    assert main(["verify", str(copy), "--no-progress"]) == 1
     out = capsys.readouterr().out
     assert f"damaged  {name}: " in out and "1 damaged" in out
 

@@ -1,0 +1,106 @@
+"""What is running and where: the package version, library versions, the machine, and the one progress switch.
+
+Models (:mod:`fusion.base`), stores (:mod:`tactile.dataset`), reports and benchmarks record these from here, so
+that a number or a file always says which code and which machine made it.
+
+Progress bars: every long loop of the library draws its bar with :func:`progress_bar`. A bar shows when its
+caller asks for one (``progress=True``, the default of the long functions) *and* the process-wide switch is on:
+:func:`set_progress` (the command line's ``--no-progress`` and ``--json`` turn it off) or the environment
+variable ``VISUOTACTILE_PROGRESS=0``.
+"""
+
+from __future__ import annotations
+
+import configparser
+import os
+import platform
+from functools import cache
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+#: The distribution name of this toolkit.
+DISTRIBUTION = "visuotactile"
+#: Environment variable that turns every progress bar off when set to 0 (or "false", "no", "off").
+PROGRESS_ENV = "VISUOTACTILE_PROGRESS"
+
+_progress: bool | None = None  # set_progress; None: the environment decides
+
+
+@cache
+def package_version() -> str:
+    """The installed package's version (its metadata), else the ``version`` of the checkout's setup.cfg, else
+    "unknown" (a bare copy of the sources)."""
+    try:
+        return version(DISTRIBUTION)
+    except PackageNotFoundError:
+        pass
+    cfg = Path(__file__).resolve().parents[1] / "setup.cfg"
+    parser = configparser.ConfigParser()
+    try:
+        parser.read(cfg, encoding="utf-8")
+        return parser.get("metadata", "version")
+    except (configparser.Error, OSError):
+        return "unknown"
+
+
+def versions(*distributions: str) -> dict[str, str]:
+    """Python, numpy and visuotactile versions, plus those of ``distributions`` (pip names, e.g.
+    "scikit-learn", "torch", "open3d"; "not installed" when absent). Reads package metadata: imports nothing."""
+    found = {"python": platform.python_version(), "numpy": version("numpy"), DISTRIBUTION: package_version()}
+    for name in distributions:
+        try:
+            found[name] = version(name)
+        except PackageNotFoundError:
+            found[name] = "not installed"
+    return found
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on (its affinity), at least 1."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def machine() -> dict:
+    """Where the numbers were measured: platform, processor, logical CPUs, usable cores, Python."""
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "cores_available": usable_cores(),
+        "python": platform.python_version(),
+    }
+
+
+def machine_line() -> str:
+    """:func:`machine` in one line, for reports."""
+    return f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} logical CPUs, " \
+           f"{usable_cores()} usable, Python {platform.python_version()}".replace("  ", " ")
+
+
+def set_progress(enabled: bool | None) -> None:
+    """Turn every progress bar of this process on or off; None: back to the environment's choice."""
+    global _progress
+    _progress = None if enabled is None else bool(enabled)
+
+
+def progress_enabled(requested: bool = True) -> bool:
+    """Whether a bar that its caller ``requested`` shows: the request, the switch and the environment agree."""
+    if not requested:
+        return False
+    if _progress is not None:
+        return _progress
+    return os.environ.get(PROGRESS_ENV, "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def progress_bar(iterable=None, *, enabled: bool = True, **options):
+    """A tqdm bar over ``iterable`` (``options`` go to tqdm: desc, unit, total, ...), shown only when
+    :func:`progress_enabled` (``enabled``)."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, disable=not progress_enabled(enabled), **options)
+
+
+__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "machine", "machine_line", "package_version", "progress_bar",
+           "progress_enabled", "set_progress", "usable_cores", "versions"]

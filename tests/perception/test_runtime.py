@@ -1,0 +1,81 @@
+"""Runtime information and the progress switch: one version, one machine description, one place that decides
+whether a progress bar shows."""
+
+from __future__ import annotations
+
+import configparser
+from pathlib import Path
+
+import pytest
+
+import perception
+from perception import runtime
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class TestVersion:
+    def test_version_is_the_packages_or_the_checkouts(self):
+        """``__version__`` is the installed metadata's version, which is setup.cfg's in a checkout."""
+        cfg = configparser.ConfigParser()
+        cfg.read(ROOT / "setup.cfg")
+        assert perception.__version__ == runtime.package_version() == cfg.get("metadata", "version")
+
+    def test_versions_name_python_numpy_the_toolkit_and_what_is_asked(self):
+        found = runtime.versions("scikit-learn", "no-such-distribution-xyz")
+        assert found["visuotactile"] == perception.__version__
+        assert found["no-such-distribution-xyz"] == "not installed"
+        assert {"python", "numpy", "scikit-learn"} <= set(found)
+
+    def test_a_saved_model_records_the_version(self, tmp_path):
+        from fusion.modelfile import read_model_file
+        from tests.fusion._synthetic import circle_batch
+        from tests.fusion.test_base import MeanFrame
+
+        path = MeanFrame().fit(circle_batch([19, 20, 58, 60], labels=[0, 0, 1, 1])).save(tmp_path / "m.vtm")
+        description, _ = read_model_file(path)
+        assert description["versions"]["visuotactile"] == perception.__version__
+
+    def test_a_store_records_the_version(self, tmp_path):
+        from tactile.dataset import generate, open_dataset
+        from tactile.sensor import FSRSensor
+
+        generate([("box", 0)], tmp_path / "s", strategies="blind", contours_per_object=1, probes=3,
+                 sensor=FSRSensor(rows=4, cols=4), workers=1, progress=False)
+        assert open_dataset(tmp_path / "s").attrs["package_version"] == perception.__version__
+
+
+class TestMachine:
+    def test_machine_counts_cores(self):
+        info = runtime.machine()
+        assert 1 <= info["cores_available"] <= info["cpu_count"]
+        assert f"{info['cores_available']} usable" in runtime.machine_line()
+
+
+class TestProgressSwitch:
+    @pytest.fixture(autouse=True)
+    def _reset(self, monkeypatch):
+        monkeypatch.delenv(runtime.PROGRESS_ENV, raising=False)
+        yield
+        runtime.set_progress(None)
+
+    def test_a_bar_shows_only_when_asked_and_switched_on(self, monkeypatch):
+        assert runtime.progress_enabled(True) and not runtime.progress_enabled(False)
+        runtime.set_progress(False)
+        assert not runtime.progress_enabled(True)
+        assert runtime.progress_bar(range(3), enabled=True).disable
+        runtime.set_progress(None)
+        monkeypatch.setenv(runtime.PROGRESS_ENV, "0")
+        assert not runtime.progress_enabled(True)
+        runtime.set_progress(True)  # an explicit switch wins over the environment
+        assert runtime.progress_enabled(True) and not runtime.progress_enabled(False)
+
+    def test_the_command_line_switch_holds_for_one_command(self, monkeypatch, capsys):
+        """``--no-progress`` turns the switch off while the command runs and restores it after."""
+        from fusion import cli
+
+        seen = []
+        monkeypatch.setattr("fusion.commands.verify.run", lambda args, rest: seen.append(
+            runtime.progress_enabled(True)) or 0)
+        assert cli.main(["verify", "x.zarr", "--no-progress"]) == 0
+        assert seen == [False] and runtime.progress_enabled(True)
