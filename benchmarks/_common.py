@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import os
 import statistics
 import time
 from collections.abc import Callable
-from pathlib import Path
 
-#: The shared real data (``$VISUOTACTILE_DATA``, default ``../shared/data`` beside the repository).
-DATA = Path(os.environ.get("VISUOTACTILE_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+from perception.data import DATA  # noqa: F401  (the benchmarks import it from here)
 
 
 def machine() -> dict:

@@ -26,6 +26,13 @@ PROGRESS_ENV = "VISUOTACTILE_PROGRESS"
 _progress: bool | None = None  # set_progress; None: the environment decides
 
 
+def checkout_root() -> Path | None:
+    """The repository checkout this code runs from (the folder above the packages, holding setup.cfg), or None
+    for an installed copy (a wheel installs no setup.cfg, and no ``benchmarks``)."""
+    root = Path(__file__).resolve().parents[1]
+    return root if (root / "setup.cfg").is_file() else None
+
+
 @cache
 def package_version() -> str:
     """The installed package's version (its metadata), else the ``version`` of the checkout's setup.cfg, else
@@ -34,7 +41,10 @@ def package_version() -> str:
         return version(DISTRIBUTION)
     except PackageNotFoundError:
         pass
-    cfg = Path(__file__).resolve().parents[1] / "setup.cfg"
+    root = checkout_root()
+    if root is None:
+        return "unknown"
+    cfg = root / "setup.cfg"
     parser = configparser.ConfigParser()
     try:
         parser.read(cfg, encoding="utf-8")
@@ -102,5 +112,5 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     return tqdm(iterable, disable=not progress_enabled(enabled), **options)
 
 
-__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "machine", "machine_line", "package_version", "progress_bar",
+__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "machine", "machine_line", "package_version", "progress_bar",
            "progress_enabled", "set_progress", "usable_cores", "versions"]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks._common import DATA
+from perception.data import DATA
 
 
 def data_folder(name: str) -> Path:

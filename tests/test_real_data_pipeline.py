@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks._common import DATA
 from fusion.cnn import CNNClassifier
 from fusion.conventional import ConventionalClassifier
+from perception.data import DATA
 from perception.geometry import load_object
 from perception.saliency import METHODS, saliency
 from perception.shapes import CLASSES, make_object
