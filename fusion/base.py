@@ -120,7 +120,10 @@ def library_versions() -> dict:
 class TactileClassifier(ClassifierMixin, BaseEstimator):
     """Base class; subclasses implement ``_fit(batch, y)`` and ``_predict_proba(batch) -> (S, C)``.
 
-    Fitted attributes: ``classes_`` (names), ``sensor_spec_``, ``n_probes_``, ``grid_``.
+    Fitted attributes: ``classes_`` (names), ``sensor_spec_``, ``n_probes_``, ``grid_``; optionally
+    ``training_``, where the model was trained (a :class:`fusion.training.TrainingRecord` as a dict, set by
+    :func:`fusion.training.train_on_store`, saved with the model and read by
+    :func:`fusion.training.evaluate_on_store` to test on the held-out part).
     """
 
     def __init_subclass__(cls, **kwargs):

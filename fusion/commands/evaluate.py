@@ -5,52 +5,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from fusion.commands import print_json
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.base import load_model
-    from fusion.commands.train import split_indices
-    from fusion.decide import touch_groups
-    from fusion.evaluate import accuracy, confusion, per_class_accuracy, plot_confusion
-    from tactile.dataset import open_dataset
+    from fusion.evaluate import confusion, plot_confusion
+    from fusion.training import evaluate_on_store
 
     model = load_model(args.model, trust_pickle=args.trust_pickle)
-    dataset = open_dataset(args.store)
-    info = getattr(model, "training_", {})
-    same_store = info and info.get("store_id", "") == dataset.attrs.get("store_id", "") and \
-        Path(info.get("store", "")).resolve() == Path(args.store).resolve()
-    if same_store and info.get("split", "none") != "none":
-        # Test only on what training held out.
-        _, index = split_indices(dataset, info["split"], info.get("strategy"), info["test_fraction"], info["seed"])
-        subset = f"held-out {info['split']} split of training"
-    else:
-        index = dataset.indices(args.strategy)
-        subset = "all sequences" + (f" of strategy {args.strategy}" if args.strategy else "")
-    batch = dataset.load(index)
-    proba = model.predict_proba(batch)
-    classes = model.classes_.astype(str)
-    truth = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)
-    if args.touches > 1:
-        groups = touch_groups(batch.object_ids, args.touches, seed=args.seed)
-        from fusion.decide import fuse_touches
-
-        proba = fuse_touches(proba[groups], rule=args.rule)
-        truth = truth[groups[:, 0]]
-        decision_groups = batch.object_ids[groups[:, 0]]
-    else:
-        decision_groups = batch.object_ids
-    predicted = classes[np.argmax(proba, axis=1)]
-    acc = accuracy(truth, predicted, seed=args.seed)
-    by_object = accuracy(truth, predicted, groups=decision_groups, seed=args.seed)
-    result = {
-        "model": str(args.model), "store": str(args.store), "subset": subset, "touches": args.touches,
-        "rule": args.rule, "decisions": len(predicted), "accuracy": acc.to_dict(),
-        "accuracy_object_bootstrap": by_object.to_dict(),
-        "per_class": per_class_accuracy(truth, predicted, classes),
-    }
+    found = evaluate_on_store(model, args.store, touches=args.touches, rule=args.rule, strategy=args.strategy,
+                              seed=args.seed)
+    truth, predicted, classes = found.pop("truth"), found.pop("predicted"), found.pop("classes")
+    acc, by_object = found.pop("interval"), found.pop("object_interval")
+    result = {"model": str(args.model), "store": str(args.store), **found}
     if args.figure:
         plot_confusion(confusion(truth, predicted, classes), classes, args.figure,
                        title=f"{Path(args.model).name}, K = {args.touches}: {acc.percent()}")
@@ -58,7 +26,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     if args.json:
         print_json(result)
     else:
-        print(f"{args.model} on {args.store} ({subset}), K = {args.touches} touches ({args.rule} rule): "
+        print(f"{args.model} on {args.store} ({result['subset']}), K = {args.touches} touches ({args.rule} rule): "
               f"{acc.percent()} over {len(predicted)} decisions (interval resampling objects: "
               f"[{100 * by_object.low:.1f}, {100 * by_object.high:.1f}])")
         for name, value in result["per_class"].items():

@@ -19,39 +19,14 @@ from fusion.commands import print_json
 
 
 def _objects(args: argparse.Namespace) -> list:
-    """(path, class) or (class, seed) pairs from the arguments. Raises DatasetError for unknown classes."""
-    from perception.errors import DatasetError, InvalidArgumentError
+    """(class, seed) or (path, class) pairs from the arguments (:mod:`fusion.experiments.data`)."""
+    from fusion.experiments.data import catalogue_objects, folder_objects
 
     if args.catalogue is not None:
         from perception.shapes import CLASSES
 
-        classes = args.classes or list(CLASSES)
-        unknown = sorted(set(classes) - set(CLASSES))
-        if unknown:
-            raise InvalidArgumentError(f"unknown catalogue classes {unknown}; the built-in classes are {', '.join(CLASSES)}")
-        if args.catalogue < 1:
-            raise DatasetError(f"--catalogue needs at least 1 object per class, got {args.catalogue}")
-        return [(c, seed) for c in classes for seed in range(args.catalogue)]
-    from perception.geometry import load_dataset
-
-    items = load_dataset(args.data)
-    present = sorted({label for _, label in items})
-    if args.classes:
-        unknown = sorted(set(args.classes) - set(present))
-        if unknown:
-            raise DatasetError(f"{args.data}: no class folders {unknown}; it has {', '.join(present)}")
-        items = [(p, c) for p, c in items if c in set(args.classes)]
-    if args.objects_per_class is not None:
-        if args.objects_per_class < 1:
-            raise InvalidArgumentError(f"--objects-per-class must be >= 1, got {args.objects_per_class}")
-        # load_dataset sorts by class then file name: the first N files of each class.
-        kept, count = [], {}
-        for path, label in items:
-            if count.get(label, 0) < args.objects_per_class:
-                kept.append((path, label))
-                count[label] = count.get(label, 0) + 1
-        items = kept
-    return items
+        return catalogue_objects(args.classes or list(CLASSES), args.catalogue)
+    return folder_objects(args.data, classes=args.classes, per_class=args.objects_per_class)
 
 
 def _command(args: argparse.Namespace) -> str:

@@ -3,64 +3,23 @@
 from __future__ import annotations
 
 import argparse
-import logging
-import time
-
-import numpy as np
 
 from fusion.commands import print_json
 
-log = logging.getLogger(__name__)
-
-SPLITS = ("sequence", "object", "none")
-
-
-def split_indices(dataset, split: str, strategy: str | None, test_fraction: float, seed: int):
-    """(train, test) sequence indices of ``dataset`` for ``split`` (test empty for ``"none"``), restricted to
-    ``strategy``'s sequences when given. The same arguments give the same indices (``evaluate`` relies on it)."""
-    index = dataset.indices(strategy)
-    if split == "none":
-        return index, index[:0]
-    if split == "sequence":
-        return dataset.split_by_sequence(test_fraction=test_fraction, seed=seed, index=index)
-    return dataset.split_by_object(test_fraction=test_fraction, seed=seed, index=index)
-
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
-    from fusion.classifiers import make_classifier
-    from fusion.evaluate import accuracy
-    from tactile.dataset import open_dataset
+    from fusion.training import train_on_store
 
-    dataset = open_dataset(args.store)
-    train, test = split_indices(dataset, args.split, args.strategy, args.test_fraction, args.seed)
-    model = make_classifier(args.model, cue=args.cue, random_state=args.seed)
-    start = time.perf_counter()
-    model.fit(dataset.load(train))
-    fit_s = time.perf_counter() - start
-    # Remembered so that `evaluate` on the same store tests on the same held-out sequences.
-    model.training_ = {
-        "store": str(args.store),
-        "store_id": dataset.attrs.get("store_id", ""),
-        "split": args.split,
-        "strategy": args.strategy,
-        "test_fraction": args.test_fraction,
-        "seed": args.seed,
-        "train_sequences": len(train),
-    }
-    model.save(args.out)
-    result = {"model": args.model, "cue": args.cue, "out": str(args.out), "train_sequences": len(train),
-              "fit_seconds": round(fit_s, 2)}
-    if len(test):
-        batch = dataset.load(test)
-        truth = np.asarray(batch.class_names, dtype=object)[batch.labels]
-        acc = accuracy(truth, model.predict(batch), seed=args.seed)
-        result.update(test_sequences=len(test), test_accuracy=acc.to_dict())
+    result = train_on_store(args.store, args.model, args.out, cue=args.cue, split=args.split,
+                            test_fraction=args.test_fraction, strategy=args.strategy, random_state=args.seed)
+    acc = result.pop("accuracy", None)
     if args.json:
         print_json(result)
     else:
-        line = f"trained {args.model} ({args.cue}) on {len(train)} sequences in {fit_s:.1f} s -> {args.out}"
-        if len(test):
-            line += f"; held-out {args.split} split ({len(test)} sequences): {acc.percent()}"
+        line = (f"trained {args.model} ({args.cue}) on {result['train_sequences']} sequences in "
+                f"{result['fit_seconds']:.1f} s -> {args.out}")
+        if acc is not None:
+            line += f"; held-out {args.split} split ({result['test_sequences']} sequences): {acc.percent()}"
         print(line)
     return 0
 
@@ -68,6 +27,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 def register(sub) -> None:
     from fusion.classifiers import CLASSIFIERS
     from fusion.cues import CUES
+    from fusion.training import SPLITS
 
     p = sub.add_parser("train", help="train a classifier on a dataset store and save it")
     p.add_argument("--store", required=True, help="dataset store written by `visuotactile generate`")

@@ -10,7 +10,7 @@ import hashlib
 import logging
 from pathlib import Path
 
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from tactile.dataset.objects import ObjectSpec
 from tactile.sensor import FSRSensor
 
@@ -28,8 +28,12 @@ def folder_objects(folder: str | Path, classes=None, per_class: int | None = Non
     Raises:
         DatasetError: a bad folder (see :func:`perception.geometry.load_dataset`), an unknown class, or a
             class with fewer than ``per_class`` files.
+        InvalidArgumentError: ``per_class`` below 1.
     """
     from perception.geometry import load_dataset
+
+    if per_class is not None and (isinstance(per_class, bool) or int(per_class) != per_class or per_class < 1):
+        raise InvalidArgumentError(f"objects per class must be an integer >= 1, got {per_class!r}")
 
     items = unique_meshes(load_dataset(folder))
     available = sorted({label for _, label in items})
@@ -75,7 +79,18 @@ def any_pose(objects, seed: int) -> list:
 
 
 def catalogue_objects(classes, per_class: int, first_seed: int = 0) -> list[tuple[str, int]]:
-    """(class, seed) pairs of the built-in catalogue: seeds ``first_seed .. first_seed + per_class - 1``."""
+    """(class, seed) pairs of the built-in catalogue: seeds ``first_seed .. first_seed + per_class - 1``.
+
+    Raises:
+        InvalidArgumentError: a class not in the catalogue, or ``per_class`` below 1.
+    """
+    from perception.shapes import CLASSES
+
+    unknown = sorted(set(classes) - set(CLASSES))
+    if unknown:
+        raise InvalidArgumentError(f"unknown catalogue classes {unknown}; the built-in classes are {', '.join(CLASSES)}")
+    if isinstance(per_class, bool) or int(per_class) != per_class or per_class < 1:
+        raise InvalidArgumentError(f"the catalogue needs at least 1 object per class, got {per_class!r}")
     return [(c, first_seed + i) for c in classes for i in range(per_class)]
 
 

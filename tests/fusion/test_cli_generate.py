@@ -41,7 +41,8 @@ def test_folder_generation_picks_classes_and_objects_per_class(tmp_path, capsys)
     for cls, names in (("cube", ("a", "b", "c")), ("other", ("d",))):
         (tmp_path / "data" / cls).mkdir(parents=True)
         for name in names:
-            (tmp_path / "data" / cls / f"{name}.off").write_text(CUBE_OFF)
+            # a comment makes each file its own object (byte-identical meshes count as one)
+            (tmp_path / "data" / cls / f"{name}.off").write_text(CUBE_OFF.replace("OFF\n", f"OFF\n# {name}\n", 1))
     (tmp_path / "data" / "cube" / "z_broken.off").write_text("OFF\n8 6 0\n0 0 0\n")
     out = tmp_path / "s"
     code = main(["generate", "--data", str(tmp_path / "data"), "--classes", "cube", "--objects-per-class", "2",
@@ -68,6 +69,18 @@ def test_folder_generation_picks_classes_and_objects_per_class(tmp_path, capsys)
 def test_bad_sources_exit_2_with_one_line(tmp_path, capsys, argv, message):
     assert main(["generate", *argv, "--out", str(tmp_path / "s"), *SMALL]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_folder_sources_are_the_librarys_objects(tmp_path, capsys):
+    """The command takes its objects from fusion.experiments.data: byte-identical meshes count once, and a class
+    with fewer meshes than asked is refused (exit 2, one line) instead of silently kept short."""
+    (tmp_path / "data" / "cube").mkdir(parents=True)
+    for name in ("a", "b"):
+        (tmp_path / "data" / "cube" / f"{name}.off").write_text(CUBE_OFF)  # identical: one object
+    assert main(["generate", "--data", str(tmp_path / "data"), "--objects-per-class", "2",
+                 "--out", str(tmp_path / "s"), *SMALL]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "fewer than the 2 asked for" in err[0]
 
 
 def test_a_source_is_required():

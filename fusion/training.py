@@ -1,0 +1,142 @@
+"""Training a classifier on a dataset store and evaluating it there: what ``visuotactile train`` and ``evaluate`` run.
+
+A model trained by :func:`train_on_store` remembers where (``model.training_``, a :class:`TrainingRecord` as a dict,
+saved in its model file), so that :func:`evaluate_on_store` on the same store tests on exactly the sequences
+training held out.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from perception.errors import InvalidArgumentError
+
+#: How training holds out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none.
+SPLITS = ("sequence", "object", "none")
+
+
+@dataclass(frozen=True)
+class TrainingRecord:
+    """Where a model was trained: the store (path and id), the split and its settings, the training size."""
+
+    store: str
+    store_id: str
+    split: str
+    strategy: str | None
+    test_fraction: float
+    seed: int
+    train_sequences: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def split_indices(dataset, split: str, strategy: str | None, test_fraction: float, seed: int):
+    """(train, test) sequence indices of ``dataset`` for ``split`` (test empty for ``"none"``), restricted to
+    ``strategy``'s sequences when given. The same arguments give the same indices.
+
+    Raises:
+        InvalidArgumentError: an unknown split.
+    """
+    if split not in SPLITS:
+        raise InvalidArgumentError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
+    index = dataset.indices(strategy)
+    if split == "none":
+        return index, index[:0]
+    if split == "sequence":
+        return dataset.split_by_sequence(test_fraction=test_fraction, seed=seed, index=index)
+    return dataset.split_by_object(test_fraction=test_fraction, seed=seed, index=index)
+
+
+def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = "invariant", split: str = "sequence",
+                   test_fraction: float = 0.2, strategy: str | None = None, random_state: int = 0) -> dict:
+    """Fit classifier ``kind`` (:func:`fusion.classifiers.make_classifier`) on ``store``'s training part, record
+    the :class:`TrainingRecord` as ``model.training_``, save it to ``out`` and score the held-out part.
+
+    Returns:
+        {"model", "cue", "out", "train_sequences", "fit_seconds"} and, with a held-out part, "test_sequences" and
+        "test_accuracy" (an interval dict), plus "accuracy" (the :class:`~fusion.evaluate.Accuracy`).
+
+    Raises:
+        InvalidArgumentError: an unknown classifier, cue or split. DatasetError: an unreadable store.
+    """
+    from fusion.classifiers import make_classifier
+    from fusion.evaluate import accuracy
+    from tactile.dataset import open_dataset
+
+    dataset = open_dataset(store)
+    train, test = split_indices(dataset, split, strategy, test_fraction, random_state)
+    model = make_classifier(kind, cue=cue, random_state=random_state)
+    start = time.perf_counter()
+    model.fit(dataset.load(train))
+    fit_s = time.perf_counter() - start
+    model.training_ = TrainingRecord(str(store), dataset.attrs.get("store_id", ""), split, strategy, test_fraction,
+                                     random_state, len(train)).to_dict()
+    model.save(out)
+    result = {"model": kind, "cue": cue, "out": str(out), "train_sequences": len(train),
+              "fit_seconds": round(fit_s, 2)}
+    if len(test):
+        batch = dataset.load(test)
+        truth = np.asarray(batch.class_names, dtype=object)[batch.labels]
+        acc = accuracy(truth, model.predict(batch), seed=random_state)
+        result.update(test_sequences=len(test), test_accuracy=acc.to_dict(), accuracy=acc)
+    return result
+
+
+def evaluation_indices(model, dataset, store: str | Path, strategy: str | None = None) -> tuple[np.ndarray, str]:
+    """The sequences of ``dataset`` to test ``model`` on and what they are: the part training held out when the
+    model was trained on this very store (its ``training_``), else all (of ``strategy``)."""
+    info = getattr(model, "training_", None) or {}
+    same_store = bool(info) and info.get("store_id", "") == dataset.attrs.get("store_id", "") and \
+        Path(info.get("store", "")).resolve() == Path(store).resolve()
+    if same_store and info.get("split", "none") != "none":
+        _, index = split_indices(dataset, info["split"], info.get("strategy"), info["test_fraction"], info["seed"])
+        return index, f"held-out {info['split']} split of training"
+    return dataset.indices(strategy), "all sequences" + (f" of strategy {strategy}" if strategy else "")
+
+
+def evaluate_on_store(model, store: str | Path, *, touches: int = 1, rule: str = "log", strategy: str | None = None,
+                      seed: int = 0) -> dict:
+    """Accuracy of ``model`` on ``store`` (see :func:`evaluation_indices`), ``touches`` sequences of one object per
+    decision fused by ``rule``.
+
+    Returns:
+        {"subset", "touches", "rule", "decisions", "accuracy", "accuracy_object_bootstrap", "per_class"} (JSON
+        data) and, for figures, "truth", "predicted", "classes" (arrays) and "interval" (the Accuracy).
+
+    Raises:
+        InvalidArgumentError: touches < 1 or an unknown rule. ModelMismatchError: data from another sensor.
+    """
+    from fusion.decide import fuse_touches, touch_groups
+    from fusion.evaluate import accuracy, per_class_accuracy
+    from tactile.dataset import open_dataset
+
+    dataset = open_dataset(store)
+    index, subset = evaluation_indices(model, dataset, store, strategy)
+    batch = dataset.load(index)
+    proba = model.predict_proba(batch)
+    classes = model.classes_.astype(str)
+    truth = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)
+    if touches > 1:
+        groups = touch_groups(batch.object_ids, touches, seed=seed)
+        proba = fuse_touches(proba[groups], rule=rule)
+        truth = truth[groups[:, 0]]
+        decision_groups = batch.object_ids[groups[:, 0]]
+    else:
+        decision_groups = batch.object_ids
+    predicted = classes[np.argmax(proba, axis=1)]
+    acc = accuracy(truth, predicted, seed=seed)
+    by_object = accuracy(truth, predicted, groups=decision_groups, seed=seed)
+    return {
+        "subset": subset, "touches": touches, "rule": rule, "decisions": len(predicted), "accuracy": acc.to_dict(),
+        "accuracy_object_bootstrap": by_object.to_dict(),
+        "per_class": per_class_accuracy(truth, predicted, classes),
+        "truth": truth, "predicted": predicted, "classes": classes, "interval": acc, "object_interval": by_object,
+    }
+
+
+__all__ = ["SPLITS", "TrainingRecord", "evaluate_on_store", "evaluation_indices", "split_indices", "train_on_store"]

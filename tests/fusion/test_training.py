@@ -1,0 +1,59 @@
+"""Training on a store and evaluating there: the record a model keeps, and the held-out part evaluation uses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion.base import load_model
+from fusion.training import SPLITS, evaluate_on_store, evaluation_indices, split_indices, train_on_store
+from perception.errors import InvalidArgumentError
+from tactile.dataset import generate, open_dataset
+from tactile.sensor import FSRSensor
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    out = tmp_path_factory.mktemp("training") / "s.zarr"
+    objects = [(name, seed) for name in ("box", "ring") for seed in (0, 1)]
+    generate(objects, out, strategies=("blind",), contours_per_object=10, sensor=FSRSensor(rows=8, cols=8),
+             probes=10, seed=0, workers=1, progress=False)
+    return out
+
+
+class TestSplits:
+    def test_each_split_partitions_the_strategys_sequences(self, store):
+        ds = open_dataset(store)
+        for split in SPLITS:
+            train, test = split_indices(ds, split, "blind", 0.25, 3)
+            assert sorted(np.concatenate([train, test]).tolist()) == ds.indices("blind").tolist()
+            again = split_indices(ds, split, "blind", 0.25, 3)
+            assert np.array_equal(train, again[0]) and np.array_equal(test, again[1])
+        _, test = split_indices(ds, "object", None, 0.5, 0)
+        assert len(set(ds.object_ids[test].tolist())) == 2  # whole objects, one per class
+
+    def test_an_unknown_split_is_refused(self, store):
+        with pytest.raises(InvalidArgumentError, match="split"):
+            split_indices(open_dataset(store), "by-colour", None, 0.2, 0)
+
+
+class TestTrainAndEvaluate:
+    def test_the_model_remembers_its_store_and_evaluation_uses_the_held_out_part(self, store, tmp_path):
+        result = train_on_store(store, "knn", tmp_path / "m.vtm", split="object", test_fraction=0.5, random_state=1)
+        model = load_model(tmp_path / "m.vtm")
+        assert model.training_["split"] == "object" and model.training_["seed"] == 1
+        assert model.training_["train_sequences"] == result["train_sequences"] == 20
+        ds = open_dataset(store)
+        index, subset = evaluation_indices(model, ds, store)
+        assert subset == "held-out object split of training"
+        np.testing.assert_array_equal(index, split_indices(ds, "object", None, 0.5, 1)[1])
+        found = evaluate_on_store(model, store, seed=1)
+        assert found["decisions"] == result["test_sequences"] == 20
+        assert found["accuracy"] == result["test_accuracy"]  # same sequences, same predictions
+
+    def test_a_model_from_elsewhere_is_tested_on_everything(self, store, tmp_path):
+        train_on_store(store, "knn", tmp_path / "m.vtm", split="none")
+        model = load_model(tmp_path / "m.vtm")
+        model.training_ = {**model.training_, "store_id": "another"}
+        index, subset = evaluation_indices(model, open_dataset(store), store)
+        assert subset == "all sequences" and len(index) == 40
