@@ -13,7 +13,7 @@ from perception.geometry import rescale
 from perception.reconstruct.multiview import reconstruct_frames
 from perception.reconstruct.surface import surface_error
 from perception.shapes import make_object
-from tactile import explore_object
+from tactile import touch
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 
@@ -38,7 +38,7 @@ if len(sys.argv) > 1:
     model = load_model(sys.argv[1])
 sensor = model.sensor() if model else FSRSensor()  # record with the sensor the model was trained with
 probes = model.probes if model else 25
-sequences = explore_object(obj, strategy="blind", n_contours=4, sensor=sensor, probes=probes, seed=0)
+sequences = touch(obj, "blind", 4, sensor, probes, seed=0)
 batch = SequenceBatch.from_sequences(
     sequences, class_names=list(model.classes_) if model else None, sensor_spec=sensor.spec()
 )

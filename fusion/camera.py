@@ -151,6 +151,11 @@ def recognize_capture(
 
     Raises:
         VisuotactileError subclasses: bad source, no device, no object, unreadable model.
+
+    Examples:
+        >>> summary = recognize_capture("virtual:box/1", views=2, contours=2)  # no model: up to the touches
+        >>> summary["true_class"], summary["sequences"], summary["prediction"]
+        ('box', 2, None)
     """
     timings = {}
     start = time.perf_counter()

@@ -177,6 +177,16 @@ class CNNClassifier(TactileClassifier):
 
     Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
+
+    Examples:
+        >>> from perception.shapes import make_object
+        >>> from tactile import FSRSensor, SequenceBatch, touch
+        >>> sensor = FSRSensor(rows=8, cols=8)
+        >>> sequences = [s for name in ("box", "can") for s in touch(make_object(name, 0), "blind", 4, sensor, 10)]
+        >>> batch = SequenceBatch.from_sequences(sequences, sensor_spec=sensor.spec())
+        >>> model = CNNClassifier(epochs=1, val_fraction=0.0, progress=False).fit(batch)
+        >>> list(model.classes_), model.predict_proba(batch).shape
+        (['box', 'can'], (8, 2))
     """
 
     def __init__(self, cue: str = "invariant", epochs: int = 50, batch_size: int = 64, lr: float = 1e-3,

@@ -115,6 +115,16 @@ class ConventionalClassifier(TactileClassifier):
         random_state: seeds selection, SOM and PCA (the SVM and its unshuffled calibration folds are deterministic).
 
     Fitted: ``pipeline_`` (a :class:`~sklearn.pipeline.Pipeline` over SequenceBatches) and the base's attributes.
+
+    Examples:
+        >>> from perception.shapes import make_object
+        >>> from tactile import FSRSensor, SequenceBatch, touch
+        >>> sensor = FSRSensor(rows=8, cols=8)
+        >>> sequences = [s for name in ("box", "can") for s in touch(make_object(name, 0), "blind", 4, sensor, 10)]
+        >>> batch = SequenceBatch.from_sequences(sequences, sensor_spec=sensor.spec())
+        >>> model = ConventionalClassifier(kind="svm").fit(batch)
+        >>> list(model.classes_), model.predict(batch).shape
+        (['box', 'can'], (8,))
     """
 
     def __init__(

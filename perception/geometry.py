@@ -510,6 +510,15 @@ def load_object(
         MeshLoadError: missing, unreadable, unknown type, or unparseable file.
         InvalidMeshError: empty, non-finite, out-of-range indices, or nothing left after repair.
         InvalidArgumentError: an unknown ``centering`` or a ``rotation`` that is not a proper rotation matrix.
+
+    Examples:
+        >>> import pathlib, tempfile
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "cube.off"
+        >>> _ = path.write_text("OFF\\n8 6 0\\n0 0 0\\n1 0 0\\n1 1 0\\n0 1 0\\n0 0 1\\n1 0 1\\n1 1 1\\n0 1 1\\n"
+        ...                     "4 0 3 2 1\\n4 4 5 6 7\\n4 0 1 5 4\\n4 1 2 6 5\\n4 2 3 7 6\\n4 3 0 4 7\\n")
+        >>> cube = load_object(path, label="box")
+        >>> cube.n_vertices, cube.n_triangles, cube.label, round(cube.size)
+        (8, 12, 'box', 150)
     """
     check_centering(centering, str(name or source))
     if isinstance(source, o3d.geometry.TriangleMesh):

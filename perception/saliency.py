@@ -275,6 +275,14 @@ def saliency(
     Raises:
         InvalidArgumentError: unknown method, bad weights or view settings, a seed that is not a non-negative
             integer. SaliencyError: for a PCL method, the peer program absent, failing or past its time limit.
+
+    Examples:
+        >>> from perception.shapes import make_object
+        >>> attention = saliency(make_object("box", 0), "mesh")
+        >>> attention.method, bool(0 <= attention.scores.min() <= attention.scores.max() <= 1)
+        ('mesh', True)
+        >>> attention.interest_points(3).shape  # surface points (mm) to draw contour planes through
+        (3, 3)
     """
     seed = check_seed(seed, model.name, allow_none=False)
     if method not in METHODS + PCL_METHODS:

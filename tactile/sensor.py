@@ -99,6 +99,18 @@ class FSRSensor:
     Raises:
         SensorSpecError: a non-positive size, ``min_side_mm`` > ``side_mm``, an unknown mode, a rate or
             factor out of range, or a non-numeric value.
+
+    Examples:
+        >>> import numpy as np
+        >>> from perception.primitives import sphere
+        >>> sensor = FSRSensor(rows=8, cols=8)
+        >>> FSRSensor.from_spec(sensor.spec()) == sensor  # a plain-data spec, stored with data and models
+        True
+        >>> ball = sphere(40.0, 4)
+        >>> top = ball.vertices[[np.argmax(ball.vertices[:, 2])]]  # press the pad on the top of the sphere
+        >>> frames, sides = sensor.press(ball, top, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
+        >>> frames.shape, bool(frames.min() >= 0), float(sides[0]) == sensor.side_mm
+        ((1, 8, 8), True, True)
     """
 
     rows: int = 32

@@ -255,6 +255,16 @@ def touch(
             integer >= 2, a bad seed, a negative or non-finite jitter.
         ContourError: a flat object, or too many planes that miss the object.
         SaliencyError: ``saliency`` is of another method or object.
+
+    Examples:
+        >>> from perception.shapes import make_object
+        >>> from tactile import FSRSensor, touch
+        >>> sequences = touch(make_object("box", 0), "blind", 2, FSRSensor(rows=8, cols=8), probes=5, seed=0)
+        >>> len(sequences), sequences[0].frames.shape, sequences[0].strategy
+        (2, (5, 8, 8), 'blind')
+        >>> again = touch(make_object("box", 0), "blind", 2, FSRSensor(rows=8, cols=8), probes=5, seed=0)
+        >>> all((a.frames == b.frames).all() for a, b in zip(sequences, again))  # same seed, same frames
+        True
     """
     sampling.check_strategy(strategy)
     if seeding not in SEEDINGS:

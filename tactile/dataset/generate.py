@@ -171,6 +171,18 @@ def generate(
     Raises:
         DatasetError: bad arguments, ``out`` holds something else or a store with other settings, or
             (strict) an object failed.
+
+    Examples:
+        >>> import tempfile
+        >>> from tactile.dataset import generate, open_dataset
+        >>> from tactile.sensor import FSRSensor
+        >>> out = tempfile.mkdtemp() + "/small.zarr"
+        >>> report = generate([("box", 0), ("can", 0)], out, strategies="blind", contours_per_object=2, probes=5,
+        ...                   sensor=FSRSensor(rows=8, cols=8), workers=1, progress=False)
+        >>> report.completed, report.failed
+        (2, [])
+        >>> len(open_dataset(out))  # 2 objects x 2 contours
+        4
     """
     start = time.perf_counter()
     sensor = FSRSensor() if sensor is None else sensor

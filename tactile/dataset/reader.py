@@ -292,6 +292,21 @@ def open_dataset(path: str | Path) -> TactileDataset:
 
     Raises:
         DatasetError: ``path`` is missing, not a dataset store, of another format version, or unreadable.
+
+    Examples:
+        >>> import tempfile
+        >>> from tactile.dataset import generate
+        >>> from tactile.sensor import FSRSensor
+        >>> out = tempfile.mkdtemp() + "/small.zarr"
+        >>> _ = generate([("box", 0), ("can", 0)], out, strategies="blind", contours_per_object=3, probes=5,
+        ...              sensor=FSRSensor(rows=8, cols=8), workers=1, progress=False)
+        >>> ds = open_dataset(out)
+        >>> ds.class_names, ds.object_names
+        (('box', 'can'), ('box/0', 'can/0'))
+        >>> train, test = ds.split_by_sequence(0.5, seed=0)
+        >>> batch = ds.load(train)  # a SequenceBatch: frames (S, P, rows, cols) float32
+        >>> batch.frames.shape, len(train) + len(test)  # half of each class's 3, rounded up, held out
+        ((2, 5, 8, 8), 6)
     """
     path = Path(path)
     if not path.is_dir():
