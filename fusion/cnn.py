@@ -179,11 +179,11 @@ class CNNClassifier(TactileClassifier):
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
 
     Examples:
+        >>> from fusion.experiments.touch import touch_objects
         >>> from perception.shapes import make_object
-        >>> from tactile import FSRSensor, SequenceBatch, touch
-        >>> sensor = FSRSensor(rows=8, cols=8)
-        >>> sequences = [s for name in ("box", "can") for s in touch(make_object(name, 0), "blind", 4, sensor, 10)]
-        >>> batch = SequenceBatch.from_sequences(sequences, sensor_spec=sensor.spec())
+        >>> from tactile import FSRSensor
+        >>> batch = touch_objects([make_object("box", 0), make_object("can", 0)], ["box", "can"], "blind", 4,
+        ...                       sensor=FSRSensor(rows=8, cols=8), probes=10)  # 8 sequences, labelled
         >>> model = CNNClassifier(epochs=1, val_fraction=0.0, progress=False).fit(batch)
         >>> list(model.classes_), model.predict_proba(batch).shape
         (['box', 'can'], (8, 2))

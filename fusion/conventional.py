@@ -117,11 +117,10 @@ class ConventionalClassifier(TactileClassifier):
     Fitted: ``pipeline_`` (a :class:`~sklearn.pipeline.Pipeline` over SequenceBatches) and the base's attributes.
 
     Examples:
+        >>> from fusion.experiments.touch import touch_objects
         >>> from perception.shapes import make_object
-        >>> from tactile import FSRSensor, SequenceBatch, touch
-        >>> sensor = FSRSensor(rows=8, cols=8)
-        >>> sequences = [s for name in ("box", "can") for s in touch(make_object(name, 0), "blind", 4, sensor, 10)]
-        >>> batch = SequenceBatch.from_sequences(sequences, sensor_spec=sensor.spec())
+        >>> objects = [make_object("box", 0), make_object("can", 0)]
+        >>> batch = touch_objects(objects, ["box", "can"], "blind", 4, probes=10)  # 8 labelled sequences, 32 x 32
         >>> model = ConventionalClassifier(kind="svm").fit(batch)
         >>> list(model.classes_), model.predict(batch).shape
         (['box', 'can'], (8,))

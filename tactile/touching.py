@@ -307,20 +307,8 @@ def touch(
     return sequences
 
 
-def explore_object(
-    model: ObjectModel,
-    strategy: str = "guided",
-    n_contours: int = 10,
-    sensor: FSRSensor | None = None,
-    probes: int = 25,
-    seed: int | np.random.Generator | None = 0,
-    saliency: attention.Saliency | None = None,
-    *,
-    progress: bool = False,
-) -> list[TactileSequence]:
-    """:func:`touch` with the "stream" seed scheme: what the dataset stores hold (kept under this name for the
-    scripts that use it)."""
-    return touch(model, strategy, n_contours, sensor, probes, seed, saliency, progress=progress)
+#: :func:`touch` under the name the first scripts used (its defaults: the "stream" seed scheme of the stores).
+explore_object = touch
 
 
 __all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher", "explore_object",

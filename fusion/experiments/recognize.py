@@ -70,13 +70,11 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
         InvalidArgumentError: touches < 1. ContourError: unknown strategy, or planes that miss the object.
 
     Examples:
-        >>> from perception.shapes import make_object
-        >>> from tactile import FSRSensor, SequenceBatch, touch
-        >>> sensor = FSRSensor(rows=8, cols=8)
-        >>> sequences = [s for name in ("box", "can") for s in touch(make_object(name, 0), "blind", 4, sensor, 10)]
-        >>> batch = SequenceBatch.from_sequences(sequences, sensor_spec=sensor.spec())
         >>> from fusion.conventional import ConventionalClassifier
-        >>> model = ConventionalClassifier(kind="svm").fit(batch)
+        >>> from fusion.experiments.touch import touch_objects
+        >>> from perception.shapes import make_object
+        >>> seen = [make_object("box", 0), make_object("can", 0)]
+        >>> model = ConventionalClassifier(kind="svm").fit(touch_objects(seen, ["box", "can"], "blind", 4, probes=10))
         >>> result = recognize(model, make_object("can", 1), touches=2, strategy="blind")
         >>> result.label in ("box", "can"), result.per_touch.shape, round(sum(result.probabilities.values()), 6)
         (True, (2, 2), 1.0)
