@@ -1,4 +1,4 @@
-"""Issue 18, item 7: nothing lost. Every writer, interrupted part-way, leaves the old file intact (byte for
+"""Nothing lost: every writer, interrupted part-way, leaves the old file intact (byte for
 byte) or the new one complete, and no temporary file behind after an exception.
 
 Two ways of interrupting:

@@ -1,4 +1,4 @@
-"""Issue 18, properties across the pipeline (hypothesis): generated meshes (catalogue objects, random convex
+"""Properties across the pipeline (hypothesis): generated meshes (catalogue objects, random convex
 hulls, analytic primitives, each under a random rotation, scale and shift), cutting planes, sensor specs,
 tactile sequences and fitted classifiers. Whatever is drawn, only documented exceptions (VisuotactileError)
 come out, no output holds NaN or Inf, and the invariants hold: probes on the surface and in their plane,

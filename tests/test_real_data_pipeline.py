@@ -1,4 +1,4 @@
-"""Issue 18 must-show: every mesh of the shared real data goes through the whole path without an exception
+"""Every mesh of the shared real data goes through the whole path without an exception
 and without NaN: load -> saliency (multiview, mesh, ISS) -> contours of every strategy (blind, guided, mesh,
 ISS) -> tactile sequences -> the prediction of classifiers trained once on a few catalogue objects.
 

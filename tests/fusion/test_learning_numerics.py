@@ -1,4 +1,4 @@
-"""Issue 18, item 5: learning numerics. Constant, duplicate, huge and tiny inputs, a class of one sample:
+"""Learning numerics. Constant, duplicate, huge and tiny inputs, a class of one sample:
 a clear project exception or finite output checked against a known answer; never a NaN probability.
 
 Already covered elsewhere, not repeated: skewness of constant and rounding-level series and constant

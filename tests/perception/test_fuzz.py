@@ -1,4 +1,4 @@
-"""Issue 18, item 6: a file fuzzer over ``load_object`` and ``load_points`` (:mod:`benchmarks.fuzz`).
+"""A file fuzzer over ``load_object`` and ``load_points`` (:mod:`benchmarks.fuzz`).
 
 Every case runs in a child process with a CPU-time and an address-space limit; a case passes when it ends
 in a VisuotactileError or a finite, valid ObjectModel. A crash, a timeout, a MemoryError, any other

@@ -1,4 +1,4 @@
-"""Issue 13: meshes that crash or hang pymeshlab, inverted winding, mutation, extreme coordinates.
+"""Meshes that crash or hang pymeshlab, inverted winding, mutation, extreme coordinates.
 
 Every mesh is built here. Each reproducer must end in this process with finite output or a project
 exception; where the answer is known by hand (angle deficits, analytic spheres) the output is checked too.

@@ -1,4 +1,4 @@
-"""Issue 18, item 3: extreme geometry through contours and the tactile sensor.
+"""Extreme geometry through contours and the tactile sensor.
 
 Every mesh is built here from a known shape; every case ends in a project exception or finite output whose
 stated invariant is checked against an answer computed independently of the code under test (convex

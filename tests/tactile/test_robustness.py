@@ -1,4 +1,4 @@
-"""Issue 13 on the tactile side: extreme sensor settings, bad seeds and counts, degenerate planes, a flat
+"""Robustness on the tactile side: extreme sensor settings, bad seeds and counts, degenerate planes, a flat
 plate, an inward-wound object, and figures that leave the user's matplotlib backend alone."""
 
 from __future__ import annotations

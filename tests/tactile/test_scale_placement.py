@@ -1,4 +1,4 @@
-"""Issue 18, scale and placement: the same object at 1e-3, 1 and 1e4 of its units, and 1e6 mm from the origin,
+"""Scale and placement: the same object at 1e-3, 1 and 1e4 of its units, and 1e6 mm from the origin,
 gives the same tactile sequences once normalised, and float32 ray casting never loses contact because of where
 the object sits.
 

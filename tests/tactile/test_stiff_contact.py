@@ -1,4 +1,4 @@
-"""Issue 18, stiff and extreme contact: stiffness, indentation and saturation over many orders of magnitude,
+"""Stiff and extreme contact: stiffness, indentation and saturation over many orders of magnitude,
 1- to 32-bit ADCs, zero to extreme noise, dead-taxel rates near 1. Readings are checked against the contact
 model worked by hand on a plane (every gap known exactly) and a sphere (the analytic cap), stay finite and
 within range, and more indentation never reads less, taxel by taxel."""
