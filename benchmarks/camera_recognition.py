@@ -73,7 +73,8 @@ def _subset(data, source: str) -> np.ndarray:
 
 def run(classes, train_objects: int, test_objects: int, contours: int, touches: int, settles, kinds,
         sources=("cad",), views: int = 4, distance_mm: float = 500.0, seed: int = 0, first_test_seed: int = TEST_SEED,
-        workers: int | None = 1, threads: int | None = None, progress: bool = True) -> dict:
+        workers: int | None = 1, threads: int | None = None, captures_per_object: int = 1,
+        progress: bool = True) -> dict:
     """Train per sensor setting and training source, touch every test object's CAD mesh and reconstruction;
     returns the rows."""
     train = [(c, s) for c in classes for s in range(train_objects)]
@@ -96,7 +97,8 @@ def run(classes, train_objects: int, test_objects: int, contours: int, touches: 
             sensor = FSRSensor(settle_mm=settle)
             store = Path(tmp) / f"train_settle{settle}.zarr"
             start = time.perf_counter()
-            report = generate(training_specs(train, store_source, views=views, distance_mm=distance_mm), store,
+            report = generate(training_specs(train, store_source, views=views, distance_mm=distance_mm,
+                                             captures_per_object=captures_per_object), store,
                               strategies=("blind",), contours_per_object=contours, sensor=sensor, seed=seed,
                               workers=workers, progress=False)
             if report.failed:
@@ -167,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--train-source", default="cad,both",
                         help=f"training objects to compare (comma-separated: {', '.join(SOURCES)}): CAD meshes, "
                              "their virtual captures, or both")
+    parser.add_argument("--captures", type=int, default=1, help="virtual captures per training object")
     parser.add_argument("--classifiers", default="knn,svm,cnn")
     parser.add_argument("--workers", type=int, default=1, help="processes generating the training store")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads of the CNN (default: the cores)")
@@ -186,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     result = {"machine": machine(), "settings": {**vars(args), "classes": classes, "first_test_seed": first}}
     result.update(run(classes, args.train_objects, test_objects, args.contours, args.touches, settles, kinds,
                       sources=sources, seed=args.seed, first_test_seed=first, workers=args.workers,
-                      threads=args.threads))
+                      threads=args.threads, captures_per_object=args.captures))
     rec = result["reconstruction"]
     which = "validation" if args.validation else "test"
     print(f"Reconstructions: {len(classes) * test_objects} {which} objects (seeds {first}..), surface error median "

@@ -101,38 +101,58 @@ def virtual_capture(
 
 
 def catalogue_capture(
-    class_name: str, seed: int, *, views: int = 4, distance_mm: float = 500.0, size_mm: float = DEFAULT_SIZE_MM
+    class_name: str, seed: int, *, views: int = 4, distance_mm: float = 500.0, size_mm: float = DEFAULT_SIZE_MM,
+    turn_deg: float = 0.0, camera_seed: int | None = None,
 ) -> ObjectModel:
-    """The virtual capture (:func:`virtual_capture`, camera seeded by ``seed``) of catalogue instance
-    ``(class_name, seed)``, at ``size_mm``: a loader for :class:`~tactile.dataset.objects.ObjectSpec`.
+    """The virtual capture (:func:`virtual_capture`) of catalogue instance ``(class_name, seed)`` at ``size_mm``,
+    turned by ``turn_deg`` about the vertical axis (through its centre) before it is set on the table (the
+    cameras see it from other sides), camera seeded by ``camera_seed`` (default ``seed``): a loader for
+    :class:`~tactile.dataset.objects.ObjectSpec`.
 
     Raises:
         DatasetError: unknown class or bad seed (from :func:`perception.shapes.make_object`).
-        InvalidArgumentError, InvalidMeshError: as :func:`virtual_capture`.
+        InvalidArgumentError, InvalidMeshError: as :func:`virtual_capture`, or a turn that is not finite.
     """
+    from perception.geometry import rotate
     from perception.shapes import make_object
 
     _check(views, distance_mm, size_mm)
-    return virtual_capture(make_object(class_name, seed), views=views, distance_mm=distance_mm, size_mm=size_mm,
-                           seed=seed).model
+    if isinstance(turn_deg, bool) or not isinstance(turn_deg, (int, float, np.number)) or not np.isfinite(turn_deg):
+        raise InvalidArgumentError(f"catalogue_capture: turn_deg must be a finite number, got {turn_deg!r}")
+    model = make_object(class_name, seed)
+    if turn_deg:
+        a = np.radians(float(turn_deg))
+        model = rotate(model, np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]]))
+    camera_seed = seed if camera_seed is None else camera_seed
+    return virtual_capture(model, views=views, distance_mm=distance_mm, size_mm=size_mm, seed=camera_seed).model
 
 
-def capture_name(name: str) -> str:
-    """The object name of the capture of the object named ``name``."""
-    return f"{name}{CAPTURE_SUFFIX}"
+def capture_name(name: str, index: int = 0) -> str:
+    """The object name of capture ``index`` of the object named ``name``: ``"<name>@capture"`` for the first,
+    ``"<name>@capture<index>"`` for the others."""
+    return f"{name}{CAPTURE_SUFFIX}{index or ''}"
 
 
 def is_capture(name: str) -> bool:
     """Whether an object name (of a store made by :func:`training_specs`) is a capture's."""
-    return str(name).endswith(CAPTURE_SUFFIX)
+    _, sep, tail = str(name).rpartition(CAPTURE_SUFFIX)
+    return bool(sep) and (tail == "" or tail.isdigit())
+
+
+#: Camera seed step between the captures of one object (:func:`training_specs`).
+_CAMERA_SEED_STEP = 100_003
 
 
 def training_specs(objects, source: str = "both", *, views: int = 4, distance_mm: float = 500.0,
-                   size_mm: float = DEFAULT_SIZE_MM) -> list:
+                   size_mm: float = DEFAULT_SIZE_MM, captures_per_object: int = 1) -> list:
     """The :class:`~tactile.dataset.objects.ObjectSpec` of a training store made of catalogue ``objects``
     ((class, seed) pairs): their CAD meshes (``"cad"``, named ``"class/seed"`` as :func:`generate` names
-    them), their virtual captures (``"capture"``, named ``"class/seed@capture"``, reconstructed in the worker
-    by :func:`catalogue_capture`) or both, CAD first (``"both"``).
+    them), their virtual captures (``"capture"``, reconstructed in the worker by :func:`catalogue_capture`) or
+    both, CAD first (``"both"``).
+
+    ``captures_per_object`` captures of each object: capture k (named by :func:`capture_name`) turns the
+    object by k * 360 / (views * captures_per_object) degrees about the vertical axis, so the captures look at
+    it from azimuths between the views, and seeds the camera with ``seed + 100003 k``.
 
     Raises:
         InvalidArgumentError: unknown ``source``, bad capture settings, or an item that is not a (class, seed) pair.
@@ -143,6 +163,9 @@ def training_specs(objects, source: str = "both", *, views: int = 4, distance_mm
     if source not in SOURCES:
         raise InvalidArgumentError(f"training_specs: unknown source {source!r}; choose one of {', '.join(SOURCES)}")
     _check(views, distance_mm, size_mm)
+    n = captures_per_object
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise InvalidArgumentError(f"training_specs: captures_per_object must be a positive integer, got {n!r}")
     pairs = list(objects)
     for item in pairs:
         if not (isinstance(item, (tuple, list)) and len(item) == 2 and isinstance(item[0], str)
@@ -151,12 +174,15 @@ def training_specs(objects, source: str = "both", *, views: int = 4, distance_mm
     cad = object_specs([(c, int(s)) for c, s in pairs])  # checks the classes and seeds
     if source == "cad":
         return cad
-    captures = [
-        ObjectSpec(capture_name(spec.name), spec.label,
-                   loader=functools.partial(catalogue_capture, spec.catalogue[0], spec.catalogue[1], views=int(views),
-                                            distance_mm=float(distance_mm), size_mm=float(size_mm)))
-        for spec in cad
-    ]
+    captures = []
+    for spec in cad:
+        cls, seed = spec.catalogue
+        for k in range(int(n)):
+            settings = {"views": int(views), "distance_mm": float(distance_mm), "size_mm": float(size_mm)}
+            if k:
+                settings.update(turn_deg=k * 360.0 / (int(views) * int(n)), camera_seed=seed + _CAMERA_SEED_STEP * k)
+            captures.append(ObjectSpec(capture_name(spec.name, k), spec.label,
+                                       loader=functools.partial(catalogue_capture, cls, seed, **settings)))
     return captures if source == "capture" else cad + captures
 
 
