@@ -17,7 +17,8 @@ def make_classifier(name: str, *, cue: str = "invariant", random_state: int = 0,
     """
     from fusion.base import renamed_seed
 
-    random_state = renamed_seed(options, random_state, "make_classifier")
+    if "seed" in options:  # the name before scikit-learn's; the other options go to the constructor
+        random_state = renamed_seed({"seed": options.pop("seed")}, random_state, "make_classifier")
     if name == "cnn":
         from fusion.cnn import CNNClassifier
 

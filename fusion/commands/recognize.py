@@ -10,23 +10,12 @@ DEFAULT_MODEL = "out/demo/models/cnn.vtm"
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
-    from fusion.base import load_model
     from fusion.commands import print_json
-    from fusion.experiments.recognize import plot_recognition, recognize
-    from perception.errors import DatasetError
-    from perception.geometry import load_object
-    from tactile.sampling import check_strategy
+    from fusion.experiments.recognize import plot_recognition, recognize_file
 
-    check_strategy(args.strategy)  # before the model and mesh load
-
-    model_path = Path(args.model)
-    if not model_path.is_file():
-        raise DatasetError(f"{model_path}: no model there; run `visuotactile demo` (writes {DEFAULT_MODEL}) or "
-                           "`visuotactile train`, or pass --model")
-    model = load_model(model_path, trust_pickle=args.trust_pickle)
-    obj = load_object(args.mesh, label=None)
-    result = recognize(model, obj, touches=args.touches, strategy=args.strategy, seed=args.seed, rule=args.rule)
-    out = {"mesh": str(args.mesh), "model": str(model_path), "touches": args.touches, "strategy": args.strategy,
+    obj, result = recognize_file(args.mesh, args.model, touches=args.touches, strategy=args.strategy, seed=args.seed,
+                                 rule=args.rule, trust_pickle=args.trust_pickle)
+    out = {"mesh": str(args.mesh), "model": str(Path(args.model)), "touches": args.touches, "strategy": args.strategy,
            "seed": args.seed, **result.to_dict()}
     if args.figure:
         out["figure"] = str(plot_recognition(obj, result, args.figure))

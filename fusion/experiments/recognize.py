@@ -101,6 +101,29 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
     )
 
 
+def recognize_file(mesh: str | Path, model_path: str | Path, *, touches: int = 4, strategy: str = "guided",
+                   seed: int = 0, rule: str = "log", trust_pickle: bool = False) -> tuple[ObjectModel, Recognition]:
+    """:func:`recognize` a mesh file with a model file: the strategy is checked first, then the model and the mesh
+    are loaded (pose-free frame, no label). Returns the object as touched and the recognition.
+
+    Raises:
+        InvalidArgumentError: an unknown strategy (before anything loads), touches < 1.
+        DatasetError: no model file at ``model_path``. ModelFileError, MeshLoadError, ...: what loading raises.
+    """
+    from fusion.base import load_model
+    from perception.errors import DatasetError
+    from perception.geometry import load_object
+    from tactile.sampling import check_strategy
+
+    check_strategy(strategy)
+    if not Path(model_path).is_file():
+        raise DatasetError(f"{model_path}: no model there; run `visuotactile demo` (writes out/demo/models/cnn.vtm) "
+                           "or `visuotactile train`, or pass --model")
+    model = load_model(model_path, trust_pickle=trust_pickle)
+    obj = load_object(mesh, label=None)
+    return obj, recognize(model, obj, touches=touches, strategy=strategy, seed=seed, rule=rule)
+
+
 def plot_recognition(obj: ObjectModel, result: Recognition, path: str | Path, top: int = 8) -> Path:
     """The touched contours and probes on the object (3D) next to the fused class probabilities (PNG)."""
     from matplotlib.figure import Figure
@@ -135,4 +158,4 @@ def plot_recognition(obj: ObjectModel, result: Recognition, path: str | Path, to
     return save_figure(fig, path, dpi=120)
 
 
-__all__ = ["Recognition", "plot_recognition", "recognize"]
+__all__ = ["Recognition", "plot_recognition", "recognize", "recognize_file"]

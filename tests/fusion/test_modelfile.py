@@ -375,3 +375,11 @@ class TestParameterNames:
         assert model.random_state == 4 and "seed" not in model.get_params()
         with pytest.raises(TypeError, match="unexpected"):
             CNNClassifier(colour="red")
+
+    def test_make_classifier_passes_options_on_and_takes_the_old_seed(self):
+        from fusion.classifiers import make_classifier
+
+        model = make_classifier("knn", reduce="pca", n_select=10, random_state=2)
+        assert (model.reduce, model.n_select, model.random_state) == ("pca", 10, 2)
+        with pytest.warns(DeprecationWarning):
+            assert make_classifier("cnn", seed=5).random_state == 5
