@@ -102,23 +102,25 @@ class PeakMemory:
 
 
 # ---------------------------------------------------------------------------------- raw limit
-def _cast_all(scene, grid, origin, standoff, positions, normals, tangents, sides) -> tuple[int, float]:
-    """Cast one full pad per probe (rays built before the clock starts); (rays, cast seconds)."""
+def _cast_all(model, grid, standoff, positions, normals, tangents, sides) -> tuple[int, float]:
+    """Cast one full pad per probe into ``model.scene`` (rays built before the clock starts, in the scene's
+    frame as the sensor builds them); (rays, cast seconds)."""
     import open3d as o3d
 
     per_cast = max(1, RAYS_PER_CAST // len(grid))
     rays, seconds = 0, 0.0
     for lo in range(0, len(positions), per_cast):
         sl = slice(lo, lo + per_cast)
-        n, t, p = normals[sl].astype(np.float64), tangents[sl].astype(np.float64), positions[sl].astype(np.float64)
+        p = model.to_scene(positions[sl].astype(np.float64))
+        n, t = model.to_scene(directions=normals[sl]), model.to_scene(directions=tangents[sl])
         frames = np.zeros((len(n), 3, 6), dtype=np.float32)
         frames[:, 0, :3] = t * sides[sl, None]
         frames[:, 1, :3] = np.cross(n, t) * sides[sl, None]
-        frames[:, 2, :3] = p - origin + standoff * n  # as the sensor casts
+        frames[:, 2, :3] = p + standoff * n  # as the sensor casts
         frames[:, 2, 3:] = -n
         tensor = o3d.core.Tensor(np.matmul(grid, frames).reshape(-1, 6))
         start = time.perf_counter()
-        scene.cast_rays(tensor)
+        model.scene.cast_rays(tensor)
         seconds += time.perf_counter() - start
         rays += tensor.shape[0]
     return rays, seconds
@@ -139,7 +141,7 @@ def _raw_cast(job: tuple) -> tuple[int, float, int, float]:
     grid = np.concatenate([sensor._unit_grid, np.ones((len(sensor._unit_grid), 1))], axis=1).astype(np.float32)
     casts = []
     for rows in (distinct, ~distinct):
-        casts += _cast_all(model.scene, grid, model.scene_origin, sensor.standoff_mm, positions[rows],
+        casts += _cast_all(model, grid, sensor.standoff_mm, positions[rows],
                            normals[rows], tangents[rows], sides[rows])
     return tuple(casts)
 

@@ -32,9 +32,6 @@ DEFAULT_SIZE_MM = 150.0
 #: 1e-9 mm (areas and curvature do not underflow); load_object rescales anything to size_mm first.
 MAX_COORDINATE_MM = 1e12
 MIN_EXTENT_MM = 1e-9
-#: Ray casting is float32: warn where its rounding at the mesh's distance from the origin exceeds this
-#: fraction of the bounding-box diagonal (1.5 um on a 150 mm object; the FSR gaps span about 2 mm).
-FLOAT32_TOLERANCE_FRACTION = 1e-5
 _GEOMETRY_FIELDS = ("vertices", "triangles", "vertex_colors", "transform", "centering")
 #: How an object's centre and size are defined: ``"surface"`` (pose-free: the area-weighted surface centroid and
 #: the diameter of the sphere about it holding every vertex) or ``"bbox"`` (the paper's: the bounding-box centre
@@ -252,33 +249,45 @@ class ObjectModel:
         return cache[method]
 
     @cached_property
-    def float32_resolution_mm(self) -> float:
-        """Spacing of float32 numbers at the coordinate furthest from the origin, mm: how finely a float32
-        copy of the vertices in world coordinates resolves positions on this mesh."""
-        return float(np.spacing(np.float32(np.abs(self.vertices).max())))
+    def scene_origin(self) -> np.ndarray:
+        """(3,) float64 point the ray-casting scene is built around, mm: :attr:`center`. With
+        :attr:`scene_rotation` it fixes the scene's frame (see :meth:`to_scene`)."""
+        return self.center.copy()
 
     @cached_property
-    def scene_origin(self) -> np.ndarray:
-        """(3,) float64 point the ray-casting scene is built around, mm: the origin, or the bounding-box centre
-        where the mesh lies so far from the origin that float32 world coordinates would resolve less than
-        ``FLOAT32_TOLERANCE_FRACTION`` of its diagonal. Subtract it (in float64) from ray origins and query
-        points given to :attr:`scene`; directions are unchanged."""
-        if self.float32_resolution_mm > FLOAT32_TOLERANCE_FRACTION * self.diagonal:
-            return self.center.copy()
-        return np.zeros(3)
+    def scene_rotation(self) -> np.ndarray:
+        """(3, 3) rotation of the ray-casting scene's axes: :attr:`principal_frame`. The scene holds
+        ``(x - scene_origin) @ scene_rotation`` in float32, which turns with the object: a mesh and any rotation
+        of it round to the same float32 scene (and rays built in it to the same rays), so what is cast does not
+        depend on the pose, and a mesh far from the origin keeps its float32 precision."""
+        return self.principal_frame
+
+    def to_scene(self, points: np.ndarray | None = None, directions: np.ndarray | None = None):
+        """Points (mm) and/or directions in the scene's frame, float64 (rounded to float32 only after)."""
+        out = []
+        if points is not None:
+            out.append((np.asarray(points, dtype=np.float64) - self.scene_origin) @ self.scene_rotation)
+        if directions is not None:
+            out.append(np.asarray(directions, dtype=np.float64) @ self.scene_rotation)
+        return out[0] if len(out) == 1 else tuple(out)
+
+    def from_scene(self, points: np.ndarray | None = None, directions: np.ndarray | None = None):
+        """Points (mm) and/or directions from the scene's frame back to the model's, float64."""
+        out = []
+        if points is not None:
+            out.append(np.asarray(points, dtype=np.float64) @ self.scene_rotation.T + self.scene_origin)
+        if directions is not None:
+            out.append(np.asarray(directions, dtype=np.float64) @ self.scene_rotation.T)
+        return out[0] if len(out) == 1 else tuple(out)
 
     @cached_property
     def scene(self) -> o3d.t.geometry.RaycastingScene:
-        """An Open3D ``RaycastingScene`` holding this mesh (geometry id 0), float32, mm, in coordinates
-        relative to :attr:`scene_origin` (so a mesh far from the origin keeps its float32 precision)."""
-        if self.scene_origin.any():
-            log.info(
-                "%s: lies %.3g mm from the origin; ray casting around its centre to keep float32 precision",
-                self.name, float(np.abs(self.vertices).max()),
-            )
+        """An Open3D ``RaycastingScene`` holding this mesh (geometry id 0), float32, mm, in the scene's frame
+        (:meth:`to_scene`: about the centre, along the principal axes). Cast rays made with :meth:`to_scene`
+        and map hit points and normals back with :meth:`from_scene`; distances and triangle ids need nothing."""
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(
-            o3d.core.Tensor((self.vertices - self.scene_origin).astype(np.float32)),
+            o3d.core.Tensor(self.to_scene(self.vertices).astype(np.float32)),
             o3d.core.Tensor(self.triangles.astype(np.uint32)),
         )
         return scene
@@ -296,9 +305,9 @@ class ObjectModel:
     def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points and unsigned distances (mm) for (N, 3) query points."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        query = o3d.core.Tensor((points - self.scene_origin).astype(np.float32))
+        query = o3d.core.Tensor(self.to_scene(points).astype(np.float32))
         result = self.scene.compute_closest_points(query)
-        closest = result["points"].numpy().astype(np.float64) + self.scene_origin
+        closest = self.from_scene(result["points"].numpy())
         return closest, np.linalg.norm(closest - points, axis=1)
 
     def __repr__(self) -> str:

@@ -53,18 +53,17 @@ class Camera:
     pixel_mm: float
     distance_mm: float
 
-    def rays(self, origin=(0.0, 0.0, 0.0)) -> np.ndarray:
-        """(H * W, 6) float32 rays (origin, unit direction), row-major over pixels, with ``origin`` (mm)
-        subtracted from the ray origins in float64 (pass ``model.scene_origin`` to cast into ``model.scene``)."""
+    def rays(self, model: ObjectModel | None = None) -> np.ndarray:
+        """(H * W, 6) float32 rays (origin, unit direction), row-major over pixels, in ``model``'s scene frame
+        (:meth:`ObjectModel.to_scene`, computed in float64) to cast into ``model.scene``, else in world mm."""
         rows, cols = np.meshgrid(np.arange(self.height), np.arange(self.width), indexing="ij")
         x = (cols.ravel() + 0.5 - self.width / 2) * self.pixel_mm
         y = (self.height / 2 - rows.ravel() - 0.5) * self.pixel_mm
-        origins = (
-            (self.center - np.asarray(origin, dtype=np.float64) - self.distance_mm * self.forward)
-            + np.outer(x, self.right)
-            + np.outer(y, self.up)
-        )
-        return np.hstack([origins, np.broadcast_to(self.forward, origins.shape)]).astype(np.float32)
+        origins = (self.center - self.distance_mm * self.forward) + np.outer(x, self.right) + np.outer(y, self.up)
+        forward = self.forward
+        if model is not None:
+            origins, forward = model.to_scene(origins, forward)
+        return np.hstack([origins, np.broadcast_to(forward, origins.shape)]).astype(np.float32)
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """(N, 2) pixel coordinates (col, row), continuous, of (N, 3) points in mm (no visibility test)."""
@@ -174,7 +173,7 @@ def render_views(
         if dirs.size == 0 or dirs.size % 3 or not np.isfinite(dirs).all() or (np.abs(dirs.reshape(-1, 3)).max(axis=1) == 0).any():
             raise InvalidArgumentError(f"{model.name}: view directions must be finite non-zero 3-vectors, got shape {dirs.shape}")
     cameras = [make_camera(model, d, width, height, frame) for d in dirs.reshape(-1, 3)]
-    rays = np.concatenate([c.rays(model.scene_origin) for c in cameras])
+    rays = np.concatenate([c.rays(model) for c in cameras])
     hits = model.scene.cast_rays(o3d.core.Tensor(rays))
     t_hit = hits["t_hit"].numpy()
     mask = np.isfinite(t_hit)

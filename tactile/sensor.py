@@ -256,13 +256,15 @@ class FSRSensor:
         out = np.empty((n_probes, n_taxels), dtype=np.float32)
         per_cast = max(1, MAX_RAYS_PER_CAST // n_taxels)
         backface_is_inside = model.is_watertight
+        # In the scene's frame, in float64, before anything is rounded to float32 (the rays then do not depend
+        # on the object's pose).
+        positions = model.to_scene(positions)
+        normals, tangents = model.to_scene(directions=normals), model.to_scene(directions=tangents)
         # normals x tangents, as np.cross computes it, without its set-up cost on small batches.
         binormals = (
             normals[:, [1, 2, 0]] * tangents[:, [2, 0, 1]] - normals[:, [2, 0, 1]] * tangents[:, [1, 2, 0]]
         )
         standoff = np.float32(self.standoff_mm)
-        # Positions relative to the scene's origin, in float64, before anything is rounded to float32.
-        positions = positions - model.scene_origin
         for lo in range(0, n_probes, per_cast):
             sl = slice(lo, lo + per_cast)
             # Grid rows (x, y, 1) times the frame rows (side * tangent, 0), (side * binormal, 0) and

@@ -309,7 +309,7 @@ def test_far_from_the_origin_casts_rays_around_the_centre():
     s = primitives.sphere(R_MM, 2)
     near = ObjectModel(s.vertices, s.triangles, name="near")
     far = ObjectModel(s.vertices + 1e7, s.triangles, name="far")
-    assert not near.scene_origin.any()  # near the origin: world coordinates, bytes as before
+    np.testing.assert_allclose(near.scene_origin, 0.0, atol=1e-9)  # the centre of the sphere
     np.testing.assert_array_equal(far.scene_origin, far.center)
     queries = np.array([[60.0, 0.0, 0.0], [0.0, -70.0, 10.0], [5.0, 5.0, 5.0]])
     (near_points, near_d), (far_points, far_d) = near.closest_points(queries), far.closest_points(queries + 1e7)

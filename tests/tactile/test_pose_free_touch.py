@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fusion.cues import INVARIANT_NAMES, kinesthetic_cues
@@ -42,6 +42,7 @@ def _sequence(model, normal):
 
 @settings(max_examples=5, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), normal_seed=st.integers(0, 2**32 - 1))
+@example(seed=0, normal_seed=5)  # grazing taxels: 1.8e-4 mm apart when rays were cast in world coordinates
 def test_frames_and_pose_free_cues_do_not_depend_on_the_pose(bottle_file, seed, normal_seed):
     upright = load_object(bottle_file)
     rotation = random_rotation(seed)
