@@ -1,0 +1,143 @@
+"""Capture-like training objects: a virtual capture is the camera pipeline's reconstruction (the same bytes as
+capturing and reconstructing by hand), at the training size in the pose-free frame, close to the true surface;
+training specs name CAD meshes and captures as documented, and a store generated from them holds the capture."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from perception.camera import VirtualOakCamera
+from perception.errors import DatasetError, InvalidArgumentError
+from perception.geometry import rescale, surface_centroid
+from perception.reconstruct.multiview import reconstruct_frames
+from perception.reconstruct.surface import surface_error
+from perception.shapes import make_object
+from tactile.captures import (
+    SOURCES,
+    capture_name,
+    catalogue_capture,
+    is_capture,
+    training_specs,
+    virtual_capture,
+)
+from tactile.dataset import generate, open_dataset
+from tactile.sensor import FSRSensor
+
+
+@pytest.fixture(scope="module")
+def can_capture():
+    """Catalogue can 3, four virtual OAK views at 0.5 m, camera seed 3."""
+    return virtual_capture(make_object("can", 3), views=4, distance_mm=500.0, seed=3)
+
+
+class TestVirtualCapture:
+    def test_is_the_camera_pipeline_rescaled(self, can_capture):
+        """Same bytes as VirtualOakCamera -> reconstruct_frames -> rescale done by hand with the same seed."""
+        camera = VirtualOakCamera(make_object("can", 3), seed=3)
+        rec = reconstruct_frames(camera.capture_views(4, 500.0), target=camera.target, seed=3)
+        expected = rescale(rec.model, 150.0)
+        assert np.array_equal(can_capture.model.vertices, expected.vertices)
+        assert np.array_equal(can_capture.model.triangles, expected.triangles)
+        assert np.array_equal(can_capture.world.vertices, rec.model.vertices)
+        assert np.array_equal(can_capture.truth.vertices, camera.truth.vertices)
+
+    def test_is_at_the_training_size_in_the_pose_free_frame(self, can_capture):
+        """Centred on its surface centroid, enclosing sphere about it 150 mm across (to 1e-6 of the size)."""
+        model = can_capture.model
+        centre = surface_centroid(model.vertices, model.triangles)
+        assert np.linalg.norm(centre) < 150e-6
+        assert np.linalg.norm(model.vertices - centre, axis=1).max() == pytest.approx(75.0, abs=150e-6)
+
+    def test_names_and_labels_like_the_object(self, can_capture):
+        assert can_capture.model.name == "can/3@capture" and can_capture.model.label == "can"
+        assert can_capture.seconds > 0
+
+    def test_lies_on_the_true_surface(self, can_capture):
+        """A can is what a stereo camera sees well: the closed reconstruction lies within a millimetre of the
+        true surface in the world, and within 1.5 mm of the CAD mesh at the training size (both frames)."""
+        assert surface_error(can_capture.world, can_capture.truth)["mean_mm"] < 1.0
+        error = surface_error(can_capture.model, make_object("can", 3))
+        assert error["mean_mm"] < 1.5 and error["coverage_mean_mm"] < 1.5
+
+    @pytest.mark.parametrize("kwargs", [{"views": 0}, {"views": 2.5}, {"views": True}, {"distance_mm": 0.0},
+                                        {"distance_mm": float("nan")}, {"size_mm": -1.0}, {"size_mm": "150"}])
+    def test_refuses_bad_settings(self, kwargs):
+        with pytest.raises(InvalidArgumentError):
+            virtual_capture(make_object("box", 0), **kwargs)
+        with pytest.raises(InvalidArgumentError):
+            catalogue_capture("box", 0, **kwargs)
+
+    @pytest.mark.parametrize("turn", [float("inf"), float("nan"), "90", True])
+    def test_refuses_a_bad_turn(self, turn):
+        with pytest.raises(InvalidArgumentError, match="turn_deg"):
+            catalogue_capture("box", 0, turn_deg=turn)
+
+
+class TestTrainingSpecs:
+    PAIRS = (("mug", 0), ("box", 2))
+
+    def test_sources_name_cad_meshes_and_captures(self):
+        """CAD objects are named as generate names catalogue pairs, captures "<class>/<seed>@capture", CAD first."""
+        names = {s: [(spec.name, spec.label) for spec in training_specs(self.PAIRS, s)] for s in SOURCES}
+        assert names["cad"] == [("mug/0", "mug"), ("box/2", "box")]
+        assert names["capture"] == [("mug/0@capture", "mug"), ("box/2@capture", "box")]
+        assert names["both"] == names["cad"] + names["capture"]
+        cad = training_specs(self.PAIRS, "cad")
+        assert [s.catalogue for s in cad] == [("mug", 0), ("box", 2)]
+
+    def test_capture_specs_load_catalogue_captures_in_a_worker(self):
+        """The loader is a picklable partial of catalogue_capture with the capture settings."""
+        spec = training_specs([("can", 3)], "capture", views=3, distance_mm=450.0, size_mm=120.0)[0]
+        loader = pickle.loads(pickle.dumps(spec.loader))
+        assert loader.func is catalogue_capture and loader.args == ("can", 3)
+        assert loader.keywords == {"views": 3, "distance_mm": 450.0, "size_mm": 120.0}
+
+    def test_several_captures_look_from_between_the_views(self):
+        """Capture k of n turns the object by k * 360 / (views * n) degrees and steps the camera seed."""
+        specs = training_specs([("mug", 2)], "capture", views=4, captures_per_object=3)
+        assert [s.name for s in specs] == ["mug/2@capture", "mug/2@capture1", "mug/2@capture2"]
+        assert specs[0].loader.keywords == {"views": 4, "distance_mm": 500.0, "size_mm": 150.0}
+        for k, spec in enumerate(specs[1:], start=1):
+            assert spec.loader.keywords["turn_deg"] == pytest.approx(30.0 * k)
+            assert spec.loader.keywords["camera_seed"] == 2 + 100_003 * k
+        with pytest.raises(InvalidArgumentError, match="captures_per_object"):
+            training_specs([("mug", 2)], "capture", captures_per_object=0)
+
+    def test_names_tell_captures_apart(self):
+        assert capture_name("mug/0") == "mug/0@capture" and capture_name("mug/0", 2) == "mug/0@capture2"
+        assert is_capture("mug/0@capture") and is_capture("mug/0@capture12")
+        assert not is_capture("mug/0") and not is_capture("mug/0@captured") and not is_capture("a@capture/b")
+
+    @pytest.mark.parametrize("objects, error", [
+        ([("mug", 0)], None),
+        ([("mug", True)], InvalidArgumentError),
+        ([("mug", 0.5)], InvalidArgumentError),
+        (["mug"], InvalidArgumentError),
+        ([("teapot", 0)], DatasetError),
+        ([("mug", -1)], DatasetError),
+    ])
+    def test_checks_the_pairs(self, objects, error):
+        if error is None:
+            assert len(training_specs(objects, "both")) == 2
+        else:
+            with pytest.raises(error):
+                training_specs(objects, "both")
+
+    def test_refuses_an_unknown_source(self):
+        with pytest.raises(InvalidArgumentError, match="cad, capture, both"):
+            training_specs(self.PAIRS, "scan")
+
+    def test_a_store_holds_the_capture(self, can_capture, tmp_path):
+        """generate reconstructs the capture in its worker: every stored probe lies on the capture's surface."""
+        out = tmp_path / "captures.zarr"
+        report = generate(training_specs([("can", 3)], "capture"), out, strategies=("blind",), contours_per_object=2,
+                          sensor=FSRSensor(rows=8, cols=8), probes=10, workers=1, progress=False)
+        assert not report.failed
+        data = open_dataset(out)
+        assert data.object_names == ("can/3@capture",) and data.class_names == ("can",)
+        positions = data.load().positions.reshape(-1, 3)
+        _, distance = can_capture.model.closest_points(positions)
+        assert distance.max() < 1e-3
