@@ -49,7 +49,7 @@ def _classifier(kind: str, seed: int, threads: int | None):
     if kind == "cnn":
         from fusion.cnn import CNNClassifier
 
-        return CNNClassifier(cue="invariant", seed=seed, progress=False, threads=threads)
+        return CNNClassifier(cue="invariant", random_state=seed, progress=False, threads=threads)
     from fusion.conventional import ConventionalClassifier
 
     return ConventionalClassifier(kind=kind, cue="invariant", random_state=seed)
