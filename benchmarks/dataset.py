@@ -112,7 +112,7 @@ def _cast_all(model, grid, standoff, positions, normals, tangents, sides) -> tup
     for lo in range(0, len(positions), per_cast):
         sl = slice(lo, lo + per_cast)
         p = model.to_scene(positions[sl].astype(np.float64))
-        n, t = model.to_scene(directions=normals[sl]), model.to_scene(directions=tangents[sl])
+        n, t = model.to_scene(normals[sl], directions=True), model.to_scene(tangents[sl], directions=True)
         frames = np.zeros((len(n), 3, 6), dtype=np.float32)
         frames[:, 0, :3] = t * sides[sl, None]
         frames[:, 1, :3] = np.cross(n, t) * sides[sl, None]

@@ -54,12 +54,12 @@ def training_sequences(models, captures: int, contours: int, seed: int, log=prin
     poses; returns the sequences and the capture statistics."""
     from perception.errors import VisuotactileError
     from perception.geometry import random_rotation, rescale, rotate
+    from tactile import touch
     from tactile.captures import virtual_capture
-    from tactile.sampling import explore_object
 
     sequences, seconds, failed = [], [], []
     for i, model in enumerate(models):
-        sequences += explore_object(model, "blind", contours, seed=seed + 1000 * i)
+        sequences += touch(model, "blind", contours, seed=seed + 1000 * i)
         for r in range(captures):
             pose_seed = seed + 1000 * i + r + 1
             turned = rotate(model, random_rotation(pose_seed))
@@ -72,7 +72,7 @@ def training_sequences(models, captures: int, contours: int, seed: int, log=prin
             world = cap.world
             physical = rescale(world, world.size, name=f"{model.name}@capture{r}")
             physical.label = model.label
-            sequences += explore_object(physical, "blind", contours, seed=pose_seed)
+            sequences += touch(physical, "blind", contours, seed=pose_seed)
         log(f"  {model.name}: {len(sequences)} sequences so far")
     return sequences, {"captures": len(seconds), "failed": failed,
                        "median_capture_s": float(np.median(seconds)) if seconds else None}
@@ -82,7 +82,7 @@ def fit(kind: str, batch, seed: int):
     from fusion.classifiers import make_classifier
 
     options = {"progress": False} if kind == "cnn" else {}
-    return make_classifier(kind, seed=seed, **options).fit(batch)
+    return make_classifier(kind, random_state=seed, **options).fit(batch)
 
 
 def real_objects(touches: int, seed: int) -> list[dict]:
@@ -90,10 +90,10 @@ def real_objects(touches: int, seed: int) -> list[dict]:
     at physical size, touched along ``touches`` blind contours."""
     from scipy.io import loadmat
 
+    from fusion.camera import reconstruct_capture
     from perception.camera import read_recording
     from perception.geometry import rescale
-    from perception.reconstruct.multiview import reconstruct_frames
-    from tactile.sampling import explore_object
+    from tactile import touch
 
     folder = DATA / "rgbd" / "graspnet_tabletop"
     frames = read_recording(folder)
@@ -106,9 +106,9 @@ def real_objects(touches: int, seed: int) -> list[dict]:
         x, y, z = origins[ids.index(gid)]
         pixel = (float(np.rint(k.fx * x / z + k.cx)), float(np.rint(k.fy * y / z + k.cy)))
         start = time.perf_counter()
-        rec = reconstruct_frames(frames, target_pixel=pixel, name=stem, method="convex", voxel_mm=3.0, seed=seed)
+        rec = reconstruct_capture(frames, virtual=False, target_pixel=pixel, name=stem, seed=seed)
         model = rescale(rec.model, rec.model.size, name=stem)
-        sequences = explore_object(model, "blind", touches, seed=seed)
+        sequences = touch(model, "blind", touches, seed=seed)
         out.append({"object": class_of(stem), "graspnet_id": gid, "pixel": f"{pixel[0]:.0f},{pixel[1]:.0f}",
                     "size_mm": round(model.size, 1), "warnings": list(rec.warnings),
                     "seconds": round(time.perf_counter() - start, 1), "sequences": sequences})

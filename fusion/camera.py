@@ -133,6 +133,19 @@ def _figure(frames, rec, model, contours, path: Path) -> Path:
     return save_figure(fig, path, dpi=110)
 
 
+def reconstruct_capture(frames, *, virtual: bool, target=None, target_pixel=None, name: str = "capture",
+                        seed: int = 0):
+    """The picked object of a capture reconstructed with the settings its kind of camera needs
+    (:func:`perception.reconstruct.multiview.reconstruct_frames`, world mm): on real frames the convex
+    segmentation tells touching objects apart, which needs 3 mm voxels on real depth noise; virtual frames use
+    the plain Euclidean clusters at 2 mm."""
+    from perception.reconstruct.multiview import reconstruct_frames
+
+    return reconstruct_frames(frames, target=target, target_pixel=target_pixel, name=name,
+                              method="euclidean" if virtual else "convex", voxel_mm=2.0 if virtual else 3.0,
+                              seed=seed)
+
+
 def recognize_capture(
     source: str,
     *,
@@ -163,7 +176,6 @@ def recognize_capture(
     timings["capture_s"] = time.perf_counter() - start
     # Only now the geometry stack: without a device the user hears so before Open3D has loaded.
     from perception.geometry import DEFAULT_SIZE_MM, rescale
-    from perception.reconstruct.multiview import reconstruct_frames
     from perception.reconstruct.surface import surface_error
     from perception.reconstruct.tabletop import describe_objects
     from tactile.contours import make_contour
@@ -174,15 +186,8 @@ def recognize_capture(
     start = time.perf_counter()
     if target_pixel is None and target is None:
         target = _optical_axis_target(frames[0])
-    rec = reconstruct_frames(
-        frames,
-        target=target,
-        target_pixel=target_pixel,
-        name=f"{source}",
-        method="euclidean" if virtual else "convex",  # real scenes: touching objects told apart
-        voxel_mm=2.0 if virtual else 3.0,  # segmentation by normals needs 3 mm voxels on real noise
-        seed=seed,
-    )
+    rec = reconstruct_capture(frames, virtual=virtual, target=target, target_pixel=target_pixel, name=f"{source}",
+                              seed=seed)
     timings["reconstruct_s"] = time.perf_counter() - start
     summary: dict = {
         "source": source,
@@ -251,4 +256,4 @@ def recognize_capture(
     return summary
 
 
-__all__ = ["acquire", "recognize_capture"]
+__all__ = ["acquire", "recognize_capture", "reconstruct_capture"]

@@ -12,7 +12,7 @@ scene) are computed on first use and cached, so a scene pays only for what it as
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -250,41 +250,26 @@ class ObjectModel:
 
     @cached_property
     def scene_origin(self) -> np.ndarray:
-        """(3,) float64 point the ray-casting scene is built around, mm: :attr:`center`. With
-        :attr:`scene_rotation` it fixes the scene's frame (see :meth:`to_scene`)."""
+        """(3,) float64 point the ray-casting scene is built around, mm: :attr:`center` (see :meth:`to_scene`)."""
         return self.center.copy()
 
-    @cached_property
-    def scene_rotation(self) -> np.ndarray:
-        """(3, 3) rotation of the ray-casting scene's axes: :attr:`principal_frame`. The scene holds
-        ``(x - scene_origin) @ scene_rotation`` in float32, which turns with the object: a mesh and any rotation
-        of it round to the same float32 scene (and rays built in it to the same rays), so what is cast does not
-        depend on the pose, and a mesh far from the origin keeps its float32 precision."""
-        return self.principal_frame
+    def to_scene(self, vectors: np.ndarray, *, directions: bool = False) -> np.ndarray:
+        """Points (mm) or, with ``directions=True``, directions in the ray-casting scene's frame, float64: about
+        :attr:`scene_origin`, along :attr:`principal_frame`. That frame turns with the object, so a mesh and any
+        rotation of it round to the same float32 scene and rays built in it to the same float32 rays: what is cast
+        does not depend on the pose, and a mesh far from the origin keeps its float32 precision."""
+        vectors = np.asarray(vectors, dtype=np.float64)
+        return (vectors if directions else vectors - self.scene_origin) @ self.principal_frame
 
-    def to_scene(self, points: np.ndarray | None = None, directions: np.ndarray | None = None):
-        """Points (mm) and/or directions in the scene's frame, float64 (rounded to float32 only after)."""
-        out = []
-        if points is not None:
-            out.append((np.asarray(points, dtype=np.float64) - self.scene_origin) @ self.scene_rotation)
-        if directions is not None:
-            out.append(np.asarray(directions, dtype=np.float64) @ self.scene_rotation)
-        return out[0] if len(out) == 1 else tuple(out)
-
-    def from_scene(self, points: np.ndarray | None = None, directions: np.ndarray | None = None):
-        """Points (mm) and/or directions from the scene's frame back to the model's, float64."""
-        out = []
-        if points is not None:
-            out.append(np.asarray(points, dtype=np.float64) @ self.scene_rotation.T + self.scene_origin)
-        if directions is not None:
-            out.append(np.asarray(directions, dtype=np.float64) @ self.scene_rotation.T)
-        return out[0] if len(out) == 1 else tuple(out)
+    def from_scene(self, points: np.ndarray) -> np.ndarray:
+        """Points (mm) from the scene's frame back to the model's, float64 (the inverse of :meth:`to_scene`)."""
+        return np.asarray(points, dtype=np.float64) @ self.principal_frame.T + self.scene_origin
 
     @cached_property
     def scene(self) -> o3d.t.geometry.RaycastingScene:
         """An Open3D ``RaycastingScene`` holding this mesh (geometry id 0), float32, mm, in the scene's frame
         (:meth:`to_scene`: about the centre, along the principal axes). Cast rays made with :meth:`to_scene`
-        and map hit points and normals back with :meth:`from_scene`; distances and triangle ids need nothing."""
+        and map hit points back with :meth:`from_scene`; distances and triangle ids need nothing."""
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(
             o3d.core.Tensor(self.to_scene(self.vertices).astype(np.float32)),
@@ -384,9 +369,7 @@ def rescale(model: ObjectModel, size_mm: float = DEFAULT_SIZE_MM, *, name: str |
         InvalidMeshError: ``size_mm`` is not a positive number.
     """
     vertices, scaling = normalize(model.vertices, size_mm, triangles=model.triangles, centering=model.centering)
-    return ObjectModel(vertices, model.triangles, name=name or model.name, label=model.label,
-                       vertex_colors=model.vertex_colors, transform=scaling @ model.transform, source=model.source,
-                       centering=model.centering)
+    return replace(model, vertices=vertices, transform=scaling @ model.transform, name=name or model.name)
 
 
 def rotate(model: ObjectModel, rotation: np.ndarray) -> ObjectModel:
@@ -400,11 +383,7 @@ def rotate(model: ObjectModel, rotation: np.ndarray) -> ObjectModel:
     turn = np.eye(4)
     turn[:3, :3] = r
     turn[:3, 3] = model.center - r @ model.center
-    return ObjectModel(
-        model.vertices @ r.T + turn[:3, 3], model.triangles, name=model.name, label=model.label,
-        vertex_colors=model.vertex_colors, transform=turn @ model.transform, source=model.source,
-        centering=model.centering,
-    )
+    return replace(model, vertices=model.vertices @ r.T + turn[:3, 3], transform=turn @ model.transform)
 
 
 def _check_rotation(rotation, where: str) -> np.ndarray:

@@ -62,7 +62,7 @@ class Camera:
         origins = (self.center - self.distance_mm * self.forward) + np.outer(x, self.right) + np.outer(y, self.up)
         forward = self.forward
         if model is not None:
-            origins, forward = model.to_scene(origins, forward)
+            origins, forward = model.to_scene(origins), model.to_scene(forward, directions=True)
         return np.hstack([origins, np.broadcast_to(forward, origins.shape)]).astype(np.float32)
 
     def project(self, points: np.ndarray) -> np.ndarray:

@@ -259,7 +259,7 @@ class FSRSensor:
         # In the scene's frame, in float64, before anything is rounded to float32 (the rays then do not depend
         # on the object's pose).
         positions = model.to_scene(positions)
-        normals, tangents = model.to_scene(directions=normals), model.to_scene(directions=tangents)
+        normals, tangents = model.to_scene(normals, directions=True), model.to_scene(tangents, directions=True)
         # normals x tangents, as np.cross computes it, without its set-up cost on small batches.
         binormals = (
             normals[:, [1, 2, 0]] * tangents[:, [2, 0, 1]] - normals[:, [2, 0, 1]] * tangents[:, [1, 2, 0]]

@@ -6,8 +6,8 @@ The strategies share one store of the paper objects, the PCL ones a second store
 the peer program leaves the first store and its models valid); a grouped k-fold by object trains the first
 unseen-objects classifier (pose-free cues) on the objects as stored and tests it upright and in any pose;
 accuracy for one touch and for the largest K (sum of log probabilities), bootstrap over objects, and each
-strategy's paired difference to blind contours at the largest K. Saliency time per object is measured on the first object of each class (median; for PCL it includes
-starting the program and its file I/O). Without the program the PCL rows say "not built" and how to build it.
+strategy's paired difference to blind contours at the largest K. Saliency time per object is measured on the
+first object of each class (median; for PCL it includes starting the program and its file I/O). Without the program the PCL rows say "not built" and how to build it.
 """
 
 from __future__ import annotations

@@ -27,6 +27,8 @@ class Context:
         progress: tqdm bars.
         workers: store generation workers (None: the usable cores).
         timings: wall seconds of each part in this process (not cached: they say how long *this* run took).
+        stores: the stores this run has generated or checked, by their record's digest (:meth:`store`): each is
+            verified and opened once per run, however many parts read it.
     """
 
     out: Path
@@ -36,6 +38,7 @@ class Context:
     progress: bool = True
     workers: int | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    stores: dict[str, tuple] = field(default_factory=dict)
 
     def path(self, *parts: str) -> Path:
         return self.out.joinpath(*parts)
@@ -55,6 +58,18 @@ class Context:
         result = compute()
         write_text(path, json.dumps({"key": key, "record": record, "result": result}, indent=2, default=str))
         return result
+
+
+    def store(self, objects, *, strategies, contours: int) -> tuple:
+        """(the opened dataset, its record) of ``objects`` with these settings and the run's seed, generated,
+        resumed or repaired by :func:`fusion.experiments.data.ensure_store` the first time a run asks for it."""
+        from fusion.experiments.data import ensure_store, store_record
+
+        key = digest(store_record(objects, contours, self.seed, strategies))
+        if key not in self.stores:
+            self.stores[key] = ensure_store(objects, self.path("stores"), strategies=strategies, contours=contours,
+                                            seed=self.seed, workers=self.workers, progress=self.progress)
+        return self.stores[key]
 
 
 __all__ = ["Context"]

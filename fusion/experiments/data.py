@@ -158,5 +158,5 @@ def split_loader(ds, train, test, test_ds=None):
     return load
 
 
-__all__ = ["any_pose", "catalogue_objects", "ensure_store", "folder_objects", "load_models", "split_loader", "store_record",
-           "unique_meshes"]
+__all__ = ["any_pose", "catalogue_objects", "ensure_store", "folder_objects", "load_models", "split_loader",
+           "store_record", "unique_meshes"]

@@ -13,7 +13,7 @@ import numpy as np
 from fusion.evaluate import confusion, plot_confusion
 from fusion.experiments.analysis import paired_difference, score, touch_curve
 from fusion.experiments.context import Context
-from fusion.experiments.data import any_pose, ensure_store, split_loader, store_record
+from fusion.experiments.data import any_pose, split_loader, store_record
 from fusion.experiments.models import DISPLAY, MODALITY_DISPLAY, Predictions, digest, pick, train_and_predict
 from perception.errors import DatasetError, InvalidArgumentError
 
@@ -50,9 +50,7 @@ def confusion_figures(ctx: Context, preds: dict[str, dict[str, Predictions]], se
 
 def paper_dataset(ctx: Context, objects):
     """The paper protocol's dataset (generated, resumed or reused) and its store record."""
-    sizes = ctx.sizes
-    return ensure_store(objects, ctx.path("stores"), strategies=sizes.strategies, contours=sizes.paper_contours,
-                        seed=ctx.seed, workers=ctx.workers, progress=ctx.progress)
+    return ctx.store(objects, strategies=ctx.sizes.strategies, contours=ctx.sizes.paper_contours)
 
 
 def paper_protocol(ctx: Context, objects) -> dict[str, dict[str, Predictions]]:
@@ -111,12 +109,10 @@ def pose_stores(ctx: Context, objects, pose: str, strategies, contours: int) -> 
     """
     if pose not in POSES:
         raise InvalidArgumentError(f"unknown pose {pose!r}; choose one of {', '.join(POSES)}")
-    settings = {"strategies": strategies, "contours": contours, "seed": ctx.seed, "workers": ctx.workers,
-                "progress": ctx.progress}
-    ds, record = ensure_store(objects, ctx.path("stores"), **settings)
+    ds, record = ctx.store(objects, strategies=strategies, contours=contours)
     if pose == "upright":
         return ds, record, ds, record
-    return (ds, record, *ensure_store(any_pose(objects, ctx.seed), ctx.path("stores"), **settings))
+    return (ds, record, *ctx.store(any_pose(objects, ctx.seed), strategies=strategies, contours=contours))
 
 
 def grouped_kfold(ctx: Context, part: str, stores: tuple, strategy: str, classifiers: dict, n_folds: int
@@ -156,38 +152,27 @@ def same_objects(ds, index: np.ndarray, other, strategy: str) -> np.ndarray:
     return np.flatnonzero(wanted & (other.sequence_strategies == strategy)).astype(np.int64)
 
 
-def _usable_ks(preds: dict[str, Predictions], ks) -> list[int]:
-    return [k for k in ks if all(k <= _min_per_object(p) for p in preds.values())]
+def _paired_rows(row: dict, name: str, a: Predictions, b: Predictions, ks, seed: int) -> list[dict]:
+    """``row`` + the paired difference a - b (:func:`fusion.experiments.analysis.paired_difference`, log rule)
+    for every K that each object of both has enough sequences for."""
+    usable = [k for k in ks if k <= min(_min_per_object(a), _min_per_object(b))]
+    return [{**row, "classifier": DISPLAY.get(name, name), "name": name, "k": k,
+             **paired_difference(a, b, k, seed=seed)} for k in usable]
 
 
 def strategy_differences(by_pose: dict[str, dict[str, dict[str, Predictions]]], ks, seed: int) -> list[dict]:
-    """Guided minus blind accuracy per (pose, classifier, K): paired over the objects both strategies tested
-    (:func:`fusion.experiments.analysis.paired_difference`, log rule). Empty unless both strategies ran."""
-    rows = []
-    for pose, preds in by_pose.items():
-        if not {"guided", "blind"} <= set(preds):
-            continue
-        for name in preds["guided"]:
-            pair = {"guided": preds["guided"][name], "blind": preds["blind"][name]}
-            for k in _usable_ks(pair, ks):
-                rows.append({"pose": pose, "classifier": DISPLAY.get(name, name), "name": name, "k": k,
-                             **paired_difference(pair["guided"], pair["blind"], k, seed=seed)})
-    return rows
+    """Guided minus blind accuracy per (pose, classifier, K), paired over the objects both strategies tested.
+    Empty unless both strategies ran."""
+    return [r for pose, preds in by_pose.items() if {"guided", "blind"} <= set(preds)
+            for name in preds["guided"]
+            for r in _paired_rows({"pose": pose}, name, preds["guided"][name], preds["blind"][name], ks, seed)]
 
 
 def pose_differences(by_pose: dict[str, dict[str, dict[str, Predictions]]], ks, seed: int) -> list[dict]:
     """Any-pose minus upright accuracy per (strategy, classifier, K), paired over the test objects."""
-    rows = []
     upright, turned = by_pose.get("upright", {}), by_pose.get("any pose", {})
-    for strategy in upright:
-        for name in upright[strategy]:
-            if name not in turned.get(strategy, {}):
-                continue
-            pair = {"upright": upright[strategy][name], "any pose": turned[strategy][name]}
-            for k in _usable_ks(pair, ks):
-                rows.append({"strategy": strategy, "classifier": DISPLAY.get(name, name), "name": name, "k": k,
-                             **paired_difference(pair["any pose"], pair["upright"], k, seed=seed)})
-    return rows
+    return [r for strategy, preds in upright.items() for name in preds if name in turned.get(strategy, {})
+            for r in _paired_rows({"strategy": strategy}, name, turned[strategy][name], preds[name], ks, seed)]
 
 
 def touches_rows(preds: dict[str, dict[str, Predictions]], setting: str, ks, seed: int) -> list[dict]:

@@ -104,15 +104,16 @@ def noise_rows(ctx: Context, objects) -> list[dict]:
                            for name in sizes.unseen_classifiers} for i in range(len(folds))]
             attention = _attention(test_ds, list(models.values()), strategy, ctx.seed)
             for kind, level in levels:
+                kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
+                sensor, jitter = _sensor_and_jitter(kind, level)
                 preds: dict[tuple[str, str], list] = {}
                 for i, test_models in enumerate(fold_objects):
-                    batch = _noisy_batch(ctx, test_models, class_names, pose, strategy, kind, level, attention)
-                    sensor, _ = _sensor_and_jitter(kind, level)
-                    inputs = _inputs(batch, sensor, kind, sizes)
+                    batch = _noisy_batch(ctx, test_models, class_names, pose, strategy, kind, level, sensor, jitter,
+                                         attention)
+                    inputs = _inputs(batch, sensor, kinds)
                     for name, estimator in estimators[i].items():
                         for view, data in inputs.items():
                             preds.setdefault((name, view), []).append(predict(estimator, data))
-                kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
                 for name in sizes.unseen_classifiers:
                     acc = {view: score(Predictions.concatenate(p), by="object", seed=ctx.seed)
                            for (n, view), p in preds.items() if n == name}
@@ -124,11 +125,10 @@ def noise_rows(ctx: Context, objects) -> list[dict]:
 
 
 def _noisy_batch(ctx: Context, models: list, class_names: list[str], pose: str, strategy: str, kind: str,
-                 level: float, attention) -> SequenceBatch:
-    """The test objects touched with one noise kind and level (cached under ``noise/``); dead taxels repaired
-    later read the same frames as dead taxels."""
+                 level: float, sensor: FSRSensor, jitter: float, attention) -> SequenceBatch:
+    """The test objects touched with one noise kind and level (its ``sensor`` and pose ``jitter``, mm), cached
+    under ``noise/``; dead taxels repaired later read the same frames as dead taxels."""
     sizes = ctx.sizes
-    sensor, jitter = _sensor_and_jitter(kind, level)
     read = "dead_taxels" if kind == "dead_taxels_repaired" else kind
     names = [m.name for m in models]
     key = {"objects": names, "pose": pose, "strategy": strategy, "kind": read, "level": level,
@@ -143,9 +143,8 @@ def _noisy_batch(ctx: Context, models: list, class_names: list[str], pose: str, 
     return batch
 
 
-def _inputs(batch: SequenceBatch, sensor: FSRSensor, kind: str, sizes) -> dict[str, SequenceBatch]:
-    """The frames the models read at this level: as touched ("raw") and/or repaired, each made once."""
-    kinds = list(sizes.noise_levels) if kind == "clean" else [kind]
+def _inputs(batch: SequenceBatch, sensor: FSRSensor, kinds: list[str]) -> dict[str, SequenceBatch]:
+    """The frames the models of ``kinds`` read: as touched ("raw") and/or repaired, each made once."""
     views = {_view(k) for k in kinds}
     inputs = {"raw": batch} if "raw" in views else {}
     if "repaired" in views:

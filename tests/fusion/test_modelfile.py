@@ -11,7 +11,7 @@ import torch
 from safetensors import safe_open
 from safetensors.numpy import save
 
-from fusion.base import TactileClassifier, load_model
+from fusion.base import load_model
 from fusion.cli import main
 from fusion.cnn import CNNClassifier
 from fusion.conventional import ConventionalClassifier
@@ -19,27 +19,19 @@ from fusion.experiments.models import Predictions, fit_cached
 from fusion.modelfile import FORMAT_NAME, content_digest
 from perception.errors import ModelFileError
 from tests.fusion._synthetic import circle_batch
+from tests.fusion.test_base import MeanFrame
 from tests.fusion.test_features import small_batch
 
 FAST_CONVENTIONAL = {"som_iterations": 300, "n_select": 30}
 FAST_CNN = {"epochs": 2, "batch_size": 16, "progress": False, "threads": 1}
 
 
-class Centroid(TactileClassifier):
-    """Nearest class mean of the mean reading (a stand-in whose state is plain data)."""
-
-    def __init__(self, temperature: float = 1.0):
-        self.temperature = temperature
+class Centroid(MeanFrame):
+    """The nearest-mean stand-in, with extra fitted state of plain data (tuples, NaN, numpy scalars)."""
 
     def _fit(self, batch, y):
-        means = batch.frames.mean(axis=(1, 2, 3))
-        self.centres_ = np.array([means[y == k].mean() for k in range(len(self.classes_))])
+        super()._fit(batch, y)
         self.notes_ = {"fitted_on": len(y), "shape": (1, 2), "nan": float("nan"), "scale": np.float32(0.5)}
-
-    def _predict_proba(self, batch):
-        d = -np.abs(batch.frames.mean(axis=(1, 2, 3))[:, None] - self.centres_[None]) / self.temperature
-        e = np.exp(d - d.max(axis=1, keepdims=True))
-        return e / e.sum(axis=1, keepdims=True)
 
 
 class Payload:

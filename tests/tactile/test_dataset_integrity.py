@@ -17,6 +17,7 @@ from perception.errors import DatasetError
 from tactile.dataset import generate, open_dataset, verify_store
 from tactile.dataset.store import ARRAYS
 from tactile.sensor import FSRSensor
+from tests.tactile.test_dataset import store_files
 
 OBJECTS = [("box", 0), ("can", 0), ("box", 1)]
 SETTINGS = {"strategies": ("blind",), "contours_per_object": 6, "sensor": FSRSensor(rows=8, cols=8), "probes": 8,
@@ -51,23 +52,6 @@ def flip(file: Path, offset: int = 12) -> None:
 
 def arrays_of(path: Path) -> dict[str, np.ndarray]:
     return {name: zarr.open_array(f"{path}/{name}", mode="r")[:] for name in ARRAYS}
-
-
-def files_of(path: Path) -> dict[str, object]:
-    """Every file of a store; records without their timing, the root metadata without creation details."""
-    files = {}
-    for file in sorted(p for p in path.rglob("*") if p.is_file()):
-        rel = file.relative_to(path).as_posix()
-        if rel.startswith("records/"):
-            files[rel] = {k: v for k, v in json.loads(file.read_text()).items() if k != "seconds"}
-        elif rel == "zarr.json":
-            meta = json.loads(file.read_text())
-            for key in ("created", "command", "store_id"):
-                meta["attributes"]["visuotactile_dataset"].pop(key)
-            files[rel] = meta
-        else:
-            files[rel] = file.read_bytes()
-    return files
 
 
 # --------------------------------------------------------------------------------------------- intact
@@ -173,6 +157,6 @@ def test_generate_re_explores_exactly_the_damaged_objects_and_ends_byte_identica
     original, repaired = arrays_of(store), arrays_of(copy)
     for name in ARRAYS:
         assert repaired[name].tobytes() == original[name].tobytes(), name
-    assert files_of(copy) == files_of(store)  # every chunk file, byte for byte, and the same records
+    assert store_files(copy) == store_files(store)  # every chunk file, byte for byte, and the same records
     again = generate(OBJECTS, copy, **SETTINGS)  # intact now: nothing to do
     assert again.skipped == 3 and again.completed == 0 and not again.repaired
