@@ -340,22 +340,25 @@ def _kill_at_bytes(target: Path, write, cuts) -> list[bytes | None]:
     return seen
 
 
-def _kill_at_random(target: Path, write, kills: int, seed: int = 0) -> tuple[list[bytes | None], int]:
-    """A child writes version 1, 0, 1, ... to ``target`` in a loop; SIGKILL it at random moments, ``kills``
-    times (writes made in C++ included). Returns the target's bytes after each kill and how many kills left
-    a temporary (landed while a write was under way)."""
+def _kill_at_random(target: Path, write, kills: int, seed: int = 0, max_kills: int = 60) -> tuple[list[bytes | None], int]:
+    """A child writes version 1, 0, 1, ... to ``target`` in a loop; SIGKILL it at random moments (writes made
+    in C++ included), ``kills`` times and then on until one kill has landed while a write was under way (at
+    most ``max_kills``). Returns the target's bytes after each kill and how many kills left a temporary."""
     rng = np.random.default_rng(seed)
+    start = time.perf_counter()
+    write(target, 1)  # the kill moments span a few writes, however fast this machine writes
+    one_write_s = time.perf_counter() - start
     seen, mid_write = [], 0
-    for _ in range(kills):
+    while len(seen) < kills or (mid_write == 0 and len(seen) < max_kills):
         def body(fd):
             os.write(fd, b"x")
-            for i in range(1, 1 << 30):
+            for i in range(1 << 30):
                 write(target, i % 2)
 
         pid, read_fd = _fork(body)
         os.read(read_fd, 1)
         os.close(read_fd)
-        time.sleep(float(rng.uniform(0.0, 0.02)))
+        time.sleep(float(rng.uniform(0.0, 3 * one_write_s)))
         _kill(pid)
         mid_write += bool(_temporaries(target))
         seen.append(target.read_bytes() if target.exists() else None)
@@ -445,7 +448,7 @@ def test_control_a_plain_writer_is_torn_by_random_kills(tmp_path):
         complete.append((tmp_path / f"v{v}.txt").read_bytes())
     path = tmp_path / "plain.txt"
     _plain_write(path, 0)
-    seen, _ = _kill_at_random(path, _plain_write, kills=6)
+    seen, _ = _kill_at_random(path, _plain_write, kills=6, max_kills=6)  # leaves no temporaries to wait for
     assert any(s not in complete for s in seen)
 
 
