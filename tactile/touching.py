@@ -36,7 +36,7 @@ from perception.geometry import ObjectModel
 from perception.runtime import progress_bar
 from perception.validate import check_count, check_seed
 from tactile import sampling
-from tactile.contours import Contour, make_contour
+from tactile.contours import Contour, Plane, make_contour
 from tactile.explore import TactileSequence, explore
 from tactile.sensor import FSRSensor
 
@@ -236,6 +236,7 @@ def touch(
     timing: TouchTiming | None = None,
     contours: list[Contour] | None = None,
     progress: bool = False,
+    planes: list[Plane] | None = None,
 ) -> list[TactileSequence]:
     """Touch ``model`` along ``n_contours`` contours chosen by ``strategy``: one tactile sequence each.
 
@@ -249,11 +250,14 @@ def touch(
         timing: collects saliency and per-contour (cut + press) wall seconds.
         contours: if given, the planned contours are appended to it.
         progress: show a tqdm bar.
+        planes: touch along these planes, in order, instead of drawing them (a touch policy's choices; the
+            planes are given in ``model``'s frame); ``n_contours`` must be their number, the noise seeds are
+            drawn from ``seed`` as in the "stream" scheme, and a plane that misses the object raises.
 
     Raises:
         InvalidArgumentError: unknown strategy or seeding, n_contours not an integer >= 1, probes not an
             integer >= 2, a bad seed, a negative or non-finite jitter.
-        ContourError: a flat object, or too many planes that miss the object.
+        ContourError: a flat object, too many planes that miss the object, or a given plane that misses it.
         SaliencyError: ``saliency`` is of another method or object.
 
     Examples:
@@ -278,7 +282,13 @@ def touch(
     sensor = sensor or FSRSensor()
     toucher = Toucher(model, strategy, probes=probes, saliency=saliency,
                       saliency_seed=seed if seeding == "object" else 0, timing=timing)
-    if seeding == "object":
+    if planes is not None:
+        if len(planes) != n_contours:
+            raise InvalidArgumentError(f"{model.name}: {len(planes)} planes given for n_contours={n_contours}")
+        noise_rng = np.random.default_rng(seed)
+        planned = (Planned(toucher.cut(plane), int(noise_rng.integers(2**31 - 1))) for plane in planes)
+        jitter_rng = None
+    elif seeding == "object":
         planned, jitter_rng = toucher.by_object(n_contours, seed)
     else:
         planned = toucher.stream(n_contours, seed)

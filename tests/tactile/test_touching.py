@@ -108,3 +108,21 @@ class TestArguments:
         moved = touch(box, "blind", 2, SENSOR, 10, 3, jitter_mm=1.0)
         for a, b in zip(clean, moved):
             np.testing.assert_array_equal(a.positions, b.positions)
+
+
+class TestGivenPlanes:
+    def test_touches_the_given_planes_in_order(self, box):
+        """A policy's planes are touched as given: the same contours as cutting them directly, noise seeds from
+        the seed's stream."""
+        planes = [plane_through(box.center, box.vertices[0], box.vertices[v]) for v in (5, 40)]
+        sequences = touch(box, "blind", 2, SENSOR, 10, 3, planes=planes)
+        rng = np.random.default_rng(3)
+        for sequence, plane in zip(sequences, planes):
+            expected = explore(box, make_contour(box, plane, 10), SENSOR, seed=int(rng.integers(2**31 - 1)))
+            np.testing.assert_array_equal(sequence.frames, expected.frames)
+            np.testing.assert_array_equal(sequence.plane.normal, plane.normal)
+
+    def test_count_must_match(self, box):
+        plane = plane_through(box.center, box.vertices[0], box.vertices[5])
+        with pytest.raises(InvalidArgumentError, match="1 planes given for n_contours=2"):
+            touch(box, "blind", 2, SENSOR, 10, 3, planes=[plane])

@@ -1,0 +1,28 @@
+"""Active touch: next-touch policies planned on the camera's view, sequential decisions, a Gymnasium environment.
+
+- :mod:`fusion.active.policies`: ``random``, ``saliency`` and ``information`` (expected information gain over
+  contours simulated on the visual model), with the contract that a policy never reads the true object.
+- :mod:`fusion.active.episode`: :func:`run_episode`, touches fused by the log rule until a confidence threshold
+  or a touch budget.
+- :mod:`fusion.active.env`: ``ActiveTouchEnv``, the same loop as a Gymnasium / ``ap_gym`` active-classification
+  environment (imported on demand: it needs ``gymnasium`` and ``ap_gym``).
+"""
+
+from fusion.active.episode import Episode, run_episode, stopped, touch_seed
+from fusion.active.policies import (
+    POLICIES,
+    ActiveState,
+    InformationPolicy,
+    Policy,
+    RandomPolicy,
+    SaliencyPolicy,
+    information_gain,
+    make_policy,
+    noisy_copy,
+    same_plane,
+    visual_key,
+)
+
+__all__ = ["POLICIES", "ActiveState", "Episode", "InformationPolicy", "Policy", "RandomPolicy", "SaliencyPolicy",
+           "information_gain", "make_policy", "noisy_copy", "run_episode", "same_plane", "stopped", "touch_seed",
+           "visual_key"]

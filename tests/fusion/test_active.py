@@ -1,0 +1,168 @@
+"""Next-touch policies and sequential decisions: the information gain against hand-computed values, the planning
+contract (a policy never depends on the true object, only on the visual model and the outcomes so far), the
+information policy following the posterior, the stopping rule, determinism and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion.active import (
+    ActiveState,
+    InformationPolicy,
+    information_gain,
+    make_policy,
+    noisy_copy,
+    run_episode,
+    same_plane,
+    stopped,
+)
+from perception.errors import InvalidArgumentError
+from perception.shapes import make_object
+from tactile.sensor import FSRSensor
+
+CLASSES = np.array(["a", "b", "c"], dtype=object)
+
+
+class ConstantClassifier:
+    """A fitted-classifier stand-in whose output is the same for every sequence."""
+
+    classes_ = CLASSES
+    probes = 8
+
+    def __init__(self, proba=(0.9, 0.05, 0.05)):
+        self.proba = np.asarray(proba, dtype=np.float64)
+
+    def sensor(self):
+        return FSRSensor(rows=8, cols=8)
+
+    def predict_proba(self, batch):
+        return np.tile(self.proba, (len(batch), 1))
+
+
+class OrientationClassifier(ConstantClassifier):
+    """Reads a contour plane's orientation: planes within 45 degrees of horizontal say "a" confidently, the others
+    are torn between "b" and "c"."""
+
+    CONFIDENT, TORN = (0.8, 0.1, 0.1), (0.1, 0.45, 0.45)
+
+    def predict_proba(self, batch):
+        flat = np.abs(batch.plane_normals[:, 2]) > np.sqrt(0.5)
+        return np.where(flat[:, None], self.CONFIDENT, self.TORN)
+
+
+@pytest.fixture(scope="module")
+def objects():
+    mug, box = make_object("mug", 0), make_object("box", 0)
+    return mug, box, noisy_copy(mug, 0.5, seed=1)
+
+
+class TestInformationGain:
+    def test_hand_computed(self):
+        # p uniform, q = (0.8, 0.2): the new posterior is q, KL(q || p) = 0.8 ln 1.6 + 0.2 ln 0.4.
+        assert information_gain([0.5, 0.5], [0.8, 0.2]) == pytest.approx(0.8 * np.log(1.6) + 0.2 * np.log(0.4))
+        # p = (0.9, 0.1), q = (0.1, 0.9): the new posterior is (0.5, 0.5).
+        assert information_gain([0.9, 0.1], [0.1, 0.9]) == pytest.approx(0.5 * np.log(0.5 / 0.9) + 0.5 * np.log(5))
+        assert information_gain([0.2, 0.3, 0.5], [1 / 3] * 3) == pytest.approx(0.0, abs=1e-15)
+
+    def test_batched_finite_and_non_negative(self):
+        rng = np.random.default_rng(0)
+        outcomes = rng.dirichlet(np.ones(4), size=(5, 3))
+        outcomes[0, 0] = [1.0, 0.0, 0.0, 0.0]  # a zero probability stays finite
+        gain = information_gain([0.0, 0.5, 0.25, 0.25], outcomes)
+        assert gain.shape == (5, 3) and np.isfinite(gain).all() and (gain >= 0).all()
+
+    @pytest.mark.parametrize("posterior, outcomes", [([0.5, 0.5], [0.2, 0.3, 0.5]), ([0.5, np.nan], [0.5, 0.5]),
+                                                     ([0.5, 0.5], [-0.1, 1.1])])
+    def test_bad_input(self, posterior, outcomes):
+        with pytest.raises(InvalidArgumentError):
+            information_gain(posterior, outcomes)
+
+
+class TestContract:
+    @pytest.mark.parametrize("name", ["random", "saliency", "information"])
+    def test_plans_do_not_depend_on_the_true_object(self, objects, name):
+        """Same visual model and same touch outcomes (a classifier whose output never changes) -> the same planes,
+        whichever object is really touched."""
+        mug, box, visual = objects
+        clf, policy = ConstantClassifier(), make_policy(name, 3)
+        runs = [run_episode(true, visual, clf, policy, max_touches=3, seed=0) for true in (mug, box)]
+        assert all(same_plane(a, b) for a, b in zip(runs[0].planes, runs[1].planes))
+        assert len({tuple(np.round(p.normal, 9)) for p in runs[0].planes}) == 3  # three distinct contours
+
+    def test_first_choice_depends_on_the_visual_model_only(self, objects):
+        mug, box, visual = objects
+        clf = OrientationClassifier()  # outcomes differ between the objects, the first plan must not
+        first = [run_episode(true, visual, clf, make_policy("information", 0), max_touches=1).planes[0]
+                 for true in (mug, box)]
+        assert same_plane(*first)
+        assert np.allclose(first[0].point, visual.center)  # through the visual model's centre
+
+    def test_information_choice_follows_the_posterior(self, objects):
+        """Uniform posterior: the confident candidate gains most (KL(q || uniform) = 0.46 vs 0.15 nats); posterior
+        sure of "a": a confident "a" says little more, the torn candidate moves it more (0.016 vs 0.059 nats)."""
+        _, _, visual = objects
+        clf = OrientationClassifier()
+        policy = InformationPolicy(0, candidates=24, variants=1)
+        state = ActiveState(visual, clf)
+        planes, _ = policy.simulated(state)
+        flat = np.array([abs(p.normal[2]) > np.sqrt(0.5) for p in planes])
+        assert flat.any() and (~flat).any()  # both kinds of candidate exist
+        first = policy.propose(state)
+        assert abs(first.normal[2]) > np.sqrt(0.5)
+        sure = ActiveState(visual, clf, planes=[planes[-1]], probabilities=[np.array([0.98, 0.01, 0.01])])
+        second = policy.propose(sure)
+        assert abs(second.normal[2]) <= np.sqrt(0.5)
+        torn_gain = information_gain([0.98, 0.01, 0.01], OrientationClassifier.TORN)
+        assert policy.scores(sure).max() == pytest.approx(torn_gain)
+
+
+class TestEpisode:
+    def test_stopping_rule(self, objects):
+        mug, _, visual = objects
+        clf = ConstantClassifier((0.9, 0.05, 0.05))
+        # After one touch the posterior is (0.9, ...); after two 0.81 / (0.81 + 2 x 0.0025) = 0.99387.
+        assert run_episode(mug, visual, clf, make_policy("random"), threshold=0.85).touches == 1
+        episode = run_episode(mug, visual, clf, make_policy("random"), max_touches=5, threshold=0.99)
+        assert episode.touches == 2 and episode.decision == "a"
+        assert episode.posteriors[-1, 0] == pytest.approx(0.81 / 0.815)
+        full = run_episode(mug, visual, clf, make_policy("random"), max_touches=5)
+        assert full.touches == 5 and stopped(full, 0.99) == ("a", 2)
+        assert full.step_seconds().shape == (5,) and (full.step_seconds() > 0).all()
+
+    def test_same_seed_same_bytes(self, objects):
+        mug, _, visual = objects
+        clf = OrientationClassifier()
+        a, b = (run_episode(mug, visual, clf, make_policy("information", 1), max_touches=3, seed=2) for _ in range(2))
+        assert a.posteriors.tobytes() == b.posteriors.tobytes()
+        assert all(p.normal.tobytes() == q.normal.tobytes() for p, q in zip(a.planes, b.planes))
+
+    @pytest.mark.parametrize("kwargs", [{"max_touches": 0}, {"threshold": 1.5}, {"threshold": float("nan")},
+                                        {"seed": -1}])
+    def test_bad_settings(self, objects, kwargs):
+        mug, _, visual = objects
+        with pytest.raises(InvalidArgumentError):
+            run_episode(mug, visual, ConstantClassifier(), make_policy("random"), **kwargs)
+
+    def test_bad_policies(self):
+        with pytest.raises(InvalidArgumentError, match="unknown touch policy"):
+            make_policy("greedy")
+        with pytest.raises(InvalidArgumentError, match="candidates"):
+            make_policy("information", candidates=0)
+        with pytest.raises(InvalidArgumentError, match="no options"):
+            make_policy("random", candidates=3)
+
+
+class TestNoisyCopy:
+    def test_noise_along_normals(self, objects):
+        mug = objects[0]
+        assert np.array_equal(noisy_copy(mug, 0.0).vertices, mug.vertices)
+        moved = noisy_copy(mug, 2.0, seed=4).vertices - mug.vertices
+        along = np.sum(moved * mug.vertex_normals, axis=1)
+        assert np.allclose(np.linalg.norm(moved, axis=1), np.abs(along))  # only along the normal
+        assert along.std() == pytest.approx(2.0, rel=0.1)
+        assert noisy_copy(mug, 2.0, seed=4).label is None  # the camera does not know the class
+
+    def test_bad_noise(self, objects):
+        with pytest.raises(InvalidArgumentError):
+            noisy_copy(objects[0], -1.0)
