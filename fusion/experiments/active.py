@@ -1,0 +1,227 @@
+"""The ``active`` part: next-touch policies compared on unseen objects in any pose.
+
+Grouped k-fold by object over the unseen-objects store (the ``unseen`` part's objects, contours and folds; one
+classifier per fold trained on every training sequence, both strategies). Each test object is turned by its
+seeded random pose (:func:`fusion.experiments.data.any_pose`); its visual model is a noisy copy of that mesh
+(vertices moved along their normals by N(0, ``noise_mm``) mm, seeded per object). Every policy runs one episode
+of ``max(ks)`` touches per object (planning on the visual model, touching the true mesh), so the decision after
+K touches is the episode's first K touches fused by the log rule. Reported: accuracy against K with 95 %
+bootstrap intervals over objects, paired differences (policy - random) bootstrapped over objects, the touches
+needed to reach 90 %, the stopping rule at a posterior threshold (accuracy, touches used), and wall seconds per
+decision step (planning, touching, classifying; the first step of the information policy includes simulating its
+candidates).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from fusion.active import make_policy, noisy_copy, run_episode
+from fusion.evaluate import accuracy
+from fusion.experiments.models import fit_cached, pick
+from perception.errors import InvalidArgumentError
+
+log = logging.getLogger(__name__)
+
+BOOTSTRAP = 1000
+#: Accuracy the "touches to reach" column asks for.
+TARGET = 0.9
+#: Posterior thresholds of the stopping-rule rows.
+THRESHOLDS = (0.9, 0.99)
+
+
+def paired_over_objects(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict:
+    """Mean of a - b (per-object scores, paired) with its 95 % percentile bootstrap interval over objects.
+
+    Raises:
+        InvalidArgumentError: unequal lengths or fewer than two objects.
+    """
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 1 or len(a) < 2:
+        raise InvalidArgumentError(f"paired_over_objects: need two equal 1-D arrays of >= 2 objects, got {a.shape}, {b.shape}")
+    diff = a - b
+    rng = np.random.default_rng(seed)
+    boot = diff[rng.integers(0, len(diff), size=(BOOTSTRAP, len(diff)))].mean(axis=1)
+    low, high = np.percentile(boot, [2.5, 97.5])
+    return {"difference": float(diff.mean()), "low": float(low), "high": float(high), "n_objects": len(diff)}
+
+
+def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random", "saliency", "information"),
+                    max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
+                    progress: bool = False) -> dict:
+    """Run every policy on every test object of the grouped folds; returns per-object records (JSON-able)."""
+    from fusion.experiments.data import any_pose
+    from tactile.dataset import object_specs
+
+    sizes = ctx.sizes
+    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
+    factory = pick(ctx.classifiers, [classifier])[classifier]
+    specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
+    folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)
+    rows = []
+    for i, (train, test) in enumerate(folds):
+        model, _fit_s = fit_cached(factory, lambda t=train: ds.load(t), ctx.path("models", "active", f"fold{i + 1}",
+                                                                                f"{classifier}.vtm"),
+                                  {"part": "active", "store": record, "train": [int(x) for x in train]})
+        names = sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])})
+        policy_objs = {name: make_policy(name, ctx.seed, **({"candidates": candidates, "variants": variants}
+                                                             if name == "information" else {}))
+                       for name in policies}
+        for n, name in enumerate(names):
+            true = specs[name].load()
+            visual = noisy_copy(true, noise_mm, seed=ctx.seed + n + 1000 * i)
+            row = {"object": name, "label": true.label, "fold": i + 1, "policies": {}}
+            for pname, policy in policy_objs.items():
+                start = time.perf_counter()
+                ep = run_episode(true, visual, model, policy, max_touches=max_touches, seed=ctx.seed)
+                row["policies"][pname] = {
+                    "decisions": ep.decisions(), "posteriors": ep.posteriors.round(6).tolist(),
+                    "planning_s": ep.planning_s.tolist(), "touching_s": ep.touching_s.tolist(),
+                    "classifying_s": ep.classifying_s.tolist(), "missed": int(ep.missed.sum()),
+                    "classes": ep.classes, "seconds": time.perf_counter() - start}
+            rows.append(row)
+            log.info("active fold %d: %s (%s) %s", i + 1, name, true.label,
+                     {p: r["decisions"][-1] for p, r in row["policies"].items()})
+    return {"objects": rows, "classifier": classifier, "noise_mm": noise_mm, "candidates": candidates,
+            "variants": variants, "max_touches": max_touches}
+
+
+def _correct(rows, policy: str) -> np.ndarray:
+    """(objects, K) 1 where the decision after K touches is right."""
+    return np.array([[d == r["label"] for d in r["policies"][policy]["decisions"]] for r in rows], dtype=np.float64)
+
+
+def summarize(result: dict, seed: int = 0) -> dict:
+    """Accuracy against K (bootstrap over objects), paired differences against random, touches to reach
+    :data:`TARGET`, stopping-rule rows and per-step timings of :func:`active_episodes`' result."""
+    rows = result["objects"]
+    policies = list(rows[0]["policies"])
+    ks = range(1, result["max_touches"] + 1)
+    groups = np.arange(len(rows))
+    curve, differences, reach, stopping, timing = [], [], {}, [], []
+    for p in policies:
+        right = _correct(rows, p)
+        accs = []
+        for k in ks:
+            labels = np.array([r["label"] for r in rows], dtype=object)
+            predicted = np.where(right[:, k - 1] > 0, labels, "__wrong__")
+            acc = accuracy(labels, predicted, groups=groups, n_boot=BOOTSTRAP, seed=seed).to_dict()
+            curve.append({"policy": p, "k": k, "accuracy": acc})
+            accs.append(acc["value"])
+            if p != "random" and "random" in policies:
+                differences.append({"policy": p, "k": k, **paired_over_objects(right[:, k - 1],
+                                                                               _correct(rows, "random")[:, k - 1],
+                                                                               seed)})
+        hit = [k for k, a in zip(ks, accs) if a >= TARGET]
+        reach[p] = hit[0] if hit else None
+        for threshold in THRESHOLDS:
+            used, good = [], []
+            for r in rows:
+                pol = r["policies"][p]
+                post = np.asarray(pol["posteriors"])
+                reached = np.flatnonzero(post.max(axis=1) >= threshold)
+                k = int(reached[0]) + 1 if len(reached) else len(post)
+                used.append(k)
+                good.append(pol["decisions"][k - 1] == r["label"])
+            stopping.append({"policy": p, "threshold": threshold, "accuracy": float(np.mean(good)),
+                             "mean_touches": float(np.mean(used))})
+        plan = np.array([r["policies"][p]["planning_s"] for r in rows])
+        touch_s = np.array([r["policies"][p]["touching_s"] for r in rows])
+        clf_s = np.array([r["policies"][p]["classifying_s"] for r in rows])
+        step = plan + touch_s + clf_s
+        timing.append({"policy": p, "planning_first_s": float(np.median(plan[:, 0])),
+                       "planning_later_s": float(np.median(plan[:, 1:])) if plan.shape[1] > 1 else 0.0,
+                       "planning_mean_s": float(plan.mean()), "touching_s": float(np.median(touch_s)),
+                       "classifying_s": float(np.median(clf_s)), "step_mean_s": float(step.mean()),
+                       "episode_s": float(np.median(step.sum(axis=1)))})
+    return {"curve": curve, "differences": differences, "touches_to_90": reach, "stopping": stopping,
+            "timing": timing, "n_objects": len(rows), "classifier": result["classifier"],
+            "noise_mm": result["noise_mm"], "candidates": result["candidates"], "variants": result["variants"]}
+
+
+def active_part(ctx, objects, **options) -> dict:
+    """The ``active`` part (cached in the report folder): :func:`summarize` of :func:`active_episodes`."""
+    record = {"objects": [str(o) for o in objects], "sizes": ctx.sizes.to_dict(), "seed": ctx.seed,
+              "options": {k: v for k, v in options.items() if k != "progress"}}
+    result = ctx.cached_part("active", record, lambda: active_episodes(ctx, objects, **options))
+    return {**summarize(result, ctx.seed), "episodes": "parts/active.json"}
+
+
+def render_markdown(summary: dict) -> str:
+    """The part's section of the report."""
+    lines = [(f"## Active touch (unseen objects, any pose, {summary['n_objects']} objects, "
+             f"{summary['classifier']}, visual model: mesh + {summary['noise_mm']} mm noise, "
+             f"information: {summary['candidates']} candidates x {summary['variants']} variants)"), "",
+             "Accuracy after K touches (95 % bootstrap over objects):", "",
+             "| policy | " + " | ".join(f"K={k}" for k in sorted({r['k'] for r in summary["curve"]})) + " | K for 90 % |",
+             "|---|" + "---|" * (len({r['k'] for r in summary["curve"]}) + 1)]
+    for p in dict.fromkeys(r["policy"] for r in summary["curve"]):
+        cells = [f"{100 * r['accuracy']['value']:.1f} [{100 * r['accuracy']['low']:.0f}, {100 * r['accuracy']['high']:.0f}]"
+                 for r in summary["curve"] if r["policy"] == p]
+        lines.append(f"| {p} | " + " | ".join(cells) + f" | {summary['touches_to_90'][p] or '> max'} |")
+    lines += ["", "Paired difference against random (points, 95 % bootstrap over objects):", "",
+              "| policy | K | difference | interval |", "|---|---|---|---|"]
+    lines += [f"| {d['policy']} | {d['k']} | {100 * d['difference']:+.1f} | [{100 * d['low']:+.1f}, {100 * d['high']:+.1f}] |"
+              for d in summary["differences"]]
+    lines += ["", "Stopping rule (stop when the fused posterior reaches the threshold, budget 8):", "",
+              "| policy | threshold | accuracy | mean touches |", "|---|---|---|---|"]
+    lines += [f"| {s['policy']} | {s['threshold']} | {100 * s['accuracy']:.1f} | {s['mean_touches']:.2f} |"
+              for s in summary["stopping"]]
+    lines += ["", "Wall seconds per decision step (medians; first planning step includes simulating the candidates):",
+              "", "| policy | planning, first | planning, later | planning, mean | touching | classifying | step, mean |",
+              "|---|---|---|---|---|---|---|"]
+    lines += [f"| {t['policy']} | {t['planning_first_s']:.3f} | {t['planning_later_s']:.4f} | {t['planning_mean_s']:.3f} | "
+              f"{t['touching_s']:.3f} | {t['classifying_s']:.3f} | {t['step_mean_s']:.3f} |" for t in summary["timing"]]
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["TARGET", "THRESHOLDS", "active_episodes", "active_part", "paired_over_objects", "render_markdown",
+           "summarize"]
+
+
+def main(argv=None) -> dict:
+    """``python -m fusion.experiments.active --data FOLDER --out FOLDER [--quick]``: the part on its own; writes
+    ``results.json`` and ``report.md`` to ``--out`` (stores, models and episodes cached there)."""
+    import argparse
+    import json
+    from pathlib import Path
+
+    from fusion.experiments.config import FULL, QUICK
+    from fusion.experiments.context import Context
+    from fusion.experiments.data import folder_objects
+    from fusion.experiments.models import default_classifiers
+    from perception.atomic import write_text
+    from perception.runtime import machine_line
+
+    parser = argparse.ArgumentParser(prog="python -m fusion.experiments.active", description=__doc__.split("\n")[0])
+    parser.add_argument("--data", required=True)
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--quick", action="store_true", help="QUICK sizes (4 objects per class, 16 contours)")
+    parser.add_argument("--classifier", default="svm")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--max-touches", type=int, default=8)
+    parser.add_argument("--noise-mm", type=float, default=1.0)
+    parser.add_argument("--candidates", type=int, default=24)
+    parser.add_argument("--variants", type=int, default=2)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    sizes = QUICK if args.quick else FULL
+    ctx = Context(Path(args.out), args.seed, sizes, default_classifiers(args.seed, sizes.epochs), progress=False)
+    objects = folder_objects(args.data, None, sizes.unseen_per_class)
+    start = time.perf_counter()
+    summary = active_part(ctx, objects, classifier=args.classifier, max_touches=args.max_touches,
+                          noise_mm=args.noise_mm, candidates=args.candidates, variants=args.variants)
+    summary |= {"command": "python -m fusion.experiments.active " + " ".join(argv if argv is not None else
+                                                                            __import__("sys").argv[1:]),
+                "machine": machine_line(), "seconds": round(time.perf_counter() - start, 1)}
+    write_text(Path(args.out) / "results.json", json.dumps(summary, indent=2, default=str))
+    write_text(Path(args.out) / "report.md", f"`{summary['command']}` ({summary['machine']}, "
+               f"{summary['seconds']} s)\n\n" + render_markdown(summary))
+    return summary
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,55 @@
+"""The active-touch experiment's scoring: paired differences over objects, accuracy against K, touches to reach
+90 % and the stopping rule, on hand-made episodes with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion.experiments.active import paired_over_objects, render_markdown, summarize
+from perception.errors import InvalidArgumentError
+
+
+def _policy(decisions, top):
+    return {"decisions": decisions, "posteriors": [[p, 1 - p] for p in top], "planning_s": [0.2, 0.01],
+            "touching_s": [0.05, 0.05], "classifying_s": [0.01, 0.01], "missed": 0, "classes": ["a", "b"]}
+
+
+def episodes():
+    # 10 objects of class "a": random is right after 2 touches on 5 of them, information on all 10 (9 after 1).
+    rows = []
+    for i in range(10):
+        rows.append({"object": f"o{i}", "label": "a", "fold": 1, "policies": {
+            "random": _policy(["b", "a" if i < 5 else "b"], [0.6, 0.8]),
+            "information": _policy(["a" if i else "b", "a"], [0.95 if i else 0.6, 0.995])}})
+    return {"objects": rows, "classifier": "svm", "noise_mm": 1.0, "candidates": 4, "variants": 1, "max_touches": 2}
+
+
+def test_paired_over_objects():
+    a, b = np.array([1.0, 1.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0, 0.0])
+    result = paired_over_objects(a, b)
+    assert result["difference"] == pytest.approx(0.5) and result["n_objects"] == 4
+    assert 0.0 <= result["low"] <= 0.5 <= result["high"] <= 1.0
+    same = paired_over_objects(a, a)
+    assert same["low"] == same["high"] == same["difference"] == 0.0
+    with pytest.raises(InvalidArgumentError):
+        paired_over_objects(a, b[:3])
+
+
+def test_summary_known_answers():
+    summary = summarize(episodes())
+    acc = {(r["policy"], r["k"]): r["accuracy"]["value"] for r in summary["curve"]}
+    assert acc == {("random", 1): 0.0, ("random", 2): 0.5, ("information", 1): 0.9, ("information", 2): 1.0}
+    assert summary["touches_to_90"] == {"random": None, "information": 1}
+    diff = {d["k"]: d for d in summary["differences"]}
+    assert diff[1]["difference"] == pytest.approx(0.9) and diff[2]["difference"] == pytest.approx(0.5)
+    assert diff[2]["low"] > 0
+    stop = {(s["policy"], s["threshold"]): s for s in summary["stopping"]}
+    # Threshold 0.9: information stops after 1 touch on 9 objects (right), after 2 on one (right).
+    assert stop[("information", 0.9)]["mean_touches"] == pytest.approx(1.1)
+    assert stop[("information", 0.9)]["accuracy"] == 1.0
+    assert stop[("random", 0.9)]["mean_touches"] == 2.0 and stop[("random", 0.9)]["accuracy"] == 0.5
+    timing = {t["policy"]: t for t in summary["timing"]}
+    assert timing["random"]["planning_first_s"] == pytest.approx(0.2)
+    assert timing["random"]["step_mean_s"] == pytest.approx((0.26 + 0.07) / 2)
+    assert "| information | 1 | +90.0 |" in render_markdown(summary)
