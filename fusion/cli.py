@@ -41,6 +41,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_common(args: argparse.Namespace) -> None:
+    """Checks of options several subcommands share, before any work: ``--seed`` (a non-negative integer).
+
+    Raises:
+        InvalidArgumentError: naming the option and the value.
+    """
+    from perception.errors import InvalidArgumentError
+
+    seed = getattr(args, "seed", None)
+    if seed is not None and seed < 0:
+        raise InvalidArgumentError(f"--seed must be a non-negative integer, got {seed}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
@@ -55,12 +68,26 @@ def main(argv: list[str] | None = None) -> int:
 
     set_progress(False if args.no_progress or getattr(args, "json", False) else None)
     try:
-        return int(args.func(args, rest) or 0)
+        check_common(args)
+        code = int(args.func(args, rest) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return code
     except VisuotactileError as exc:
         print(f"visuotactile {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # The reader of stdout went away (`... | head -2`): say so once; Python must not print it again at exit.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        print(f"visuotactile {args.command}: error: the output pipe was closed before all output was written",
+              file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print(f"visuotactile {args.command}: interrupted; finished work is kept, re-run to resume", file=sys.stderr)
+        # Only commands that resume (set resumable=True) promise it; others say what an interruption loses.
+        what = ("finished work is kept, re-run to resume" if getattr(args, "resumable", False)
+                else "nothing was saved")
+        print(f"visuotactile {args.command}: interrupted; {what}", file=sys.stderr)
         return 130
     finally:
         set_progress(None)

@@ -43,6 +43,66 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             os.remove(tmp)
 
 
+def _name_max(folder: Path) -> int:
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return 255
+
+
+def _check_parents(path: Path, what: str) -> None:
+    from perception.errors import InvalidArgumentError
+
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InvalidArgumentError(f"{what} {str(path)!r}: {str(parent)!r} is a file, not a folder")
+            break
+
+
+def check_output_file(path, what: str = "output file") -> Path:
+    """Check, before any work, that a file can be written atomically at ``path``: a non-empty name, not a folder, no
+    file where a parent folder must be, and a name short enough for the temporary name :func:`atomic_path` adds.
+
+    Raises:
+        InvalidArgumentError: naming ``what``, the path and the problem.
+    """
+    from perception.errors import InvalidArgumentError
+
+    if path is None or not str(path).strip():
+        raise InvalidArgumentError(f"{what}: an empty path; give a file name")
+    path = Path(path)
+    if path.is_dir() or not path.name or path.name in (".", ".."):
+        raise InvalidArgumentError(f"{what} {str(path)!r}: is a folder; give a file name inside it")
+    _check_parents(path, what)
+    longest = len(os.fsencode(f".{path.name}.{'0' * 8}{path.suffix}"))
+    if longest > _name_max(path.parent):
+        raise InvalidArgumentError(f"{what} {str(path)!r}: the name is too long ({len(os.fsencode(path.name))} bytes; "
+                                   f"at most {_name_max(path.parent) - 11 - len(os.fsencode(path.suffix))} here)")
+    return path
+
+
+def check_output_folder(path, what: str = "output folder") -> Path:
+    """Check, before any work, that ``path`` is or can become a folder (not a file, no file among its parents).
+
+    Raises:
+        InvalidArgumentError: naming ``what``, the path and the problem.
+    """
+    from perception.errors import InvalidArgumentError
+
+    if path is None or not str(path).strip():
+        raise InvalidArgumentError(f"{what}: an empty path; give a folder")
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InvalidArgumentError(f"{what} {str(path)!r}: is a file, not a folder")
+    _check_parents(path, what)
+    if len(os.fsencode(path.name)) > _name_max(path.parent):
+        raise InvalidArgumentError(f"{what} {str(path)!r}: the name is too long")
+    return path
+
+
 def write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically; returns the path."""
     with atomic_path(path) as tmp:

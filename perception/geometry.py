@@ -463,6 +463,19 @@ def normalize(
     return out, transform
 
 
+def text_name(name: str) -> str:
+    """A file or folder name as text that encodes to UTF-8: bytes that are not UTF-8 (a name Python decoded with
+    surrogate escapes) become ``\\xNN``, so names made from any file name can be printed, hashed and stored.
+
+    Examples:
+        >>> text_name("mug")
+        'mug'
+        >>> text_name("mug\\udcff")  # os.fsdecode(b"mug\\xff")
+        'mug\\\\xff'
+    """
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 def load_object(
     source: str | Path | o3d.geometry.TriangleMesh,
     *,
@@ -517,7 +530,7 @@ def load_object(
         src = None
     else:
         path = Path(source)
-        name = name or path.stem
+        name = name or text_name(path.stem)
         raw = meshio.read_mesh(path)
         vertices, triangles, colors = raw.vertices, raw.triangles, raw.vertex_colors
         src = str(path)
@@ -578,5 +591,5 @@ def load_dataset(folder: str | Path) -> list[tuple[Path, str]]:
                 f"{class_dir}: class folder {class_dir.name!r} holds no mesh files "
                 f"({', '.join(sorted(meshio.MESH_SUFFIXES))})"
             )
-        items.extend((p, class_dir.name) for p in files)
+        items.extend((p, text_name(class_dir.name)) for p in files)
     return items

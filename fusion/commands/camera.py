@@ -29,11 +29,44 @@ def parse_pixel(text: str) -> tuple[float, float]:
     return u, v
 
 
+def check_camera_args(args: argparse.Namespace) -> None:
+    """What can be checked before a capture: counts within their limits, the strategy, the output folder, and the
+    model file (loaded once here, so a bad file is refused before the camera runs).
+
+    Raises:
+        InvalidArgumentError, ModelFileError: naming the option and the problem.
+    """
+    from perception.atomic import check_output_folder
+    from perception.limits import check_count
+
+    if args.contours < 1:
+        raise InvalidArgumentError(f"--contours must be at least 1, got {args.contours}")
+    check_count("contours", args.contours, "--contours")
+    if args.views < 1:
+        raise InvalidArgumentError(f"--views must be at least 1, got {args.views}")
+    check_count("views", args.views, "--views")
+    if not (np.isfinite(args.distance) and args.distance > 0):
+        raise InvalidArgumentError(f"--distance must be a positive number of mm, got {args.distance}")
+    if args.source == "oak":
+        return  # the device check comes first (seconds, without loading the geometry stack); a live capture is quick
+    from tactile.sampling import STRATEGIES
+
+    if args.strategy not in STRATEGIES:
+        raise InvalidArgumentError(f"unknown --strategy {args.strategy!r}; choose one of {', '.join(STRATEGIES)}")
+    if args.out is not None:
+        check_output_folder(args.out, "--out")
+    if args.model is not None:
+        from fusion.base import load_model
+
+        load_model(args.model, trust_pickle=args.trust_pickle)
+
+
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.camera import recognize_capture
     from fusion.commands import print_json
 
     pixel = parse_pixel(args.target) if args.target is not None else None
+    check_camera_args(args)
     summary = recognize_capture(
         args.source, views=args.views, distance_mm=args.distance, model_path=args.model, contours=args.contours,
         strategy=args.strategy, seed=args.seed, out=args.out, target_pixel=pixel, trust_pickle=args.trust_pickle,

@@ -7,12 +7,36 @@ from pathlib import Path
 
 from fusion.commands import print_json
 
+#: Figure formats --figure takes (by suffix).
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def check_evaluate_args(args: argparse.Namespace) -> None:
+    """``--touches`` a count within its limit, ``--figure`` a writable PNG/PDF/SVG file: checked before any work.
+
+    Raises:
+        InvalidArgumentError: naming the option, the value and the limit or the fix.
+    """
+    from perception.atomic import check_output_file
+    from perception.errors import InvalidArgumentError
+    from perception.limits import check_count
+
+    if args.touches < 1:
+        raise InvalidArgumentError(f"--touches must be at least 1 (sequences per decision), got {args.touches}")
+    check_count("touches", args.touches, "--touches")
+    if args.figure is not None:
+        check_output_file(args.figure, "--figure")
+        if Path(args.figure).suffix.lower() not in FIGURE_SUFFIXES:
+            raise InvalidArgumentError(f"--figure {args.figure!r}: give a file ending in "
+                                       f"{', '.join(FIGURE_SUFFIXES)} (the figure's format)")
+
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.base import load_model
     from fusion.evaluate import confusion, plot_confusion
     from fusion.training import evaluate_on_store
 
+    check_evaluate_args(args)
     model = load_model(args.model, trust_pickle=args.trust_pickle)
     found = evaluate_on_store(model, args.store, touches=args.touches, rule=args.rule, strategy=args.strategy,
                               seed=args.seed)

@@ -117,4 +117,4 @@ def register(sub) -> None:
     p.add_argument("--timeout", type=float, default=None, metavar="S",
                    help="give up on an object after S seconds (local executor)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, resumable=True)

@@ -12,6 +12,13 @@ DEFAULT_MODEL = "out/demo/models/cnn.vtm"
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.commands import print_json
     from fusion.experiments.recognize import plot_recognition, recognize_file
+    from perception.limits import check_count
+
+    check_count("touches", args.touches, "--touches")  # before the model and the mesh load
+    if args.figure is not None:
+        from perception.atomic import check_output_file
+
+        check_output_file(args.figure, "--figure")
 
     obj, result = recognize_file(args.mesh, args.model, touches=args.touches, strategy=args.strategy, seed=args.seed,
                                  rule=args.rule, trust_pickle=args.trust_pickle)

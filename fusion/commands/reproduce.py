@@ -11,8 +11,13 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.evaluate import markdown_table
     from fusion.experiments import reproduce
     from fusion.experiments.report import pct, table1
+    from perception.atomic import check_output_folder
+    from perception.errors import InvalidArgumentError
 
     out = args.out or ("out/reproduce-quick" if args.quick else "out/reproduce")
+    check_output_folder(out, "--out")
+    if args.classes is not None and len(set(args.classes)) < 2:
+        raise InvalidArgumentError(f"--classes {' '.join(args.classes)}: recognition needs at least two classes")
     results = reproduce(args.data, out, classes=args.classes, objects_per_class=args.objects_per_class,
                         quick=args.quick, seed=args.seed, parts=args.parts, workers=args.workers,
                         command=" ".join(["visuotactile", *sys.argv[1:]]))
@@ -63,4 +68,4 @@ def register(sub) -> None:
     parser.add_argument("--workers", type=int, default=None, help="data generation workers (default: the cores)")
     parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout")
-    parser.set_defaults(func=run)
+    parser.set_defaults(func=run, resumable=True)

@@ -91,6 +91,9 @@ def catalogue_objects(classes, per_class: int, first_seed: int = 0) -> list[tupl
         raise InvalidArgumentError(f"unknown catalogue classes {unknown}; the built-in classes are {', '.join(CLASSES)}")
     if isinstance(per_class, bool) or int(per_class) != per_class or per_class < 1:
         raise InvalidArgumentError(f"the catalogue needs at least 1 object per class, got {per_class!r}")
+    from perception.limits import check_count
+
+    check_count("objects", len(classes) * int(per_class), f"the catalogue: {len(classes)} classes x {per_class} objects")
     return [(c, first_seed + i) for c in classes for i in range(per_class)]
 
 

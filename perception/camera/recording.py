@@ -38,14 +38,54 @@ def _read_png(path: Path, what: str) -> np.ndarray:
     if not path.is_file():
         raise DatasetError(f"{path}: {what} image is missing")
     try:
-        with Image.open(path) as image:
+        with Image.open(path) as image:  # reads the header only: the size is checked before any pixel is decoded
+            _check_image_size(path, what, image.size)
             if what == "depth":
                 if image.mode not in ("I;16", "I;16B", "I;16L", "I", "L"):
                     raise DatasetError(f"{path}: depth must be a 16-bit single-channel PNG, got mode {image.mode}")
                 return np.asarray(image).astype(np.float64)
             return np.asarray(image.convert("RGB"), dtype=np.uint8)
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
-        raise DatasetError(f"{path}: cannot read {what} image ({exc})") from None
+    except Image.DecompressionBombError:  # PIL's own limit, checked in Image.open for the largest images
+        from perception.limits import LIMITS, limit
+
+        raise DatasetError(f"{path}: {what} image is larger than the limit of {limit('image_pixels')} pixels per "
+                           f"image (set {LIMITS['image_pixels'].env} to raise it; PIL refuses more than "
+                           f"{2 * Image.MAX_IMAGE_PIXELS} whatever the limit)") from None
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot read {what} image ({type(exc).__name__}: {exc})") from None
+
+
+def _check_image_size(path: Path, what: str, size: tuple[int, int]) -> None:
+    """Refuse an image larger than the ``image_pixels`` limit (and what its float64 copy would take) from its
+    header, before decoding: a small PNG can hold a huge image of zeros."""
+    from perception.limits import check_bytes, check_count
+
+    width, height = size
+    check_count("image_pixels", width * height, f"{path}: {what} image of {width} x {height} pixels", DatasetError)
+    check_bytes(width * height * 8, f"{path}: decoding the {width} x {height} {what} image", DatasetError)
+
+
+def _number(meta: dict, key: str, default: float, where: Path, positive: bool = False) -> float:
+    """``meta[key]`` as a finite float (``default`` when absent). Raises DatasetError naming the file and key."""
+    value = meta.get(key, default)
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and bool(np.isfinite(value))
+    if not ok or (positive and value <= 0):
+        raise DatasetError(f"{where}: {key!r} must be a finite{' positive' if positive else ''} number, got {value!r}")
+    return float(value)
+
+
+def _pose(meta: dict, where: Path) -> np.ndarray:
+    """``meta["pose"]`` (identity when absent) as a finite 4 x 4 float64 matrix. Raises DatasetError."""
+    value = meta.get("pose")
+    if value is None:
+        return np.eye(4)
+    try:
+        pose = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise DatasetError(f"{where}: pose must be a 4 x 4 matrix of numbers") from None
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise DatasetError(f"{where}: pose must be a finite 4 x 4 matrix, got shape {pose.shape}")
+    return pose
 
 
 def _read_json(path: Path) -> dict:
@@ -66,7 +106,7 @@ def _intrinsics(data: dict, where: Path, width: int, height: int) -> Intrinsics:
         )
     except KeyError as exc:
         raise DatasetError(f"{where}: intrinsics lack {exc.args[0]!r} (need fx, fy, cx, cy)") from None
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise DatasetError(f"{where}: bad intrinsics ({exc})") from None
 
 
@@ -84,11 +124,10 @@ def _frame(color_path: Path, depth_path: Path, meta: dict, meta_path: Path, dept
     if not np.isfinite(depth_scale) or depth_scale <= 0:
         raise DatasetError(f"{meta_path}: depth_scale must be positive (units per metre), got {depth_scale}")
     depth_mm = (raw * (1000.0 / depth_scale)).astype(np.float32)
-    pose = np.asarray(meta.get("pose", np.eye(4)), dtype=np.float64)
-    if pose.shape != (4, 4):
-        raise DatasetError(f"{meta_path}: pose must be 4 x 4, got shape {pose.shape}")
+    pose = _pose(meta, meta_path)
+    timestamp_s = _number(meta, "timestamp_s", 0.0, meta_path)
     try:
-        return RGBDFrame(color, depth_mm, intrinsics, pose, float(meta.get("timestamp_s", 0.0)), name=name)
+        return RGBDFrame(color, depth_mm, intrinsics, pose, timestamp_s, name=name)
     except InvalidArgumentError as exc:  # the frame checks: report the file
         raise DatasetError(f"{meta_path}: {exc}") from None
 
@@ -116,7 +155,14 @@ def read_recording(folder: str | Path) -> list[RGBDFrame]:
         names = index.get("frames")
         if not isinstance(names, list) or not names:
             raise DatasetError(f"{index_path}: the recording lists no frames")
-        scale = float(index.get("depth_scale", 1000.0))
+        from perception.limits import check_count
+
+        check_count("frames", len(names), f"{index_path}: frames", DatasetError)
+        for name in names:  # plain names of files in this folder: nothing outside it is read
+            if not (isinstance(name, str) and re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,199}", name)):
+                raise DatasetError(f"{index_path}: frame name {name!r} is not a plain file name in the recording "
+                                   "folder (letters, digits, '_', '-', '.')")
+        scale = _number(index, "depth_scale", 1000.0, index_path, positive=True)
         frames = []
         for name in names:
             meta_path = folder / f"{name}.json"
@@ -132,8 +178,8 @@ def read_recording(folder: str | Path) -> list[RGBDFrame]:
     if camera_path.is_file():
         meta = _read_json(camera_path)
         color_path = next((folder / n for n in ("color.png", "rgb.png") if (folder / n).is_file()), folder / "color.png")
-        return [_frame(color_path, folder / "depth.png", meta, camera_path, float(meta.get("depth_scale", 1000.0)),
-                       folder.name)]
+        return [_frame(color_path, folder / "depth.png", meta, camera_path,
+                       _number(meta, "depth_scale", 1000.0, camera_path, positive=True), folder.name)]
     raise DatasetError(
         f"{folder}: not a recording (expected {INDEX} written by visuotactile, or color.png + depth.png + camera.json)"
     )

@@ -35,6 +35,7 @@ from tactile.dataset.store import (
     read_records,
     record_path,
     settings_difference,
+    store_lock,
     write_record,
 )
 from tactile.sensor import FSRSensor
@@ -79,6 +80,27 @@ class GenerationReport:
             "failed": [list(f) for f in self.failed], "sequences": self.sequences,
             "seconds": round(self.seconds, 3), "sequences_per_s": round(self.sequences_per_s, 2),
         }
+
+
+def _check_sizes(n_objects: int, strategies: tuple[str, ...], contours: int, probes: int, sensor: FSRSensor,
+                 object_timeout_s) -> None:
+    """Every count within its limit (:mod:`perception.limits`) and a usable timeout, before the store is made."""
+    import math
+
+    from perception.limits import check_bytes, check_count
+
+    check_count("objects", n_objects, "objects")
+    check_count("contours", contours, "contours per object and strategy")
+    check_count("probes", probes, "probes per contour")
+    taxels = check_count("taxels", sensor.rows * sensor.cols, "sensor rows x cols")
+    block = len(strategies) * contours
+    check_count("sequences", n_objects * block, f"{n_objects} objects x {len(strategies)} strategies x {contours} "
+                                                "contours")
+    check_bytes(block * probes * (taxels * 6 + 64), f"one object's {block} sequences (what a worker holds)")
+    if object_timeout_s is not None and (isinstance(object_timeout_s, bool) or not isinstance(
+            object_timeout_s, (int, float)) or not math.isfinite(object_timeout_s) or object_timeout_s <= 0):
+        raise InvalidArgumentError(f"object_timeout_s (--timeout) must be a finite number of seconds > 0 (or None), got "
+                                   f"{object_timeout_s!r}")
 
 
 def _check(strategies, contours_per_object, sensor, probes, seed, workers, executor) -> tuple[str, ...]:
@@ -188,6 +210,7 @@ def generate(
     sensor = FSRSensor() if sensor is None else sensor
     strategies = _check(strategies, contours_per_object, sensor, probes, seed, workers, executor)
     specs = object_specs(objects)
+    _check_sizes(len(specs), strategies, contours_per_object, probes, sensor, object_timeout_s)
     sensor_spec = sensor.spec()
     settings = {
         "objects": [s.to_dict() for s in specs],
@@ -200,50 +223,51 @@ def generate(
         "encoding": frame_encoding(sensor_spec),
     }
     out = Path(out).resolve()
-    _open_or_create(out, settings, command)
-    layout = layout_of(settings)
-    repaired = _forget_damaged(out, specs, progress)
-    records = read_records(out, len(specs))
-    todo = [i for i in range(len(specs)) if records.get(i, {}).get("status") != "complete"]
-    report = GenerationReport(out, len(specs), skipped=len(specs) - len(todo), repaired=repaired)
-    if not todo:
-        log.info("%s: all %d objects are complete", out, len(specs))
+    with store_lock(out):  # one writer at a time: a second run on this store is refused
+        _open_or_create(out, settings, command)
+        layout = layout_of(settings)
+        repaired = _forget_damaged(out, specs, progress)
+        records = read_records(out, len(specs))
+        todo = [i for i in range(len(specs)) if records.get(i, {}).get("status") != "complete"]
+        report = GenerationReport(out, len(specs), skipped=len(specs) - len(todo), repaired=repaired)
+        if not todo:
+            log.info("%s: all %d objects are complete", out, len(specs))
+            report.seconds = time.perf_counter() - start
+            return report
+        n_workers = min(workers or _usable_cores(), len(todo))
+        bar = progress_bar(total=len(todo) * layout.block, enabled=progress, desc="generate", unit="seq", smoothing=0.1)
+        bar.set_postfix_str(f"objects {report.skipped}/{len(specs)}")
+
+        def finished(index: int, ok: bool, detail) -> None:
+            if ok:
+                report.completed += 1
+                report.sequences += layout.block
+            else:
+                reason = str(detail)
+                write_record(out, index, {"index": index, "name": specs[index].name, "label": specs[index].label,
+                                          "status": "failed", "reason": reason})
+                report.failed.append((specs[index].name, reason))
+                log.warning("%s: failed: %s", specs[index].name, reason)
+            bar.set_postfix_str(
+                f"objects {report.skipped + report.completed}/{len(specs)}"
+                + (f", failed {len(report.failed)}" if report.failed else "")
+            )
+            if not ok and strict:
+                raise DatasetError(
+                    f"{specs[index].name}: {detail} (strict: stopped at the first failure; finished objects are "
+                    f"kept in {out}, re-run to resume)"
+                )
+
+        args = (str(out), specs, settings, sensor, todo, n_workers, finished, bar)
+        try:
+            if executor == "local":
+                _run_local(*args, object_timeout_s)
+            else:
+                _run_ray(*args, ray_address)
+        finally:
+            bar.close()
         report.seconds = time.perf_counter() - start
         return report
-    n_workers = min(workers or _usable_cores(), len(todo))
-    bar = progress_bar(total=len(todo) * layout.block, enabled=progress, desc="generate", unit="seq", smoothing=0.1)
-    bar.set_postfix_str(f"objects {report.skipped}/{len(specs)}")
-
-    def finished(index: int, ok: bool, detail) -> None:
-        if ok:
-            report.completed += 1
-            report.sequences += layout.block
-        else:
-            reason = str(detail)
-            write_record(out, index, {"index": index, "name": specs[index].name, "label": specs[index].label,
-                                      "status": "failed", "reason": reason})
-            report.failed.append((specs[index].name, reason))
-            log.warning("%s: failed: %s", specs[index].name, reason)
-        bar.set_postfix_str(
-            f"objects {report.skipped + report.completed}/{len(specs)}"
-            + (f", failed {len(report.failed)}" if report.failed else "")
-        )
-        if not ok and strict:
-            raise DatasetError(
-                f"{specs[index].name}: {detail} (strict: stopped at the first failure; finished objects are "
-                f"kept in {out}, re-run to resume)"
-            )
-
-    args = (str(out), specs, settings, sensor, todo, n_workers, finished, bar)
-    try:
-        if executor == "local":
-            _run_local(*args, object_timeout_s)
-        else:
-            _run_ray(*args, ray_address)
-    finally:
-        bar.close()
-    report.seconds = time.perf_counter() - start
-    return report
 
 
 def _forget_damaged(out: Path, specs: list[ObjectSpec], progress: bool) -> list[tuple[str, str]]:

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from perception.errors import DatasetError
-from perception.geometry import ObjectModel
+from perception.geometry import ObjectModel, text_name
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,8 @@ def object_specs(objects) -> list[ObjectSpec]:
             specs.append(ObjectSpec(f"{first}/{second}", first, catalogue=(first, second)))
         elif isinstance(first, (str, Path)) and isinstance(second, str):
             path = Path(first)
-            specs.append(ObjectSpec(f"{second}/{path.stem}", second, path=str(path)))
+            specs.append(ObjectSpec(f"{text_name(str(second))}/{text_name(path.stem)}", text_name(str(second)),
+                                    path=str(path)))
         elif isinstance(first, str) and isinstance(second, int):
             raise DatasetError(
                 f"catalogue object {item!r}: unknown class {first!r}; the built-in classes are {', '.join(CLASSES)}"

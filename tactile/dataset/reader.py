@@ -16,6 +16,7 @@ import numpy as np
 from perception.errors import DatasetError, InvalidArgumentError
 from tactile.dataset.store import (
     ZARR_READ,
+    check_arrays,
     decode_frames,
     layout_of,
     read_attrs,
@@ -75,8 +76,13 @@ class TactileDataset:
         import zarr
 
         self.path = Path(path)
-        self.attrs = read_attrs(self.path)
+        self.attrs = read_attrs(self.path)  # settings checked: types, labels, counts within their limits
         settings = self.attrs["settings"]
+        try:
+            self._group = zarr.open_group(self.path, mode="r")
+        except Exception as exc:  # zarr raises several types for missing/corrupt metadata
+            raise DatasetError(f"{self.path}: cannot open the store's arrays ({type(exc).__name__}: {exc})") from exc
+        check_arrays(self.path, self._group, settings)  # before anything is sized from the settings
         self._settings = settings
         self._layout = layout_of(settings)
         self._encoding = settings["encoding"]
@@ -103,11 +109,7 @@ class TactileDataset:
         within = np.tile(np.arange(block) // self._layout.contours, len(complete))
         self.sequence_strategies = np.asarray(self.strategies, dtype=str)[within] if len(complete) else (
             np.zeros(0, dtype=str))
-        try:
-            self._group = zarr.open_group(self.path, mode="r")
-            self._frames = self._group["frames"]
-        except Exception as exc:  # zarr raises several types for missing/corrupt metadata
-            raise DatasetError(f"{self.path}: cannot open the store's arrays ({type(exc).__name__}: {exc})") from exc
+        self._frames = self._group["frames"]
         self.contour_seeds = self._column("contour_seeds")
         self.noise_seeds = self._column("noise_seeds")
 
@@ -173,8 +175,18 @@ class TactileDataset:
     # ------------------------------------------------------------------------------------- reading
     def frames(self, index=None) -> np.ndarray:
         """(n, P, R, C) float32 decoded frames of the sequences at ``index`` (None: all)."""
-        rows = self._rows[self._index(index)]
+        idx = self._index(index)
+        self._check_memory(len(idx))
+        rows = self._rows[idx]
         return decode_frames(self._read("frames", rows), self._encoding)
+
+    def _check_memory(self, n: int) -> None:
+        """Refuse (DatasetError) to materialise ``n`` sequences above the memory limit (:mod:`perception.limits`)."""
+        from perception.limits import check_bytes
+
+        per = self.probes * (self.grid[0] * self.grid[1] * 6 + 4 * 10) + 64  # uint16 codes + float32, probe arrays
+        check_bytes(n * per, f"{self.path}: reading {n} sequences ({self.probes} probes x {self.grid[0]} x "
+                             f"{self.grid[1]} taxels)", DatasetError)
 
     def load(self, index=None) -> SequenceBatch:
         """The sequences at ``index`` (None: all), materialised as a :class:`SequenceBatch` (frames decoded
@@ -184,6 +196,7 @@ class TactileDataset:
             DatasetError: a bad index, or a damaged object among those read.
         """
         idx = self._index(index)
+        self._check_memory(len(idx))
         rows = self._rows[idx]
         read = {name: self._read(name, rows) for name in (*PROBE_ARRAYS, "plane_points", "plane_normals")}
         return SequenceBatch(

@@ -30,6 +30,7 @@ message to regenerate them: damage in them would read as zeros.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import json
@@ -195,6 +196,7 @@ def create_store(path: Path, settings: dict, meta: dict) -> None:
     probes = int(settings["probes"])
     rows, cols = int(settings["sensor"]["rows"]), int(settings["sensor"]["cols"])
     tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
+    remove_stale_creations(path)
     if tmp.exists():
         shutil.rmtree(tmp)
     try:
@@ -217,6 +219,58 @@ def create_store(path: Path, settings: dict, meta: dict) -> None:
     except BaseException:  # an interrupted or failed creation leaves nothing behind
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def remove_stale_creations(path: Path) -> list[Path]:
+    """Remove the temporary ``.NAME.creating-PID`` folders that creations of ``path`` killed before their rename
+    (SIGKILL, power loss) left behind: those whose process is gone. Returns what was removed."""
+    removed = []
+    for tmp in Path(path).parent.glob(f".{Path(path).name}.creating-*"):
+        pid = tmp.name.rsplit("-", 1)[-1]
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            os.kill(int(pid), 0)
+            continue  # that creation is still running
+        except ProcessLookupError:
+            pass
+        except (PermissionError, OverflowError):
+            continue
+        log.warning("%s: removing %s, left by an interrupted creation", path, tmp.name)
+        shutil.rmtree(tmp, ignore_errors=True)
+        removed.append(tmp)
+    return removed
+
+
+@contextlib.contextmanager
+def store_lock(path: Path):
+    """Hold an exclusive lock on the store ``path`` (an ``flock`` on the sibling file ``.NAME.lock``) while writing
+    it, so two ``generate`` runs on one store cannot race; the system releases it when the process dies.
+
+    Raises:
+        DatasetError: another process holds it (naming the store and that process).
+    """
+    import fcntl
+
+    path = Path(path)
+    lock_path = path.with_name(f".{path.name}.lock")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot create the store's lock file {lock_path.name} ({exc.strerror})") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "another process"
+            raise DatasetError(f"{path}: another generate run (pid {holder}) is writing this store; wait for it to "
+                               "finish, or stop it, then re-run to resume") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 def read_attrs(path: Path) -> dict:
@@ -242,7 +296,96 @@ def read_attrs(path: Path) -> dict:
         raise DatasetError(
             f"{path}: dataset format {attrs.get('format')!r}, this version reads format {FORMAT_VERSION}"
         )
+    check_settings(attrs.get("settings"), f"{path}/zarr.json")
     return attrs
+
+
+def _need(condition: bool, where: str, problem: str) -> None:
+    if not condition:
+        raise DatasetError(f"{where}: malformed store settings: {problem}")
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def check_settings(settings, where: str) -> None:
+    """Check a store's ``settings`` (from its ``zarr.json``) before anything is sized from them: every field there
+    with its type, labels among ``class_names``, unique object names, and every count within its limit
+    (:mod:`perception.limits`): objects, contours, probes, taxels, sequences, and one object's rows in memory.
+
+    Raises:
+        DatasetError: naming ``where`` and the field; a count above a limit names the limit and how to raise it.
+    """
+    from perception.limits import check_bytes, check_count
+
+    _need(isinstance(settings, dict), where, f"'settings' must be an object, got {type(settings).__name__}")
+    for key, kind in (("objects", list), ("class_names", list), ("strategies", list), ("sensor", dict),
+                      ("encoding", dict)):
+        _need(isinstance(settings.get(key), kind), where, f"{key!r} must be a {kind.__name__}, got "
+              f"{type(settings.get(key)).__name__}")
+    for key, low in (("contours_per_object", 1), ("probes", 2), ("seed", 0)):
+        _need(_is_int(settings.get(key)) and settings[key] >= low, where,
+              f"{key!r} must be an integer >= {low}, got {settings.get(key)!r}")
+    names = settings["class_names"]
+    _need(bool(names) and all(isinstance(n, str) for n in names) and len(set(names)) == len(names), where,
+          "'class_names' must be distinct strings")
+    strategies = settings["strategies"]
+    _need(bool(strategies) and all(isinstance(s, str) for s in strategies) and len(set(strategies)) == len(strategies),
+          where, "'strategies' must be a non-empty list of distinct strings")
+    objects = settings["objects"]
+    check_count("objects", len(objects), f"{where}: objects", DatasetError)
+    for i, obj in enumerate(objects):
+        _need(isinstance(obj, dict) and isinstance(obj.get("name"), str) and isinstance(obj.get("label"), str), where,
+              f"objects[{i}] must be an object with a string 'name' and 'label'")
+        _need(obj["label"] in names, where, f"objects[{i}] ({obj['name']!r}) has label {obj['label']!r}, which is not "
+              f"in class_names {names}")
+    _need(len({o["name"] for o in objects}) == len(objects), where, "object names must be distinct")
+    sensor = settings["sensor"]
+    for key in ("rows", "cols"):
+        _need(_is_int(sensor.get(key)) and sensor[key] >= 1, where, f"sensor {key!r} must be an integer >= 1, got "
+              f"{sensor.get(key)!r}")
+    encoding = settings["encoding"]
+    for key, low in (("scale", 0.0), ("max_error", -1.0)):
+        value = encoding.get(key)
+        _need(isinstance(value, (int, float)) and not isinstance(value, bool) and bool(np.isfinite(value))
+              and value > low, where, f"encoding {key!r} must be a finite number > {low:g}, got {value!r}")
+    contours = check_count("contours", settings["contours_per_object"], f"{where}: contours_per_object", DatasetError)
+    probes = check_count("probes", settings["probes"], f"{where}: probes", DatasetError)
+    taxels = check_count("taxels", sensor["rows"] * sensor["cols"], f"{where}: sensor rows x cols", DatasetError)
+    block = len(strategies) * contours
+    check_count("sequences", len(objects) * block, f"{where}: objects x strategies x contours", DatasetError)
+    # One object's rows are what a worker buffers and verify reads at once (frames decode to float32).
+    check_bytes(block * probes * (taxels * 6 + 64), f"{where}: one object's {block} sequences", DatasetError)
+
+
+def check_arrays(path: Path, group, settings: dict) -> None:
+    """Check that the store's arrays have the shapes and dtypes its settings say (read from their metadata, nothing
+    allocated), so that settings edited to claim other sizes are refused before anything is sized from them.
+
+    Raises:
+        DatasetError: a missing array, or one of another shape or dtype (naming it, both shapes and the store).
+    """
+    layout = layout_of(settings)
+    probes, rows, cols = int(settings["probes"]), int(settings["sensor"]["rows"]), int(settings["sensor"]["cols"])
+    n = max(layout.n_rows, 1)
+    expected = {"frames": ("uint16", (n, probes, rows, cols))}
+    expected.update({name: (dtype, (n, *trailing(probes, rows, cols)))
+                     for name, (dtype, trailing) in SEQUENCE_ARRAYS.items()})
+    for name, (dtype, shape) in expected.items():
+        try:
+            array = group[name]
+            found_shape, found_dtype = tuple(int(x) for x in array.shape), str(array.dtype)
+        except Exception as exc:  # noqa: BLE001 -- zarr raises several types for missing/corrupt array metadata
+            raise DatasetError(f"{path}: cannot open the store's {name!r} array ({type(exc).__name__}: "
+                               f"{str(exc)[:160]})") from None
+        if found_shape != shape or found_dtype != dtype:
+            raise DatasetError(
+                f"{path}: the {name!r} array is {found_dtype} {found_shape}, but the store's settings "
+                f"({len(settings['objects'])} objects x {len(settings['strategies'])} strategies x "
+                f"{settings['contours_per_object']} contours, {probes} probes, {rows} x {cols} taxels) say "
+                f"{dtype} {shape}: the metadata was edited or damaged; regenerate the store"
+            )
 
 
 def settings_difference(old: dict, new: dict) -> list[str]:
@@ -361,6 +504,8 @@ __all__ = [
     "FORMAT_VERSION",
     "Layout",
     "array_digest",
+    "check_arrays",
+    "check_settings",
     "chunk_files",
     "contour_seed",
     "create_store",
@@ -372,8 +517,10 @@ __all__ = [
     "read_attrs",
     "read_records",
     "read_rows",
+    "remove_stale_creations",
     "rows_per_file",
     "settings_difference",
+    "store_lock",
     "update_digest",
     "write_record",
 ]
