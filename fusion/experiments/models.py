@@ -48,8 +48,11 @@ def default_classifiers(seed: int = 0, epochs: int | None = None, progress: bool
     for cue, suffix in (("invariant", ""), ("normals", "-normals")):
         factories[f"cnn{suffix}"] = functools.partial(make_classifier, "cnn", cue=cue, random_state=seed, progress=progress,
                                                       **cnn)
+        # the paper's models keep the paper's pipeline; the pose-free ones choose theirs on the training objects
+        search = {"search": None} if cue == "normals" else {}
         for kind in ("svm", "knn"):
-            factories[f"{kind}{suffix}"] = functools.partial(make_classifier, kind, cue=cue, random_state=seed)
+            factories[f"{kind}{suffix}"] = functools.partial(make_classifier, kind, cue=cue, random_state=seed,
+                                                             **search)
     return factories
 
 

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from sklearn.model_selection import StratifiedKFold, cross_val_score
+from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold, cross_val_score
 
 from fusion.base import load_model
-from fusion.conventional import ConventionalClassifier, conventional_pipeline, cross_validate
+from fusion.conventional import SEARCH_GRID, ConventionalClassifier, conventional_pipeline, cross_validate
 from fusion.features import sequence_features
 from perception.errors import DatasetError, InvalidArgumentError, ModelMismatchError
 from tests.fusion.test_features import small_batch
 
-FAST = {"som_iterations": 300, "n_select": 30}
+FAST = {"som_iterations": 300, "n_select": 30, "search": None}  # the configured (paper) pipeline
 
 
 def _split(batch, seed=0):
@@ -156,3 +156,59 @@ def test_som_at_least_as_accurate_as_pca():
         som, pca = np.mean(accuracy[("som", kind)]), np.mean(accuracy[("pca", kind)])
         assert som >= pca - 0.01, f"{kind}: SOM {som:.3f} < PCA {pca:.3f}"
         assert som > 0.5  # 10 classes: chance is 10 %
+
+
+# ------------------------------------------------------------------------------ pipeline search
+@pytest.fixture(scope="module")
+def searched():
+    """kNN with the grouped search, trained on 4/5 of the small batch (2 objects per class)."""
+    train, test = _split(small_batch())
+    return ConventionalClassifier(kind="knn", som_iterations=300, search="objects").fit(train), train, test
+
+
+def test_search_scores_are_grouped_cross_validation_over_training_objects(searched):
+    clf, train, _ = searched
+    search = clf.search_
+    assert len(search["scores"]) == len(SEARCH_GRID["knn"]) and search["chosen"] == int(np.argmax(search["scores"]))
+    # scikit-learn's own cross-validation of each candidate, folds of whole objects, gives the same scores
+    features = sequence_features(train, "invariant")
+    folds = StratifiedGroupKFold(3, shuffle=True, random_state=0).split(features, train.labels, train.object_ids)
+    folds = list(folds)
+    for candidate, score in enumerate(search["scores"]):
+        tail = clf.make_pipeline(train.labels, candidate)[1:]
+        expected = cross_val_score(tail, features, train.labels, cv=folds).mean()
+        assert score == pytest.approx(expected, abs=1e-6)
+    for train_idx, test_idx in folds:  # no object on both sides of an inner fold
+        assert not set(train.object_ids[train_idx]) & set(train.object_ids[test_idx])
+    chosen = SEARCH_GRID["knn"][search["chosen"]]
+    assert ("reduce" in clf.pipeline_.named_steps) == (chosen.get("reduce", "som") != "none")
+
+
+def test_search_survives_save_and_load_and_refuses_a_foreign_choice(searched, tmp_path):
+    from fusion.modelfile import read_model_file, write_model_file
+    from perception.errors import ModelFileError
+
+    clf, _, test = searched
+    path = clf.save(tmp_path / "knn.vtm")
+    assert load_model(path).predict_proba(test).tobytes() == clf.predict_proba(test).tobytes()
+    description, arrays = read_model_file(path)
+
+    def plant(node):  # the stored choice -> a candidate that does not exist
+        if isinstance(node, dict):
+            if "chosen" in node:
+                node["chosen"] = len(SEARCH_GRID["knn"]) + 3
+                return True
+            return any(plant(v) for v in node.values())
+        return isinstance(node, list) and any(plant(v) for v in node)
+
+    assert plant(description)
+    write_model_file(tmp_path / "bad.vtm", description, arrays)
+    with pytest.raises(ModelFileError, match="search"):
+        load_model(tmp_path / "bad.vtm")
+
+
+def test_search_falls_back_to_the_configured_pipeline_with_one_object_per_class():
+    batch = small_batch()
+    one = batch.subset(np.isin(batch.object_ids, [i for i in np.unique(batch.object_ids) if i % 2 == 0]))
+    clf = ConventionalClassifier(kind="knn", som_iterations=300, n_select=30).fit(one)
+    assert clf.search_ is None and "reduce" in clf.pipeline_.named_steps

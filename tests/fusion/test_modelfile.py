@@ -22,7 +22,7 @@ from tests.fusion._synthetic import circle_batch
 from tests.fusion.test_base import MeanFrame
 from tests.fusion.test_features import small_batch
 
-FAST_CONVENTIONAL = {"som_iterations": 300, "n_select": 30}
+FAST_CONVENTIONAL = {"som_iterations": 300, "n_select": 30, "search": None}
 FAST_CNN = {"epochs": 2, "batch_size": 16, "progress": False, "threads": 1}
 
 
