@@ -146,6 +146,9 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         self.grid_ = batch.grid
         y_index = np.searchsorted(self.classes_.astype(str), names.astype(str))
         self._fit(batch, y_index)
+        from fusion.leakage import KEY, sequence_fingerprints
+
+        self.training_ = {KEY: sequence_fingerprints(batch)}  # what it was fitted on: leak checks (fusion.leakage)
         return self
 
     def predict_proba(self, X) -> np.ndarray:
@@ -378,7 +381,7 @@ def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int |
     path = Path(path)
     if trust_pickle and path.is_file():
         with open(path, "rb") as f:
-            if looks_like_pickle(f.read(8)):
+            if looks_like_pickle(f.read(9)):
                 return _load_pickle(path)
     description, arrays = read_model_file(path, MAX_MODEL_BYTES if max_bytes is None else max_bytes)
     cls = _model_class(description.get("class"), path)
@@ -389,9 +392,9 @@ def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int |
     unknown = sorted(set(params) - names)
     if unknown:
         raise ModelFileError(f"{path}: {cls.__name__} has no parameters {unknown[:5]}")
-    training = decode(description.get("training"), arrays, str(path))
-    if training is not None and not isinstance(training, dict):
-        raise ModelFileError(f"{path}: the model's training record is not a mapping")
+    from fusion.leakage import check_training_record
+
+    training = check_training_record(decode(description.get("training"), arrays, str(path)), str(path))
     try:
         model = cls(**params)
         model.classes_ = np.array(classes, dtype=object)

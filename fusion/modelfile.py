@@ -167,7 +167,11 @@ def _dtype(spec, where: str) -> np.dtype:
 
 # -------------------------------------------------------------------------------------------- files
 def looks_like_pickle(head: bytes) -> bool:
-    """Whether ``head`` (a file's first bytes) starts like a pickle of protocol 2 or later (our format 1)."""
+    """Whether ``head`` (a file's first 9 bytes) starts like a pickle of protocol 2 or later (our format 1) and not
+    like a safetensors file: a header length (u64, little-endian) whose low bytes happen to be 0x80 0x02..0x05 (a
+    header of 640 + 256 k bytes, say) followed by the header's ``{`` is a model file, not a pickle."""
+    if len(head) >= 9 and head[8:9] == b"{" and head[4:8] == b"\0\0\0\0":
+        return False
     return len(head) >= 2 and head[0] == 0x80 and 2 <= head[1] <= 5
 
 
@@ -200,7 +204,7 @@ def read_model_file(path: str | Path, max_bytes: int = MAX_MODEL_BYTES) -> tuple
             "(fusion.modelfile.MAX_MODEL_BYTES; pass max_bytes= to load_model to raise it)"
         )
     with open(path, "rb") as f:
-        head = f.read(8)
+        head = f.read(9)
     if looks_like_pickle(head):
         raise ModelFileError(
             f"{path}: a pickle (visuotactile's old model format, or anything else): unpickling can run code, so "

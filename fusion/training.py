@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fusion.leakage import check_held_out
 from perception.errors import InvalidArgumentError
 
 #: How training holds out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none.
@@ -74,13 +75,14 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
     start = time.perf_counter()
     model.fit(dataset.load(train))
     fit_s = time.perf_counter() - start
-    model.training_ = TrainingRecord(str(store), dataset.attrs.get("store_id", ""), split, strategy, test_fraction,
-                                     random_state, len(train)).to_dict()
+    model.training_ = {**(getattr(model, "training_", None) or {}), **TrainingRecord(  # keeps fit's fingerprints
+        str(store), dataset.attrs.get("store_id", ""), split, strategy, test_fraction, random_state, len(train)).to_dict()}
     model.save(out)
     result = {"model": kind, "cue": cue, "out": str(out), "train_sequences": len(train),
               "fit_seconds": round(fit_s, 2)}
     if len(test):
         batch = dataset.load(test)
+        check_held_out(model, batch, f"{store}: held-out {split} split", by_object=split == "object")
         truth = np.asarray(batch.class_names, dtype=object)[batch.labels]
         acc = accuracy(truth, model.predict(batch), seed=random_state)
         result.update(test_sequences=len(test), test_accuracy=acc.to_dict(), accuracy=acc)
@@ -118,6 +120,8 @@ def evaluate_on_store(model, store: str | Path, *, touches: int = 1, rule: str =
     dataset = open_dataset(store)
     index, subset = evaluation_indices(model, dataset, store, strategy)
     batch = dataset.load(index)
+    if subset.startswith("held-out"):  # checked against what the model was fitted on (fusion.leakage)
+        check_held_out(model, batch, f"{store}: {subset}", by_object="object" in subset)
     proba = model.predict_proba(batch)
     classes = model.classes_.astype(str)
     truth = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)

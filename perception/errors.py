@@ -43,6 +43,10 @@ class DatasetError(VisuotactileError):
     """A dataset folder or store is empty, malformed, or does not match what was asked for."""
 
 
+class DataLeakError(DatasetError):
+    """Train and test share sequences, objects or meshes where the evaluation claims held-out or unseen data."""
+
+
 class ModelMismatchError(VisuotactileError):
     """A trained model is given data from another sensor spec or class list."""
 
@@ -63,6 +67,7 @@ class DeviceNotFoundError(VisuotactileError):
 
 __all__ = [
     "ContourError",
+    "DataLeakError",
     "DatasetError",
     "DeviceNotFoundError",
     "InvalidArgumentError",

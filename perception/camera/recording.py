@@ -74,6 +74,19 @@ def _number(meta: dict, key: str, default: float, where: Path, positive: bool = 
     return float(value)
 
 
+#: depth_scale (PNG units per metre) accepted: 1 (metres) to 1e6 (micrometres); 1000 is millimetres.
+DEPTH_SCALE_RANGE = (1.0, 1e6)
+
+
+def _depth_scale(meta: dict, where: Path) -> float:
+    scale = _number(meta, "depth_scale", 1000.0, where, positive=True)
+    low, high = DEPTH_SCALE_RANGE
+    if not low <= scale <= high:
+        raise DatasetError(f"{where}: 'depth_scale' must be a finite positive number of PNG units per metre in "
+                           f"[{low:g}, {high:g}] (1000: millimetres), got {scale!r}")
+    return scale
+
+
 def _pose(meta: dict, where: Path) -> np.ndarray:
     """``meta["pose"]`` (identity when absent) as a finite 4 x 4 float64 matrix. Raises DatasetError."""
     value = meta.get("pose")
@@ -99,6 +112,20 @@ def _read_json(path: Path) -> dict:
 
 
 def _intrinsics(data: dict, where: Path, width: int, height: int) -> Intrinsics:
+    intrinsics = _parse_intrinsics(data, where, width, height)
+    # A camera's principal point lies in its image and its field of view is not a pinhole's: values far outside
+    # these put every point of the capture at one spot or at infinity, which nothing downstream can use.
+    side = max(intrinsics.width, intrinsics.height)
+    if not (0 <= intrinsics.cx <= intrinsics.width and 0 <= intrinsics.cy <= intrinsics.height):
+        raise DatasetError(f"{where}: principal point ({intrinsics.cx:g}, {intrinsics.cy:g}) lies outside the "
+                           f"{intrinsics.width} x {intrinsics.height} image")
+    if max(intrinsics.fx, intrinsics.fy) > 100 * side:
+        raise DatasetError(f"{where}: focal lengths ({intrinsics.fx:g}, {intrinsics.fy:g}) px are beyond 100 x the "
+                           "image size (a field of view under 0.6 degrees)")
+    return intrinsics
+
+
+def _parse_intrinsics(data: dict, where: Path, width: int, height: int) -> Intrinsics:
     try:
         return Intrinsics(
             fx=float(data["fx"]), fy=float(data["fy"]), cx=float(data["cx"]), cy=float(data["cy"]),
@@ -106,7 +133,7 @@ def _intrinsics(data: dict, where: Path, width: int, height: int) -> Intrinsics:
         )
     except KeyError as exc:
         raise DatasetError(f"{where}: intrinsics lack {exc.args[0]!r} (need fx, fy, cx, cy)") from None
-    except (TypeError, ValueError, OverflowError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # InvalidArgumentError (the checks) is a ValueError
         raise DatasetError(f"{where}: bad intrinsics ({exc})") from None
 
 
@@ -162,7 +189,7 @@ def read_recording(folder: str | Path) -> list[RGBDFrame]:
             if not (isinstance(name, str) and re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,199}", name)):
                 raise DatasetError(f"{index_path}: frame name {name!r} is not a plain file name in the recording "
                                    "folder (letters, digits, '_', '-', '.')")
-        scale = _number(index, "depth_scale", 1000.0, index_path, positive=True)
+        scale = _depth_scale(index, index_path)
         frames = []
         for name in names:
             meta_path = folder / f"{name}.json"
@@ -179,7 +206,7 @@ def read_recording(folder: str | Path) -> list[RGBDFrame]:
         meta = _read_json(camera_path)
         color_path = next((folder / n for n in ("color.png", "rgb.png") if (folder / n).is_file()), folder / "color.png")
         return [_frame(color_path, folder / "depth.png", meta, camera_path,
-                       _number(meta, "depth_scale", 1000.0, camera_path, positive=True), folder.name)]
+                       _depth_scale(meta, camera_path), folder.name)]
     raise DatasetError(
         f"{folder}: not a recording (expected {INDEX} written by visuotactile, or color.png + depth.png + camera.json)"
     )

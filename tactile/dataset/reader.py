@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.errors import DatasetError, InvalidArgumentError
+from perception.errors import DataLeakError, DatasetError, InvalidArgumentError
 from tactile.dataset.store import (
     ZARR_READ,
     check_arrays,
@@ -55,6 +55,31 @@ def _read_rows(path: Path, name: str, array, rows: np.ndarray, owner) -> np.ndar
             lo, hi = int(sorted_rows[pick[0]]), int(sorted_rows[pick[-1]]) + 1
             out[order[pick]] = read_rows(path, name, array, lo, hi, owner(lo))[sorted_rows[pick] - lo]
     return out
+
+
+def check_disjoint_splits(object_ids, train, test, what: str, mesh_ids=None, by_object: bool = True) -> None:
+    """Refuse a split whose train and test share a sequence index or, with ``by_object``, an object (``object_ids``:
+    per sequence) or a mesh (``mesh_ids``: per object id, e.g. a file's SHA-256): what every held-out split and
+    every unseen-object split goes through before it is returned.
+
+    Raises:
+        DataLeakError: naming ``what`` and what train and test share.
+    """
+    train, test = np.asarray(train, dtype=np.int64), np.asarray(test, dtype=np.int64)
+    shared = np.intersect1d(train, test)
+    if len(shared):
+        raise DataLeakError(f"{what}: {len(shared)} sequences are in both train and test")
+    if not by_object:
+        return
+    ids = np.asarray(object_ids)
+    both = np.intersect1d(ids[train], ids[test])
+    if len(both):
+        raise DataLeakError(f"{what}: objects {both[:5].tolist()} are in both train and test")
+    if mesh_ids is not None:
+        meshes = np.asarray(mesh_ids, dtype=object)
+        same = set(meshes[np.unique(ids[train])]) & set(meshes[np.unique(ids[test])])
+        if same:
+            raise DataLeakError(f"{what}: {len(same)} mesh(es) are in both train and test (identical files)")
 
 
 class TactileDataset:
@@ -112,6 +137,29 @@ class TactileDataset:
         self._frames = self._group["frames"]
         self.contour_seeds = self._column("contour_seeds")
         self.noise_seeds = self._column("noise_seeds")
+        self._check_identities(within)
+
+    def _check_identities(self, within: np.ndarray) -> None:
+        """The stored labels, object ids and strategies of every complete row (read, so their checksums are checked
+        too) must be what the settings say: a label, class list or object list edited in ``zarr.json`` is refused.
+
+        Raises:
+            DatasetError: naming the first object whose stored rows contradict the settings.
+        """
+        expected = {
+            "labels": self.labels,
+            "object_ids": self._store_objects[self.object_ids] if len(self._rows) else self.object_ids,
+            "strategies": within,
+        }
+        for name, values in expected.items():
+            stored = self._column(name)
+            bad = np.flatnonzero(stored != values)
+            if len(bad):
+                raise DatasetError(
+                    f"{self.path}: object {self._owner(self._rows[bad[0]])!r}: its stored {name} "
+                    f"({int(stored[bad[0]])}) contradict the store's settings ({int(values[bad[0]])}): the metadata "
+                    "was edited or the store is damaged; regenerate it"
+                )
 
     def _column(self, name: str) -> np.ndarray:
         return self._read(name, self._rows)
@@ -121,9 +169,39 @@ class TactileDataset:
         return str(self._settings["objects"][int(row) // self._layout.block]["name"])
 
     def _read(self, name: str, rows: np.ndarray) -> np.ndarray:
-        """Store rows ``rows`` of array ``name``, checked (a damaged chunk raises DatasetError naming its object)."""
+        """Store rows ``rows`` of array ``name``, checked: a damaged chunk raises DatasetError naming its object, and
+        every object whose rows are all read must match the digest in its record (a chunk swapped with another
+        object's passes its checksum, not the digest)."""
         array = self._frames if name == "frames" else self._group[name]
-        return _read_rows(self.path, name, array, rows, self._owner)
+        values = _read_rows(self.path, name, array, rows, self._owner)
+        self._check_digests(name, array.dtype, rows, values)
+        return values
+
+    def _check_digests(self, name: str, dtype, rows: np.ndarray, values: np.ndarray) -> None:
+        """Compare the rows of every object read whole with its record's digest of array ``name``.
+
+        Raises:
+            DatasetError: naming the object whose rows differ from its digest.
+        """
+        from tactile.dataset.store import _damage, array_digest, update_digest
+
+        block = self._layout.block
+        if not len(rows):
+            return
+        order = np.argsort(rows, kind="stable")
+        sorted_rows = rows[order]
+        objects, counts = np.unique(sorted_rows // block, return_counts=True)
+        for obj in objects[counts >= block]:
+            want = np.arange(obj * block, (obj + 1) * block)
+            pos = np.searchsorted(sorted_rows, want)
+            if pos[-1] >= len(sorted_rows) or not np.array_equal(sorted_rows[pos], want):
+                continue  # not all of its rows were read
+            digest = array_digest()
+            update_digest(digest, values[order[pos]], dtype)
+            expected = self._records.get(int(obj), {}).get("digests")
+            if not isinstance(expected, dict) or digest.hexdigest() != expected.get(name):
+                raise DatasetError(_damage(self.path, self._owner(obj * block),
+                                           f"its {name} rows differ from the digest in its record"))
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -150,6 +228,30 @@ class TactileDataset:
         if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
             raise DatasetError(f"{self.path}: index out of range 0..{len(self) - 1}")
         return idx
+
+    def mesh_ids(self) -> np.ndarray:
+        """(n_objects,) object: what each complete object is made from, so that identical meshes can be told apart
+        from different ones: ``"sha256:<hex>"`` of a mesh file (read when the split is made; its path when it is
+        unreadable), ``"catalogue:<class>/<seed>"`` for a built-in object, ``"name:<name>"`` otherwise. A rotated
+        copy of a mesh has the same id."""
+        import hashlib
+
+        if getattr(self, "_mesh_ids", None) is None:
+            ids = []
+            objects = self._settings["objects"]
+            for i in self._store_objects:
+                obj = objects[int(i)]
+                if isinstance(obj.get("path"), str):
+                    try:
+                        ids.append("sha256:" + hashlib.sha256(Path(obj["path"]).read_bytes()).hexdigest())
+                    except OSError:
+                        ids.append("path:" + obj["path"])
+                elif isinstance(obj.get("catalogue"), list):
+                    ids.append("catalogue:" + "/".join(map(str, obj["catalogue"])))
+                else:
+                    ids.append("name:" + obj["name"])
+            self._mesh_ids = np.asarray(ids, dtype=object)
+        return self._mesh_ids
 
     def indices(self, strategy: str | None = None) -> np.ndarray:
         """Sequence indices (int64, sorted) of one strategy, or all when None.
@@ -235,8 +337,15 @@ class TactileDataset:
         round(test_fraction * n) test sequences of each class's n (the paper's 80/20). Sorted int64 arrays.
 
         Raises:
+            DataLeakError: train and test would share a sequence (checked on what is returned).
             DatasetError: test_fraction outside (0, 1), a bad index, or an empty test or train side.
         """
+        train, test = self._split_by_sequence(test_fraction, seed, index)
+        check_disjoint_splits(self.object_ids, train, test, f"{self.path}: split by sequence", by_object=False)
+        return train, test
+
+    def _split_by_sequence(self, test_fraction: float = 0.2, seed: int = 0, index=None) -> tuple[np.ndarray, np.ndarray]:
+        """The unchecked :meth:`split_by_sequence`."""
         test_fraction = self._check_fraction(test_fraction)
         idx = np.unique(self._index(index))
         rng = np.random.default_rng(seed)
@@ -264,8 +373,15 @@ class TactileDataset:
         training). Returns sorted int64 sequence indices (train, test) within ``index``.
 
         Raises:
+            DataLeakError: train and test would share a sequence, an object or a mesh (checked on what is returned).
             DatasetError: test_fraction outside (0, 1), a bad index, or no class with two objects.
         """
+        train, test = self._split_by_object(test_fraction, seed, index)
+        check_disjoint_splits(self.object_ids, train, test, f"{self.path}: split by object", self.mesh_ids())
+        return train, test
+
+    def _split_by_object(self, test_fraction: float = 0.2, seed: int = 0, index=None) -> tuple[np.ndarray, np.ndarray]:
+        """The unchecked :meth:`split_by_object`."""
         test_fraction = self._check_fraction(test_fraction)
         idx = np.unique(self._index(index))
         test_objects = []
@@ -283,8 +399,17 @@ class TactileDataset:
         once and fold sizes differ by at most one object. Returns [(train, test)] sorted int64 indices.
 
         Raises:
+            DataLeakError: train and test would share a sequence, an object or a mesh (checked on what is returned).
             DatasetError: k < 2, fewer objects than k, or a bad index.
         """
+        folds = self._kfold_by_object(k, seed, index)
+        for f, (train, test) in enumerate(folds):
+            check_disjoint_splits(self.object_ids, train, test, f"{self.path}: fold {f} of {k} by object",
+                                  self.mesh_ids())
+        return folds
+
+    def _kfold_by_object(self, k: int = 5, seed: int = 0, index=None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The unchecked :meth:`kfold_by_object`."""
         if isinstance(k, bool) or not isinstance(k, int) or k < 2:
             raise InvalidArgumentError(f"k must be an integer >= 2, got {k!r}")
         idx = np.unique(self._index(index))

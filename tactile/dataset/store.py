@@ -282,8 +282,9 @@ def read_attrs(path: Path) -> dict:
         meta = json.loads(meta_file.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise DatasetError(f"{path}: unreadable zarr.json ({exc})") from exc
-    attrs = meta.get("attributes", {}).get(ATTRS_KEY)
-    if meta.get("node_type") != "group" or not isinstance(attrs, dict):
+    attributes = meta.get("attributes", {}) if isinstance(meta, dict) else None
+    attrs = attributes.get(ATTRS_KEY) if isinstance(attributes, dict) else None
+    if not isinstance(meta, dict) or meta.get("node_type") != "group" or not isinstance(attrs, dict):
         raise DatasetError(f"{path}: a zarr store, but not a visuotactile tactile dataset (no {ATTRS_KEY!r})")
     if attrs.get("format") == 1:
         command = attrs.get("command")

@@ -375,3 +375,14 @@ class TestParameterNames:
         assert (model.reduce, model.n_select, model.random_state) == ("pca", 10, 2)
         with pytest.warns(DeprecationWarning):
             assert make_classifier("cnn", seed=5).random_state == 5
+
+
+def test_a_header_length_that_starts_like_a_pickle_is_still_a_model_file():
+    # A safetensors header of 640 + 256 k bytes begins 0x80 0x02..0x05: the bytes of a pickle's PROTO opcode. The
+    # byte after the 8-byte length ('{') tells them apart (found when models began to record fingerprints).
+    from fusion.modelfile import looks_like_pickle
+
+    for length in (640, 896, 1152, 1408):
+        assert not looks_like_pickle(length.to_bytes(8, "little") + b"{")
+    assert looks_like_pickle(b"\x80\x04\x95\x10\x00\x00\x00\x00\x00")
+    assert looks_like_pickle(b"\x80\x02}q\x00")

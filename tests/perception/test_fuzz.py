@@ -125,3 +125,45 @@ def test_face_normals_of_a_needle_are_unit_found_by_the_fuzzer(tmp_path):
     np.testing.assert_allclose(np.linalg.norm(normals[live], axis=1), 1.0, rtol=1e-12)
     assert (np.sign(normals[live]) == np.sign(cross[live])).all()
     assert (normals[~live] == 0).all()
+
+
+# ------------------------------------------------------------------------- stores, model files, recordings
+def _files_report(results) -> str:
+    from benchmarks import fuzz_files
+
+    return "\n".join([fuzz_files.format_table(fuzz_files.summarize(results))] + [
+        f"{r.case.family} ({r.case.note}): {r.outcome}: {r.detail}" for r in fuzz_files.failures(results)[:30]])
+
+
+def test_file_fuzz_fast(tmp_path):
+    # A sample of the stores / model files / recordings fuzzer (benchmarks.fuzz_files runs 1,000 cases).
+    from benchmarks import fuzz_files
+
+    results, clean = fuzz_files.fuzz(21, seed=3, folder=tmp_path)
+    assert len(results) == 21 and {r.case.family for r in results} == set(fuzz_files.FAMILIES)
+    assert clean["decisions"] == 8  # 2 objects x 4 contours, one touch each
+    assert not fuzz_files.failures(results), _files_report(results)
+    assert all(r.outcome == "refused" for r in results if r.case.damaged or r.case.marker)
+    assert all(np.isfinite(r.peak_mb) and r.peak_mb > 0 for r in results)
+    print("\n" + _files_report(results))
+
+
+def test_file_fuzz_classifies_what_it_must_count_as_failures():
+    from benchmarks.fuzz_files import Case, Result, classify, judge
+
+    def record(code=0, stderr=(), escaped=None, payload=False):
+        return {"code": code, "stderr": list(stderr), "escaped": escaped, "payload": payload}
+
+    store = Case("store_chunk", ["evaluate"], "", damaged=True, compare=True)
+    plain = Case("store_meta", ["evaluate"], "", compare=True)
+    assert classify(store, record(0))[0] == "wrong"  # a damaged store that evaluates
+    assert classify(store, record(2, ["visuotactile evaluate: error: damaged"]))[0] == "refused"
+    assert classify(plain, record(2, ["a", "b"]))[0] == "foreign"  # not one line
+    assert classify(plain, record(1, ["Traceback"]))[0] == "foreign"
+    assert classify(plain, record(None, escaped=("foreign", "KeyError: 'x'")))[0] == "foreign"
+    assert classify(plain, record(2, ["refused"], payload=True))[0] == "payload"
+    clean = {"decisions": 8, "accuracy": {"value": 0.5}}
+    results = [Result(plain, "ok", "", 0.1, 1.0, dict(clean)), Result(plain, "ok", "", 0.1, 1.0,
+                                                                      {"decisions": 8, "accuracy": {"value": 0.9}})]
+    judge(results, clean)
+    assert [r.outcome for r in results] == ["ok", "wrong"]  # other numbers from an edited store: silent and wrong

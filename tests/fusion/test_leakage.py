@@ -1,0 +1,166 @@
+"""Tests that catch train/test leaks: what a model was fitted on (its sequence fingerprints) against what it is
+scored on, multi-touch groups of one object each, unseen-object splits disjoint by object and by mesh, and the noise
+experiment's noisy and repaired frames differing from the clean ones."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from fusion.base import load_model
+from fusion.cli import main
+from fusion.decide import touch_groups
+from fusion.leakage import KEY, check_held_out, fingerprints_of, sequence_fingerprints
+from fusion.training import evaluate_on_store, train_on_store
+from perception.errors import DataLeakError
+from tactile.dataset import generate, open_dataset
+from tactile.dataset.reader import check_disjoint_splits
+from tactile.sensor import FSRSensor
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    """Two objects per class (box, ring), 6 contours each."""
+    out = tmp_path_factory.mktemp("leakage") / "s.zarr"
+    objects = [(name, seed) for name in ("box", "ring") for seed in (0, 1)]
+    generate(objects, out, strategies="blind", contours_per_object=6, sensor=FSRSensor(rows=8, cols=8), probes=6,
+             seed=0, workers=1, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def trained(store, tmp_path_factory):
+    """{split: (model file, train_on_store's result)} of kNN models held out by sequence (25 %) and by object."""
+    folder = tmp_path_factory.mktemp("leakage-models")
+    return {split: (folder / f"{split}.vtm", train_on_store(store, "knn", folder / f"{split}.vtm", split=split,
+                                                            test_fraction=0.25 if split == "sequence" else 0.5))
+            for split in ("sequence", "object")}
+
+
+class TestWhatTheModelWasFittedOn:
+    def test_the_model_file_keeps_a_fingerprint_of_every_training_sequence(self, store, trained):
+        path, result = trained["sequence"]
+        model = load_model(path)
+        ds = open_dataset(store)
+        train, test = ds.split_by_sequence(0.25, seed=0)
+        trained = fingerprints_of(model)
+        assert trained is not None and len(trained) == result["train_sequences"] == len(train)
+        assert set(trained.tolist()) == set(sequence_fingerprints(ds.load(train)).tolist())
+        assert not np.isin(sequence_fingerprints(ds.load(test)), trained).any()
+
+    def test_a_model_fitted_on_its_test_sequences_is_refused_at_evaluation(self, store, trained):
+        # What `train` would do if it fitted on train + test: the record says 25 % held out, the fingerprints say
+        # all. Evaluation trusts the fingerprints.
+        model = load_model(trained["sequence"][0])
+        ds = open_dataset(store)
+        model.training_[KEY] = sequence_fingerprints(ds.load())
+        with pytest.raises(DataLeakError, match="fitted on 6 of the 6 test sequences"):
+            evaluate_on_store(model, store)
+
+    def test_an_unseen_object_claim_is_refused_when_one_sequence_of_a_test_object_was_seen(self, store, trained):
+        model = load_model(trained["object"][0])
+        ds = open_dataset(store)
+        _, test = ds.split_by_object(0.5, seed=0)
+        batch = ds.load(test)
+        check_held_out(model, batch, "clean", by_object=True)  # nothing seen
+        model.training_[KEY] = np.concatenate([fingerprints_of(model), sequence_fingerprints(batch)[:1]])
+        with pytest.raises(DataLeakError, match="sequences of 1 test object"):
+            evaluate_on_store(model, store)
+
+    def test_fingerprints_tell_sequences_apart_and_survive_a_store_round_trip(self, store):
+        ds = open_dataset(store)
+        a, b = sequence_fingerprints(ds.load()), sequence_fingerprints(ds.load())
+        assert np.array_equal(a, b) and len(np.unique(a)) == len(a) == 24
+
+
+def test_touches_are_grouped_by_object_never_by_class(store, trained, tmp_path, capsys):
+    # 2 objects x 6 sequences per class: groups of 4 sequences of one object give one decision per object (4);
+    # grouping by class would give 3 per class (6). The model counts as one from elsewhere: all sequences.
+    model = load_model(trained["sequence"][0])
+    model.training_ = {"store_id": "another"}
+    model = model.save(tmp_path / "elsewhere.vtm")
+    assert main(["evaluate", "--model", str(model), "--store", str(store), "--touches", "4", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["decisions"] == 4
+    ds = open_dataset(store)
+    for seed in range(3):
+        groups = touch_groups(ds.object_ids, 4, seed=seed, repeats=2)
+        assert all(len(set(ds.object_ids[g].tolist())) == 1 for g in groups)
+        assert all(len(set(g.tolist())) == 4 for g in groups)
+
+
+class TestUnseenObjectSplits:
+    def test_every_split_and_fold_is_disjoint_by_object_and_mesh(self, store):
+        ds = open_dataset(store)
+        meshes = ds.mesh_ids()
+        assert sorted(meshes) == ["catalogue:box/0", "catalogue:box/1", "catalogue:ring/0", "catalogue:ring/1"]
+        for seed in range(4):
+            train, test = ds.split_by_object(0.5, seed=seed)
+            folds = ds.kfold_by_object(2, seed=seed)
+            for tr, te in [(train, test), *folds]:
+                assert len(tr) and len(te) and not set(tr) & set(te)
+                assert not set(ds.object_ids[tr]) & set(ds.object_ids[te])
+                assert not set(meshes[ds.object_ids[tr]]) & set(meshes[ds.object_ids[te]])
+                assert sorted(np.concatenate([tr, te]).tolist()) == list(range(len(ds)))
+            tested = np.concatenate([te for _, te in folds])
+            assert sorted(tested.tolist()) == list(range(len(ds)))  # every object tested exactly once
+
+    def test_split_checks_refuse_shared_sequences_objects_and_meshes(self):
+        ids = np.array([0, 0, 1, 1, 2, 2])
+        check_disjoint_splits(ids, [0, 1, 2, 3], [4, 5], "fine", mesh_ids=["a", "b", "c"])
+        with pytest.raises(DataLeakError, match="2 sequences are in both"):
+            check_disjoint_splits(ids, [0, 1, 2, 3, 4, 5], [4, 5], "train + test")
+        with pytest.raises(DataLeakError, match=r"objects \[1\]"):
+            check_disjoint_splits(ids, [0, 1, 2], [3, 4, 5], "half an object")
+        with pytest.raises(DataLeakError, match="mesh"):
+            check_disjoint_splits(ids, [0, 1, 2, 3], [4, 5], "a copy", mesh_ids=["a", "b", "a"])
+
+    def test_a_split_that_leaks_is_refused_before_it_is_used(self, store, monkeypatch):
+        ds = open_dataset(store)
+        real = type(ds)._split_by_object
+
+        def train_plus_test(self, *args, **kwargs):  # the leak the issue planted: train = train + test
+            train, test = real(self, *args, **kwargs)
+            return np.union1d(train, test), test
+
+        monkeypatch.setattr(type(ds), "_split_by_object", train_plus_test)
+        with pytest.raises(DataLeakError, match="split by object"):
+            ds.split_by_object(0.5)
+
+
+class TestNoiseExperimentFrames:
+    @pytest.fixture(scope="class")
+    def touched(self):
+        from fusion.experiments.robustness import _sensor_and_jitter
+        from fusion.experiments.touch import touch_objects
+        from perception.shapes import make_object
+
+        models = [make_object("box", 0), make_object("ring", 0)]
+
+        def read(kind, level):
+            sensor, jitter = _sensor_and_jitter(kind, level)
+            batch = touch_objects(models, ["box", "ring"], "blind", 3, sensor=sensor, probes=6, seed=5,
+                                  jitter_mm=jitter)
+            return batch, sensor
+
+        return read
+
+    @pytest.mark.parametrize("kind,level", [("taxel_noise", 0.2), ("dead_taxels", 0.05), ("pose_jitter", 2.0)])
+    def test_every_noise_kind_changes_the_frames(self, touched, kind, level):
+        clean, _ = touched("clean", 0.0)
+        noisy, _ = touched(kind, level)
+        assert noisy.frames.shape == clean.frames.shape
+        changed = np.abs(noisy.frames - clean.frames).max(axis=(1, 2, 3)) > 1e-3
+        assert changed.all(), f"{kind} {level}: {int((~changed).sum())} sequences read as clean"
+
+    def test_repaired_frames_differ_from_the_raw_ones_and_are_closer_to_clean(self, touched):
+        from fusion.experiments.robustness import _inputs
+
+        clean, _ = touched("clean", 0.0)
+        broken, sensor = touched("dead_taxels", 0.05)
+        inputs = _inputs(broken, sensor, ["dead_taxels", "dead_taxels_repaired"])
+        raw, repaired = inputs["raw"].frames, inputs["repaired"].frames
+        assert np.array_equal(raw, broken.frames)
+        assert (np.abs(repaired - raw).max(axis=(1, 2, 3)) > 1e-3).all()  # every sequence had a dead taxel fixed
+        assert np.abs(repaired - clean.frames).mean() < 0.5 * np.abs(raw - clean.frames).mean()
