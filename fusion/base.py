@@ -138,6 +138,7 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         """
         batch = as_batch(X)
         names = self._label_names(batch, y)
+        self.__dict__.pop("calibration_", None)  # fitted for the old model: fusion.openset.calibrate again
         self.classes_ = np.array(sorted(set(names.tolist())), dtype=object)
         if len(self.classes_) < 2:
             raise DatasetError(f"training data has only one class ({self.classes_[0]!r}); need at least two")
@@ -152,11 +153,22 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         return self
 
     def predict_proba(self, X) -> np.ndarray:
-        """(S, C) class probabilities, columns in ``classes_`` order; rows sum to 1, all finite.
+        """(S, C) class probabilities, columns in ``classes_`` order; rows sum to 1, all finite. Calibrated
+        when the model was calibrated (:func:`fusion.openset.calibrate`).
 
         Raises:
             ModelMismatchError: data from another sensor, probe count or taxel grid.
         """
+        proba = self.predict_proba_uncalibrated(X)
+        calibration = getattr(self, "calibration_", None)
+        if calibration:
+            from fusion.openset import calibrated_fusion
+
+            proba = calibrated_fusion(calibration, proba[:, None, :])
+        return proba
+
+    def predict_proba_uncalibrated(self, X) -> np.ndarray:
+        """(S, C) the classifier's own probabilities (what :meth:`predict_proba` gives before calibration)."""
         batch = as_batch(X)
         self.check_compatible(batch)
         proba = np.asarray(self._predict_proba(batch), dtype=np.float64)
@@ -164,10 +176,22 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
             raise FloatingPointError(f"{type(self).__name__} produced non-finite probabilities")
         return proba / proba.sum(axis=1, keepdims=True)
 
-    def predict(self, X) -> np.ndarray:
-        """(S,) predicted class names."""
+    def predict(self, X, reject: bool = False) -> np.ndarray:
+        """(S,) predicted class names; with ``reject=True`` (a calibrated model, :func:`fusion.openset.calibrate`)
+        ``"unknown"`` where a sequence fits no known class (its known score is below the 1-touch threshold)."""
+        if reject:
+            from fusion.openset import decide
+
+            return decide(self, X)["label"]
         proba = self.predict_proba(X)  # first: it refuses an unfitted model
         return self.classes_[np.argmax(proba, axis=1)]
+
+    def known_score(self, X, groups=None) -> np.ndarray:
+        """(G,) how well the (G, K) index ``groups`` of sequences (default: each alone) fit a known class (higher:
+        better; a calibrated model's score, see :mod:`fusion.openset`)."""
+        from fusion.openset import decide
+
+        return decide(self, X, groups)["score"]
 
     def score(self, X, y=None, sample_weight=None) -> float:
         """Accuracy on ``X`` (labels from the batch unless ``y`` is given)."""
@@ -175,12 +199,19 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         names = self._label_names(batch, y)
         return float(np.average(self.predict(batch).astype(str) == names.astype(str), weights=sample_weight))
 
-    def predict_proba_touches(self, X, groups: np.ndarray, rule: str = "log") -> np.ndarray:
-        """(G, C) fused probabilities of the (G, K) index ``groups`` of sequences in ``X`` (one object each)."""
+    def predict_proba_touches(self, X, groups: np.ndarray, rule: str | None = None) -> np.ndarray:
+        """(G, C) fused probabilities of the (G, K) index ``groups`` of sequences in ``X`` (one object each).
+        ``rule``: see :mod:`fusion.decide`; default for a calibrated model its fitted tempered rule and confidence
+        map for K touches (:func:`fusion.openset.calibrated_fusion`), else the log rule."""
         from fusion.decide import fuse_touches
 
-        proba = self.predict_proba(X)
-        return fuse_touches(proba[np.asarray(groups)], rule=rule)
+        calibration = getattr(self, "calibration_", None)
+        rule = rule or ("tempered" if calibration else "log")
+        if calibration and rule == "tempered":  # the fitted rule and its confidence map for K touches
+            from fusion.openset import calibrated_fusion
+
+            return calibrated_fusion(calibration, self.predict_proba_uncalibrated(X)[np.asarray(groups)])
+        return fuse_touches(self.predict_proba(X)[np.asarray(groups)], rule=rule)
 
     # ------------------------------------------------------------------------------ compatibility
     def check_compatible(self, batch: SequenceBatch) -> None:
@@ -402,6 +433,10 @@ def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int |
         if training is not None:
             model.training_ = training
         model._restore_state(_field(description, "state", dict, path), arrays, str(path))
+        if hasattr(model, "calibration_"):
+            from fusion.openset import check_calibration
+
+            model.calibration_ = check_calibration(model.calibration_, len(classes), str(path))
     except ModelFileError:
         raise
     except VisuotactileError as exc:  # e.g. a parameter the classifier's own checks refuse

@@ -235,13 +235,26 @@ def recognize_capture(
         from fusion.decide import fuse_touches
 
         start = time.perf_counter()
-        proba = clf.predict_proba(batch)
-        fused = fuse_touches(proba, rule="log")
+        calibration = getattr(clf, "calibration_", None) or {}
+        open_set = {}
+        if "thresholds" in calibration:  # calibrated with a reject option: fusion.openset
+            from fusion.openset import UNKNOWN, decide
+
+            decision = decide(clf, batch, np.arange(len(batch))[None])
+            fused = decision["fused"][0]
+            unknown = bool(decision["label"][0] == UNKNOWN)
+            open_set = {"unknown": unknown, "closest": str(decision["closest"][0]),
+                        "known_score": float(decision["score"][0]), "threshold": float(decision["threshold"])}
+        else:
+            proba = clf.predict_proba(batch)
+            fused = fuse_touches(proba, rule="tempered" if calibration else "log",
+                                 dependence=calibration.get("dependence", 0.0))
         timings["classify_s"] = time.perf_counter() - start
         order = np.argsort(-fused)
         summary["prediction"] = {
-            "class": class_names[int(order[0])],
+            "class": "unknown" if open_set.get("unknown") else class_names[int(order[0])],
             "probabilities": {class_names[int(i)]: float(fused[i]) for i in order},
+            **open_set,
         }
     summary["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
     if out is not None:

@@ -1,7 +1,9 @@
 """Decisions from several touches: fuse the class probabilities of K sequences of the same object.
 
-Two rules: ``"sum"`` (the paper's: add the probability vectors) and ``"log"`` (add log probabilities, i.e.
-treat the touches as independent evidence; a touch that rules a class out vetoes it). Log probabilities are
+Three rules: ``"sum"`` (the paper's: add the probability vectors), ``"log"`` (add log probabilities, i.e.
+treat the touches as independent evidence; a touch that rules a class out vetoes it) and ``"tempered"`` (the log rule
+with the sum scaled by 1 / (1 + rho (K - 1)), rho = ``dependence`` in [0, 1]: touches of one object are not
+independent; rho is fitted on held-out objects by :func:`fusion.openset.calibrate`, see :mod:`fusion.calibration`). Log probabilities are
 floored at ``PROBA_FLOOR`` so a single zero does not give -inf.
 """
 
@@ -11,13 +13,14 @@ import numpy as np
 
 from perception.errors import DatasetError, InvalidArgumentError
 
-RULES = ("log", "sum")
+RULES = ("log", "sum", "tempered")
 #: Probabilities below this count as this much in the log rule (keeps every sum finite).
 PROBA_FLOOR = 1e-12
 
 
-def fuse_touches(proba: np.ndarray, rule: str = "log") -> np.ndarray:
+def fuse_touches(proba: np.ndarray, rule: str = "log", dependence: float = 0.0) -> np.ndarray:
     """Fuse (K, C) probabilities of K touches into one (C,) distribution; (N, K, C) gives (N, C).
+    ``dependence``: rho of the ``"tempered"`` rule (0: the log rule).
 
     Raises:
         DatasetError: unknown rule, bad shape, or non-finite / negative probabilities.
@@ -34,6 +37,10 @@ def fuse_touches(proba: np.ndarray, rule: str = "log") -> np.ndarray:
         total = score.sum(axis=-1, keepdims=True)
         return np.where(total > 0, score / np.where(total > 0, total, 1), 1.0 / proba.shape[-1])
     log_score = np.log(np.maximum(proba, PROBA_FLOOR)).sum(axis=-2)
+    if rule == "tempered":
+        from fusion.calibration import tempered_exponent
+
+        log_score = log_score * tempered_exponent(proba.shape[-2], dependence)
     log_score -= log_score.max(axis=-1, keepdims=True)
     score = np.exp(log_score)
     return score / score.sum(axis=-1, keepdims=True)

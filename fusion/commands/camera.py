@@ -95,7 +95,10 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
         print("no --model given: recognition skipped (train one with `visuotactile train`)")
     else:
         pred = summary["prediction"]
-        print(f"recognized: {pred['class']}")
+        if pred.get("unknown"):
+            print(f"recognized: unknown; closest: {pred['closest']}, {pred['probabilities'][pred['closest']]:.2f}")
+        else:
+            print(f"recognized: {pred['class']}")
         for name, p in pred["probabilities"].items():
             print(f"  {name:12s} {p:.3f}")
     if "figure" in summary:

@@ -29,8 +29,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     if args.json:
         print_json(out)
         return 0
-    print(f"{obj.name}: {result.label} ({100 * result.probabilities[result.label]:.1f} %) after {args.touches} "
-          f"{args.strategy} touches")
+    print(f"{obj.name}: {result.summary()} after {args.touches} {args.strategy} touches")
     for name, p in list(result.probabilities.items())[:5]:
         print(f"  {name:<20} {100 * p:6.2f} %")
     seconds = result.seconds
@@ -55,8 +54,10 @@ def register(sub) -> None:
                         help="where to touch: a key of tactile.sampling.STRATEGIES, e.g. blind, guided (multiview "
                              "saliency), mesh, iss, pcl_harris, pcl_iss (PCL keypoints: `make peers` first) "
                              "(default: guided)")
-    parser.add_argument("--rule", choices=("log", "sum"), default="log",
-                        help="fusion of the K touches (default log: sum of log probabilities)")
+    parser.add_argument("--rule", choices=("log", "sum", "tempered"), default=None,
+                        help="fusion of the K touches (default: tempered log rule for a calibrated model, "
+                             "answering 'unknown' when the touches fit no known class; else log: sum of log "
+                             "probabilities)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the contour choice (default 0)")
     parser.add_argument("--figure", help="write the touched contours and probabilities to this PNG")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")

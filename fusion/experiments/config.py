@@ -51,6 +51,9 @@ class Sizes:
         epochs: CNN epochs (None: the classifier's default).
         paper_classifiers, unseen_classifiers: which classifiers (see ``fusion.experiments.models``) each
             part trains; the noise, K and run-time parts reuse the paper ones, attention the first of them.
+        calibration_classifiers, calibration_strategy: the classifiers and the strategy of the calibration and
+            open-set parts (unseen-objects store, any pose; :mod:`fusion.experiments.openset`).
+        openset_rotations: rotations of the open-set part (the classes are dealt to them; each leaves its own out).
     """
 
     strategies: tuple[str, ...] = PAPER_STRATEGIES
@@ -80,6 +83,9 @@ class Sizes:
     epochs: int | None = None
     paper_classifiers: tuple[str, ...] = ("cnn-normals", "svm-normals", "knn-normals")
     unseen_classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
+    calibration_classifiers: tuple[str, ...] = ("svm", "knn")
+    calibration_strategy: str = "blind"
+    openset_rotations: int = 5
 
     def __post_init__(self) -> None:
         for name in ("paper_classes", "objects_per_class", "paper_contours", "unseen_contours", "noise_contours",

@@ -7,6 +7,7 @@ fused with the sum of log probabilities (:func:`fusion.decide.fuse_touches`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -38,6 +39,9 @@ class Recognition:
         contours: the K contours touched.
         rule: the fusion rule.
         seconds: {"saliency", "touching", "inference"} wall seconds.
+        closest: the most probable known class (``label`` unless the answer is ``"unknown"``).
+        known_score, threshold: a calibrated model's score of how well the touches fit a known class and its
+            reject threshold for K touches (:mod:`fusion.openset`); None for a model without a reject option.
     """
 
     label: str
@@ -47,9 +51,28 @@ class Recognition:
     contours: list[Contour]
     rule: str
     seconds: dict[str, float]
+    closest: str | None = None
+    known_score: float | None = None
+    threshold: float | None = None
+
+    @property
+    def unknown(self) -> bool:
+        """Whether the model answered "unknown" (the touches fit no known class well enough)."""
+        return self.known_score is not None and self.threshold is not None and self.known_score < self.threshold
+
+    def summary(self) -> str:
+        """One line: 'mug (87.0 %)', or 'unknown; closest: mug, 0.41'."""
+        closest = self.closest or self.label
+        if self.unknown:
+            return f"unknown; closest: {closest}, {self.probabilities[closest]:.2f}"
+        return f"{self.label} ({100 * self.probabilities[self.label]:.1f} %)"
 
     def to_dict(self) -> dict:
+        open_set = {} if self.known_score is None else {
+            "unknown": self.unknown, "closest": self.closest, "known_score": round(self.known_score, 6),
+            "threshold": round(float(self.threshold), 6)}
         return {
+            **open_set,
             "label": self.label,
             "probabilities": {k: round(v, 6) for k, v in self.probabilities.items()},
             "per_touch": [
@@ -63,8 +86,12 @@ class Recognition:
 
 
 def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, strategy: str = "guided",
-              seed: int = 0, rule: str = "log") -> Recognition:
+              seed: int = 0, rule: str | None = None) -> Recognition:
     """Touch ``obj`` along ``touches`` contours chosen by ``strategy`` with the model's sensor, classify.
+
+    ``rule``: the fusion rule (default: the tempered log rule for a calibrated model, else the log rule). A model
+    calibrated with a reject option (:func:`fusion.openset.calibrate`) answers ``"unknown"`` when the touches fit
+    no known class (``label`` is then "unknown" and ``closest`` the best known class).
 
     Raises:
         InvalidArgumentError: touches < 1. ContourError: unknown strategy, or planes that miss the object.
@@ -85,24 +112,42 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
     contours: list[Contour] = []
     sequences = touch(obj, strategy, int(touches), model.sensor(), model.probes, seed, seeding="object",
                       timing=timing, contours=contours)
+    # the object's own label (if any) plays no part; it may name a class the model never learned
+    sequences = [dataclasses.replace(s, label=None) for s in sequences]
     batch = SequenceBatch.from_sequences(sequences, class_names=[str(c) for c in model.classes_],
                                          sensor_spec=model.sensor().spec())
     start = time.perf_counter()
     per_touch = model.predict_proba(batch)
+    calibration = getattr(model, "calibration_", None) or {}
+    rule = rule or ("tempered" if calibration else "log")
+    known_score = threshold = None
+    if "thresholds" in calibration and rule == "tempered":
+        from fusion.openset import decide
+
+        decision = decide(model, batch, np.arange(len(batch))[None])
+        fused, known_score, threshold = decision["fused"][0], float(decision["score"][0]), decision["threshold"]
+    else:
+        fused = fuse_touches(per_touch, rule=rule, dependence=calibration.get("dependence", 0.0))
     inference = time.perf_counter() - start
-    fused = fuse_touches(per_touch, rule=rule)
     classes = [str(c) for c in model.classes_]
-    return Recognition(
-        label=classes[int(np.argmax(fused))],
+    closest = classes[int(np.argmax(fused))]
+    result = Recognition(
+        label=closest,
         probabilities=dict(sorted(zip(classes, map(float, fused)), key=lambda kv: -kv[1])),
         per_touch=per_touch, classes=classes, contours=contours, rule=rule,
         seconds={"saliency": sum(timing.saliency_seconds), "touching": sum(timing.contour_seconds),
                  "inference": inference},
+        closest=closest, known_score=known_score, threshold=threshold,
     )
+    if result.unknown:
+        from fusion.openset import UNKNOWN
+
+        result.label = UNKNOWN
+    return result
 
 
 def recognize_file(mesh: str | Path, model_path: str | Path, *, touches: int = 4, strategy: str = "guided",
-                   seed: int = 0, rule: str = "log", trust_pickle: bool = False) -> tuple[ObjectModel, Recognition]:
+                   seed: int = 0, rule: str | None = None, trust_pickle: bool = False) -> tuple[ObjectModel, Recognition]:
     """:func:`recognize` a mesh file with a model file: the strategy is checked first, then the model and the mesh
     are loaded (pose-free frame, no label). Returns the object as touched and the recognition.
 
@@ -150,11 +195,12 @@ def plot_recognition(obj: ObjectModel, result: Recognition, path: str | Path, to
     bars = fig.add_subplot(1, 2, 2)
     items = list(result.probabilities.items())[:top][::-1]
     bars.barh([k for k, _ in items], [100 * p for _, p in items],
-              color=["tab:green" if k == result.label else "tab:gray" for k, _ in items])
+              color=["tab:green" if k == result.label else "tab:orange" if k == result.closest and result.unknown
+                     else "tab:gray" for k, _ in items])
     bars.set_xlim(0, 100)
     bars.set_xlabel(f"probability % (K = {len(result.contours)} touches, rule: "
-                    f"{'sum of log' if result.rule == 'log' else 'sum'})")
-    bars.set_title(f"recognized: {result.label}", fontsize=10)
+                    f"{ {'log': 'sum of log', 'tempered': 'tempered log'}.get(result.rule, result.rule)})")
+    bars.set_title(f"recognized: {result.summary()}", fontsize=10)
     return save_figure(fig, path, dpi=120)
 
 

@@ -186,6 +186,34 @@ def render(results: dict) -> str:
               "Wall time of each part in the run that wrote this report (s; a resumed part reuses its cache): "
               + ", ".join(f"{k} {v:.0f}" for k, v in results.get("seconds", {}).items()), ""]
     return "\n".join(lines)
+    lines += _calibration_lines(results)
 
 
 __all__ = ["difference_table", "noise_table", "pct", "render", "table1", "touches_table"]
+def _calibration_lines(results: dict) -> list[str]:
+    """The calibration and open-set sections (:mod:`fusion.experiments.openset`), when they ran."""
+    from fusion.experiments.openset import calibration_table, openset_table
+
+    lines = []
+    cal = results.get("calibration")
+    if cal:
+        lines += ["## Calibrated posteriors", "",
+                  (f"{cal['n_objects']} objects, {cal['contours']} contours each ({cal['strategy']}), grouped folds by "
+                   "object; each fold's temperature and tempered-rule dependence fitted on objects held out inside "
+                   "its training folds; tested on the fold's objects in any pose. ECE (15 bins) with a 95 % "
+                   "bootstrap interval over objects; K touches of one object per decision."), "",
+                  markdown_table(calibration_table(cal["rows"])), "",
+                  markdown_table(cal["fits"]), ""] + [_image(f, f) for f in cal["figures"]] + [""]
+    ops = results.get("openset")
+    if ops:
+        lines += ["## Objects of classes never trained on", "",
+                  (f"Classes rotated out of training ({len(ops['left_out'])} rotations: "
+                   + "; ".join(", ".join(c) for c in ops["left_out"])
+                   + f"), {ops['strategy']}, any pose. AUROC known vs unknown [95 % bootstrap over objects]; for "
+                   "the score the training folds chose ('chosen'): share of known decisions kept and of unknown "
+                   "ones answered unknown at the thresholds fitted on training data (leaving classes out inside "
+                   "it); '@95 % test-known': unknown rejected at the threshold keeping 95 % of the test's known."),
+                  "", markdown_table(openset_table(ops["rows"])), ""]
+    return lines
+
+

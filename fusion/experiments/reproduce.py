@@ -3,7 +3,9 @@
 Parts (each can be chosen with ``parts``): ``paper`` (Table 1), ``unseen`` (grouped k-fold by object over all
 instances, each test object upright and in a seeded random pose, with paired guided-vs-blind and upright-vs-any-
 pose differences over objects), ``touches`` (K per decision, on the paper and unseen predictions), ``noise``, ``attention`` and
-``runtime`` (error vs time, Pareto front). ``touches`` needs ``paper`` (it reuses its predictions), ``noise``
+``runtime`` (error vs time, Pareto front), ``calibration`` (ECE at K touches before / after calibration fitted
+inside the training folds, reliability diagrams) and ``openset`` (classes rotated out of training: AUROC known vs
+unknown, share of unknown objects rejected; :mod:`fusion.experiments.openset`). ``touches`` needs ``paper`` (it reuses its predictions), ``noise``
 needs ``unseen`` (it reuses its fold models on their test objects). Everything expensive is cached under the report folder (stores, models, predictions, part
 results), so an interrupted run resumes and the same seed gives the same numbers.
 """
@@ -38,7 +40,7 @@ from perception.runtime import machine_line as machine
 
 log = logging.getLogger(__name__)
 
-PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime")
+PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime", "calibration", "openset")
 BOOTSTRAP_NOTE = ("over test sequences for the paper protocol; over objects (whole objects resampled) "
                   "for unseen objects, K touches, noise, attention and the run-time part; differences (guided - blind, "
                   "any pose - upright) are paired object by object and bootstrapped over objects.")
@@ -165,6 +167,19 @@ def reproduce(
         result = timed("runtime", lambda: ctx.cached_part("runtime", record, lambda: runtime_rows(ctx, paper_objects)))
         figures.plot_pareto(result, out / "pareto.png")
         results["runtime"] = {**result, "contours": sizes.runtime_contours, "figure": "pareto.png"}
+        _write(out, results)  # a partial report after every part
+    for part in ("calibration", "openset"):
+        if part not in parts:
+            continue
+        from fusion.experiments import openset as experiment
+
+        unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
+        record = {"objects": [str(p) for p, _ in unseen_list], "sizes": sizes.to_dict(), "seed": ctx.seed,
+                  "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers]}
+        compute = getattr(experiment, f"{part}_part")
+        results[part] = timed(part, lambda: ctx.cached_part(part, record, lambda: compute(ctx, unseen_list)))
+        results[part] |= {"n_objects": len(unseen_list), "contours": sizes.unseen_contours}
+        _write(out, results)
     _write(out, results)
     return results
 

@@ -1,0 +1,249 @@
+"""Calibration and open-set experiments: calibrated posteriors at K touches, and objects of classes never trained on.
+
+``calibration``: grouped k-fold by object (the unseen-objects folds), one strategy; each fold's model is calibrated
+on its training objects only (:func:`fusion.openset.calibrate`, inner folds by object) and tested on the fold's
+objects in their seeded random poses. ECE (15 bins) at K = 1, 2, 4, 8 before (raw probabilities, log rule), with
+temperature and smoothing per touch and the tempered log rule, and after (+ the confidence map fitted for K), 95 %
+intervals by bootstrap over objects, the noise floor (the mean ECE a perfectly calibrated predictor with the same
+confidences shows on that many decisions), and reliability diagrams.
+
+``openset``: classes rotated out of training: the classes (shuffled, seeded) are dealt to R rotations; rotation r
+trains on the other classes' objects outside object fold r, calibrated and thresholded on them only (leaving
+classes out inside training), and tests the known classes' objects of fold r and every object of its left-out
+classes, all in any pose. Per score (max probability, feature distance, class distance) and K: AUROC known vs
+unknown (interval: bootstrap over objects, known and unknown resampled separately), and for the score the training
+folds chose: the share of known objects kept and of unknown ones answered "unknown" at the threshold fitted on
+training data, plus the share of unknown rejected at the threshold that keeps 95 % of the *test* known decisions.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from fusion.calibration import ece_interval, ece_noise_floor, plot_reliability, reliability
+from fusion.decide import fuse_touches, touch_groups
+from fusion.experiments.context import Context
+from fusion.experiments.data import split_loader
+from fusion.experiments.models import DISPLAY, pick
+from fusion.experiments.protocol import pose_stores, same_objects
+from fusion.openset import (
+    SCORES,
+    auroc,
+    calibrate,
+    calibrated_fusion,
+    group_scores,
+    per_touch,
+    rejected_share,
+    threshold_for,
+    threshold_keeping,
+)
+
+log = logging.getLogger(__name__)
+
+BOOTSTRAP = 1000
+
+
+def _class_index(model, batch) -> np.ndarray:
+    names = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)
+    return np.searchsorted(np.asarray(model.classes_).astype(str), names)
+
+
+#: The calibration part's variants: label -> how K touches' uncalibrated probabilities are fused.
+VARIANTS = {
+    "before (raw, log rule)": lambda state, raw: fuse_touches(raw, "log"),
+    "temperature + smoothing, tempered rule": lambda state, raw: calibrated_fusion(state, raw, maps=False),
+    "after (+ confidence map for K)": lambda state, raw: calibrated_fusion(state, raw),
+}
+
+
+def calibration_part(ctx: Context, objects) -> dict:
+    """ECE rows and reliability figures (module docstring); returns {"rows", "fits", "figures"}."""
+    sizes = ctx.sizes
+    strategy = sizes.calibration_strategy
+    ds, record, test_ds, test_record = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
+    folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
+    collected: dict[str, list] = {}
+    fits = []
+    for i, (train, test) in enumerate(folds):
+        test = same_objects(ds, test, test_ds, strategy)
+        load = split_loader(ds, train, test, test_ds)
+        for name, factory in pick(ctx.classifiers, sizes.calibration_classifiers).items():
+            log.info("calibration, fold %d: %s", i + 1, name)
+            model = calibrate(factory(), load("train"), open_set=False, max_touches=max(sizes.touches),
+                              random_state=ctx.seed)
+            batch = load("test")
+            state = model.calibration_
+            collected.setdefault(name, []).append({
+                "raw": model.predict_proba_uncalibrated(batch), "y": _class_index(model, batch), "state": state,
+                "obj": np.asarray(batch.object_names, dtype=object)[batch.object_ids]})
+            fits.append({"classifier": DISPLAY.get(name, name), "fold": i + 1,
+                         "temperature": round(state["temperature"], 4), "smoothing": round(state["smoothing"], 4),
+                         "dependence": round(state["dependence"], 4)})
+    rows, figures = [], []
+    for name, parts in collected.items():
+        curves = {}
+        for k in sizes.touches:
+            fused = {label: [] for label in VARIANTS}
+            ys, objs = [], []
+            for part in parts:  # each fold's decisions with that fold's calibration (groups never span folds)
+                names, ids = np.unique(part["obj"], return_inverse=True)
+                groups = touch_groups(ids, k, seed=ctx.seed)
+                for label, fuse in VARIANTS.items():
+                    fused[label].append(fuse(part["state"], part["raw"][groups]))
+                ys.append(part["y"][groups[:, 0]])
+                objs.append(names[ids[groups[:, 0]]])
+            y, obj = np.concatenate(ys), np.concatenate(objs)
+            for label in VARIANTS:
+                f = np.concatenate(fused[label])
+                e = ece_interval(f, y, obj, n_boot=BOOTSTRAP, seed=ctx.seed)
+                rows.append({"classifier": DISPLAY.get(name, name), "name": name, "k": int(k), "variant": label, **e,
+                             "noise_floor": ece_noise_floor(f.max(axis=1), seed=ctx.seed),
+                             "accuracy": float(np.mean(f.argmax(axis=1) == y)),
+                             "mean_confidence": float(f.max(axis=1).mean())})
+                if k in (1, max(sizes.touches)) and label != "temperature + smoothing, tempered rule":
+                    curves[f"K={k}, {label.split(' (')[0]}"] = reliability(f, y)
+        file = f"reliability_{name}.png"
+        plot_reliability(curves, ctx.path(file), title=f"{DISPLAY.get(name, name)}, {strategy}, unseen objects in "
+                                                       "any pose")
+        figures.append(file)
+    return {"rows": rows, "fits": fits, "figures": figures, "strategy": strategy}
+
+
+def _objects_bootstrap(known_scores, known_obj, unknown_scores, unknown_obj, stat, seed: int) -> tuple[float, float]:
+    """95 % percentile interval of ``stat(known, unknown)``, resampling known and unknown objects separately."""
+    rng = np.random.default_rng(seed)
+    k_names, k_ids = np.unique(known_obj, return_inverse=True)
+    u_names, u_ids = np.unique(unknown_obj, return_inverse=True)
+    k_members = [np.flatnonzero(k_ids == i) for i in range(len(k_names))]
+    u_members = [np.flatnonzero(u_ids == i) for i in range(len(u_names))]
+    values = []
+    for _ in range(BOOTSTRAP):
+        ki = np.concatenate([k_members[i] for i in rng.integers(0, len(k_members), len(k_members))])
+        ui = np.concatenate([u_members[i] for i in rng.integers(0, len(u_members), len(u_members))])
+        values.append(stat(known_scores[ki], unknown_scores[ui]))
+    low, high = np.percentile(values, [2.5, 97.5])
+    return float(low), float(high)
+
+
+def openset_part(ctx: Context, objects) -> dict:
+    """Open-set rows (module docstring); returns {"rows", "rotations"}."""
+    sizes = ctx.sizes
+    strategy = sizes.calibration_strategy
+    ds, record, test_ds, test_record = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
+    index = ds.indices(strategy)
+    n_rot = sizes.openset_rotations
+    folds = ds.kfold_by_object(n_rot, seed=ctx.seed, index=index)
+    class_names = np.asarray(ds.class_names, dtype=object)
+    rng = np.random.default_rng(ctx.seed)
+    order = rng.permutation(len(class_names))
+    left_out = [sorted(class_names[order[r::n_rot]].tolist()) for r in range(n_rot)]
+    labels_all = class_names[ds.labels]
+    ks = list(sizes.touches)
+    pooled: dict = {}
+    rotations = []
+    for r, (_, fold_test) in enumerate(folds):
+        unknown_idx = index[np.isin(labels_all[index], left_out[r])]
+        known_test = fold_test[~np.isin(labels_all[fold_test], left_out[r])]
+        train = np.setdiff1d(index[~np.isin(labels_all[index], left_out[r])], known_test)
+        test = same_objects(ds, np.union1d(known_test, unknown_idx), test_ds, strategy)
+        load = split_loader(ds, train, test, test_ds)
+        for name, factory in pick(ctx.classifiers, sizes.calibration_classifiers).items():
+            log.info("open set, rotation %d (%s left out): %s", r + 1, ", ".join(left_out[r]), name)
+            model = calibrate(factory(), load("train"), max_touches=max(ks), random_state=ctx.seed)
+            batch = load("test")
+            proba, distances = per_touch(model, batch)
+            is_unknown = np.isin(np.asarray(batch.class_names, dtype=object)[batch.labels], left_out[r])
+            obj = np.asarray(batch.object_names, dtype=object)[batch.object_ids]
+            _, ids = np.unique(obj, return_inverse=True)
+            cal = model.calibration_
+            rotations.append({"rotation": r + 1, "classifier": DISPLAY.get(name, name), "left_out": left_out[r],
+                              "known_test_objects": int(len(np.unique(obj[~is_unknown]))),
+                              "unknown_objects": int(len(np.unique(obj[is_unknown]))),
+                              "score": cal["score"], "temperature": round(cal["temperature"], 4),
+                              "smoothing": round(cal["smoothing"], 4),
+                              "dependence": round(cal["dependence"], 4), "inner_auroc": cal["inner_auroc"]})
+            for k in ks:
+                groups = touch_groups(ids, k, seed=ctx.seed)
+                s = group_scores(proba, groups, cal, distances)
+                unknown_g = is_unknown[groups[:, 0]]
+                p = pooled.setdefault((name, k), {"unknown": [], "obj": [], "chosen": [], "threshold": [],
+                                                  **{n: [] for n in SCORES}})
+                p["unknown"].append(unknown_g)
+                p["obj"].append(np.array([f"{r}:{o}" for o in obj[groups[:, 0]]], dtype=object))
+                p["chosen"].append(s[cal["score"]])
+                p["threshold"].append(np.full(len(groups), threshold_for(model, k)))
+                for n in SCORES:
+                    p[n].append(s.get(n, np.full(len(groups), np.nan)))
+    rows = []
+    for (name, k), p in pooled.items():
+        unknown = np.concatenate(p["unknown"])
+        obj = np.concatenate(p["obj"])
+        for n in (*SCORES, "chosen"):
+            scores = np.concatenate(p[n])
+            if not np.isfinite(scores).all():
+                continue
+            known_s, unknown_s = scores[~unknown], scores[unknown]
+            value = auroc(known_s, unknown_s)
+            low, high = _objects_bootstrap(known_s, obj[~unknown], unknown_s, obj[unknown], auroc, ctx.seed)
+            row = {"classifier": DISPLAY.get(name, name), "name": name, "k": int(k), "score": n,
+                   "auroc": value, "auroc_low": low, "auroc_high": high,
+                   "n_known": int((~unknown).sum()), "n_unknown": int(unknown.sum())}
+            oracle = threshold_keeping(known_s, 0.95)
+            row["rejected_at_test_95"] = rejected_share(unknown_s, oracle)
+            if n == "chosen":
+                thresholds = np.concatenate(p["threshold"])
+                known_kept = float(np.mean(known_s >= thresholds[~unknown]))
+                rejected = float(np.mean(unknown_s < thresholds[unknown]))
+                row |= {"known_kept": known_kept, "unknown_rejected": rejected}
+                lo, hi = _objects_bootstrap(known_s - thresholds[~unknown], obj[~unknown],
+                                            unknown_s - thresholds[unknown], obj[unknown],
+                                            lambda a, b: float(np.mean(b < 0)), ctx.seed)
+                row |= {"unknown_rejected_low": lo, "unknown_rejected_high": hi}
+                lo, hi = _objects_bootstrap(known_s - thresholds[~unknown], obj[~unknown],
+                                            unknown_s - thresholds[unknown], obj[unknown],
+                                            lambda a, b: float(np.mean(a >= 0)), ctx.seed)
+                row |= {"known_kept_low": lo, "known_kept_high": hi}
+            rows.append(row)
+    return {"rows": rows, "rotations": rotations, "left_out": left_out, "strategy": strategy}
+
+
+def calibration_table(rows: list[dict]) -> list[dict]:
+    """Markdown rows: classifier, variant, then ECE [interval] (accuracy, mean confidence) per K."""
+    ks = sorted({r["k"] for r in rows})
+    out = []
+    for key in dict.fromkeys((r["classifier"], r["variant"]) for r in rows):
+        row = {"classifier": key[0], "variant": key[1]}
+        for k in ks:
+            hit = [r for r in rows if (r["classifier"], r["variant"]) == key and r["k"] == k]
+            row[f"K={k}"] = (f"{hit[0]['ece']:.3f} [{hit[0]['low']:.3f}, {hit[0]['high']:.3f}] "
+                             f"(floor {hit[0]['noise_floor']:.3f}; acc {100 * hit[0]['accuracy']:.0f} %, "
+                             f"conf {100 * hit[0]['mean_confidence']:.0f} %)" if hit else "-")
+        out.append(row)
+    return out
+
+
+def openset_table(rows: list[dict]) -> list[dict]:
+    """Markdown rows: classifier, score, then AUROC [interval] per K; the chosen score also shows the shares."""
+    ks = sorted({r["k"] for r in rows})
+    out = []
+    for key in dict.fromkeys((r["classifier"], r["score"]) for r in rows):
+        row = {"classifier": key[0], "score": key[1]}
+        for k in ks:
+            hit = [r for r in rows if (r["classifier"], r["score"]) == key and r["k"] == k]
+            if not hit:
+                row[f"K={k}"] = "-"
+                continue
+            h = hit[0]
+            text = f"{h['auroc']:.3f} [{h['auroc_low']:.3f}, {h['auroc_high']:.3f}]"
+            if "unknown_rejected" in h:
+                text += (f"; kept {100 * h['known_kept']:.0f} %, rejected {100 * h['unknown_rejected']:.0f} % "
+                         f"[{100 * h['unknown_rejected_low']:.0f}, {100 * h['unknown_rejected_high']:.0f}]")
+            text += f"; @95 % test-known {100 * h['rejected_at_test_95']:.0f} %"
+            row[f"K={k}"] = text
+        out.append(row)
+    return out
+
+
+__all__ = ["calibration_part", "calibration_table", "openset_part", "openset_table"]

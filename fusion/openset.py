@@ -1,0 +1,524 @@
+"""Knowing when it does not know: scores of how well touches fit a known class, a reject threshold, calibration.
+
+:func:`calibrate` fits, on the training data only, everything a classifier needs to give calibrated posteriors and
+to answer "unknown":
+
+1. **calibration folds** (``cv`` folds grouped by object; a capture and its CAD twin, the name before ``"@"``, are
+   one object): models trained on the other folds predict the held-out objects; the temperature T is fitted on
+   their per-touch probabilities and the tempered log rule's dependence rho on their K-touch groups
+   (:mod:`fusion.calibration`);
+2. **leave classes out** (``class_folds`` folds): each leaves a group of classes out of training (they play the
+   unknown objects) and also holds out the ``cv``-fold objects of the other classes (the known ones); the scores
+   of held-out known objects give, for every K = 1..``max_touches``, the threshold that keeps ``keep`` (95 %) of
+   them, and known-vs-unknown AUROCs choose the score (``score="auto"``);
+3. the model fitted on all the data (first, unless ``refit=False`` and it is fitted already: a classifier that tunes
+   its own pipeline while fitting passes its choice to the inner folds) gives the reference features of the
+   distance scores: its training sequences'.
+
+Scores (higher = fits a known class better), of K touches of one object:
+
+- ``"probability"``: the maximum of the calibrated fused posterior (tempered log rule);
+- ``"distance"``: minus the mean over touches of log d, d the mean distance (feature space) of the touch to its
+  ``neighbors`` nearest training sequences of the class nearest to it;
+- ``"class_distance"``: the same, but to the training sequences of the class the K touches decided on (how well
+  all touches fit the decision).
+
+The distance scores need a feature space: the conventional classifier's (its pipeline before the SVM / kNN: the
+z-scored "SOM to 5" features), or a classifier's ``embed(batch) -> (S, D)`` method where it has one; without a
+feature space only ``"probability"`` is available. The result is the fitted attribute ``calibration_`` (plain
+data, saved in the model file and checked on loading by :func:`check_calibration`): ``predict_proba`` then gives
+calibrated probabilities, ``predict_proba_touches`` the tempered rule, ``known_score`` the score, and
+``predict(X, reject=True)`` answers :data:`UNKNOWN` below the threshold.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from sklearn.base import clone
+
+from fusion.calibration import (
+    apply_calibration,
+    apply_confidence_map,
+    check_dependence,
+    check_smoothing,
+    check_temperature,
+    fit_calibration,
+    fit_confidence_map,
+    fit_dependence,
+    fuse_tempered,
+    log_proba,
+)
+from perception.errors import DatasetError, InvalidArgumentError, ModelFileError
+
+log = logging.getLogger(__name__)
+
+#: The answer of a rejected decision.
+UNKNOWN = "unknown"
+SCORES = ("probability", "distance", "class_distance")
+#: Distances below this count as this much (mm-free feature units; keeps every log finite).
+DISTANCE_FLOOR = 1e-9
+#: Bounds on a model file's calibration state.
+MAX_TOUCHES = 64
+MAX_REFERENCE = 2_000_000
+
+
+# ------------------------------------------------------------------------------------------------ scores
+def auroc(known, unknown) -> float:
+    """Area under the ROC curve of telling ``known`` scores (positives, higher) from ``unknown`` ones: the
+    probability that a random known score exceeds a random unknown one, ties counting one half (Mann-Whitney).
+
+    Raises:
+        DatasetError: an empty or non-finite set.
+    """
+    from scipy.stats import rankdata
+
+    known, unknown = np.asarray(known, dtype=np.float64).ravel(), np.asarray(unknown, dtype=np.float64).ravel()
+    if len(known) == 0 or len(unknown) == 0 or not (np.isfinite(known).all() and np.isfinite(unknown).all()):
+        raise DatasetError(f"auroc: need non-empty finite score sets, got {len(known)} known, {len(unknown)} unknown")
+    ranks = rankdata(np.concatenate([known, unknown]))
+    return float((ranks[: len(known)].sum() - len(known) * (len(known) + 1) / 2) / (len(known) * len(unknown)))
+
+
+def threshold_keeping(known, keep: float = 0.95) -> float:
+    """The largest threshold t among the ``known`` scores with at least a share ``keep`` of them >= t (a decision is
+    answered "unknown" when its score is below t).
+
+    Raises:
+        DatasetError: no or non-finite scores. InvalidArgumentError: keep outside (0, 1].
+    """
+    keep = _check_keep(keep)
+    known = np.sort(np.asarray(known, dtype=np.float64).ravel())
+    if len(known) == 0 or not np.isfinite(known).all():
+        raise DatasetError("threshold_keeping: need at least one finite known score")
+    allowed = int(np.floor((1.0 - keep) * len(known) + 1e-9))  # how many may fall below t
+    return float(known[min(allowed, len(known) - 1)])
+
+
+def rejected_share(scores, threshold: float) -> float:
+    """Share of ``scores`` below ``threshold`` (answered "unknown")."""
+    scores = np.asarray(scores, dtype=np.float64).ravel()
+    if len(scores) == 0:
+        raise DatasetError("rejected_share: no scores")
+    return float(np.mean(scores < threshold))
+
+
+def _check_keep(keep) -> float:
+    if isinstance(keep, bool) or not isinstance(keep, (int, float, np.floating)) or not 0 < keep <= 1:
+        raise InvalidArgumentError(f"keep must be a share in (0, 1], got {keep!r}")
+    return float(keep)
+
+
+def class_distances(embedding: np.ndarray, reference: np.ndarray, reference_labels: np.ndarray, n_classes: int,
+                    neighbors: int = 10) -> np.ndarray:
+    """(S, C) mean Euclidean distance of each embedded sequence to its ``neighbors`` nearest reference points of each
+    class (fewer where a class has fewer); +inf would never leave: a class without reference points gets the
+    largest finite distance seen (it never fits best).
+
+    Raises:
+        DatasetError: mismatched shapes or non-finite values.
+    """
+    from scipy.spatial import cKDTree
+
+    embedding, reference = np.asarray(embedding, dtype=np.float64), np.asarray(reference, dtype=np.float64)
+    labels = np.asarray(reference_labels)
+    if (embedding.ndim != 2 or reference.ndim != 2 or embedding.shape[1] != reference.shape[1]
+            or labels.shape != (len(reference),) or len(reference) == 0):
+        raise DatasetError(f"class_distances: embedding {embedding.shape} and reference {reference.shape} / labels "
+                           f"{labels.shape} do not match")
+    if not (np.isfinite(embedding).all() and np.isfinite(reference).all()):
+        raise DatasetError("class_distances: features contain NaN or Inf")
+    out = np.full((len(embedding), n_classes), np.nan)
+    for c in range(n_classes):
+        points = reference[labels == c]
+        if len(points) == 0:
+            continue
+        k = min(int(neighbors), len(points))
+        d, _ = cKDTree(points).query(embedding, k=k)
+        out[:, c] = np.asarray(d, dtype=np.float64).reshape(len(embedding), k).mean(axis=1)
+    missing = np.isnan(out)
+    if missing.all():
+        raise DatasetError("class_distances: no class has reference points")
+    out[missing] = np.nanmax(out) + 1.0
+    return out
+
+
+def calibrated_fusion(state: dict, raw, maps: bool = True) -> np.ndarray:
+    """(G, C) calibrated posteriors of (G, K, C) uncalibrated per-touch probabilities: each touch temperature-scaled
+    and smoothed, the K fused by the tempered log rule, the confidence mapped by the map fitted for K (the last one
+    for a larger K; ``maps=False`` leaves it out). ``state``: a model's ``calibration_``."""
+    raw = np.asarray(raw, dtype=np.float64)
+    q = apply_calibration(raw, state["temperature"], state.get("smoothing", 0.0))
+    return _fuse(q, state, maps)
+
+
+def _fuse(q: np.ndarray, state: dict, maps: bool = True) -> np.ndarray:
+    fused = fuse_tempered(q, state["dependence"])
+    if maps and "map_knots" in state:
+        i = min(q.shape[-2], len(state["map_knots"])) - 1
+        fused = apply_confidence_map(fused, state["map_knots"][i], state["map_values"][i])
+    return fused
+
+
+def group_scores(proba, groups, state: dict, distances=None) -> dict[str, np.ndarray]:
+    """{score name: (G,)} of the (G, K) index ``groups`` into per-touch ``proba`` (S, C), temperature-scaled and
+    smoothed, fused as ``state`` (a ``calibration_``) says, and, when given, per-touch class ``distances`` (S, C)
+    (see the module docstring); also ``"decision"``: (G,) the fused class index and ``"fused"``: (G, C) the fused
+    posterior."""
+    proba = np.asarray(proba, dtype=np.float64)
+    groups = np.asarray(groups, dtype=np.int64)
+    if groups.ndim != 2 or groups.shape[1] < 1:
+        raise DatasetError(f"group_scores: expected (G, K) index groups, got shape {groups.shape}")
+    fused = _fuse(proba[groups], state)
+    decision = fused.argmax(axis=1)
+    out = {"probability": fused.max(axis=1), "decision": decision, "fused": fused}
+    if distances is not None:
+        logd = np.log(np.maximum(np.asarray(distances, dtype=np.float64), DISTANCE_FLOOR))
+        out["distance"] = -logd.min(axis=1)[groups].mean(axis=1)
+        out["class_distance"] = -logd[groups, decision[:, None]].mean(axis=1)
+    return out
+
+
+# -------------------------------------------------------------------------------------------- features
+def embedding(model, batch, features: np.ndarray | None = None) -> np.ndarray | None:
+    """(S, D) the model's feature space for ``batch`` (``features``: its precomputed
+    :func:`fusion.features.sequence_features`, conventional classifiers only), or None when it has none."""
+    if hasattr(model, "pipeline_"):
+        from fusion.features import sequence_features
+
+        f = sequence_features(batch, model.cue) if features is None else features
+        return np.asarray(model.pipeline_[1:-1].transform(f), dtype=np.float64)
+    if callable(getattr(model, "embed", None)):
+        return np.asarray(model.embed(batch), dtype=np.float64)
+    return None
+
+
+def object_keys(batch) -> np.ndarray:
+    """(S,) the object each sequence touched, a capture counted with its CAD twin (the name before ``"@"``)."""
+    names = np.array([str(n).split("@", 1)[0] for n in batch.object_names], dtype=object)
+    return names[np.asarray(batch.object_ids)]
+
+
+class _Inner:
+    """Fits models on parts of one batch and predicts other parts, in the full class list's columns.
+
+    Conventional classifiers take a fast path that computes the contourlet features once for the batch (what
+    ``fit`` does, on the cached features, as :func:`fusion.conventional.cross_validate` does)."""
+
+    def __init__(self, model, batch, y: np.ndarray, classes: np.ndarray, neighbors: int):
+        self.model, self.batch, self.y, self.classes, self.neighbors = model, batch, y, classes, neighbors
+        self.n_classes = len(classes)
+        self.features = None
+        if hasattr(model, "make_pipeline") and hasattr(model, "cue"):
+            from fusion.features import sequence_features
+
+            self.features = sequence_features(batch, model.cue)
+
+    def run(self, train: np.ndarray, test: np.ndarray, want_distances: bool):
+        """(proba (T, C) with zeros for classes absent from ``train``, present (C,) bool, distances (T, C) or None)."""
+        present = np.zeros(self.n_classes, dtype=bool)
+        present[np.unique(self.y[train])] = True
+        local = np.cumsum(present) - 1  # global class -> column of the inner model
+        if self.features is not None:
+            tail = self.model.make_pipeline(local[self.y[train]])[1:]
+            tail.fit(self.features[train], local[self.y[train]])
+            part = tail.predict_proba(self.features[test])
+            emb_test = emb_train = None
+            if want_distances:
+                emb_train = tail[:-1].transform(self.features[train])
+                emb_test = tail[:-1].transform(self.features[test])
+        else:
+            names = np.asarray(self.classes, dtype=object)[self.y]
+            inner = clone(self.model).fit(self.batch.subset(train), y=names[train])
+            part = inner.predict_proba(self.batch.subset(test))
+            emb_train = embedding(inner, self.batch.subset(train)) if want_distances else None
+            emb_test = embedding(inner, self.batch.subset(test)) if emb_train is not None else None
+        proba = np.zeros((len(test), self.n_classes))
+        proba[:, present] = part
+        distances = None
+        if emb_train is not None:
+            distances = np.full((len(test), self.n_classes), np.inf)
+            distances[:, present] = class_distances(emb_test, emb_train, local[self.y[train]], int(present.sum()),
+                                                    self.neighbors)
+        return proba, present, distances
+
+
+def _object_folds(keys: np.ndarray, y: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """(S,) fold 0..k-1 of every sequence: each class's objects shuffled and dealt to the folds in turn."""
+    fold_of: dict = {}
+    turn = 0
+    for c in np.unique(y):
+        objects = sorted(set(keys[y == c].tolist()))
+        for obj in rng.permutation(len(objects)):
+            fold_of[objects[obj]] = turn % k
+            turn += 1
+    return np.array([fold_of[o] for o in keys], dtype=np.int64)
+
+
+def _groups(keys: np.ndarray, index: np.ndarray, k: int, seed: int, repeats: int = 2) -> np.ndarray:
+    """(G, k) groups of ``k`` sequences of one object among ``index`` (empty when none has k)."""
+    from fusion.decide import touch_groups
+
+    _, ids = np.unique(keys[index], return_inverse=True)
+    counts = np.bincount(ids)
+    if counts.max(initial=0) < k:
+        return np.empty((0, k), dtype=np.int64)
+    return index[touch_groups(ids, k, seed=seed, repeats=repeats)]
+
+
+def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, max_touches: int = 8, keep: float = 0.95,
+              score: str = "auto", neighbors: int = 10, open_set: bool = True, refit: bool = True,
+              random_state: int = 0):
+    """Fit calibration and the reject option of ``model`` on its training data ``X`` (module docstring); returns
+    the model, fitted on all of ``X`` (unless ``refit=False`` and it was fitted already), with ``calibration_``.
+
+    Args:
+        cv: calibration folds grouped by object (>= 2; each class needs that many objects).
+        class_folds: leave-classes-out folds of the open-set threshold (>= 2, at most the number of classes; each
+            training part keeps at least two classes).
+        max_touches: thresholds are fitted for K = 1..max_touches (a larger K uses the last).
+        keep: share of held-out known objects a threshold keeps (0.95).
+        score: "probability", "distance", "class_distance", or "auto" (the best mean AUROC over K in the
+            leave-classes-out folds; distance scores need a feature space, see :func:`embedding`).
+        open_set: False skips the leave-classes-out folds (no reject option).
+
+    Raises:
+        DatasetError: bad data, a class with fewer objects than ``cv``, too few classes for ``class_folds``.
+        InvalidArgumentError: bad settings, or a distance score for a model without a feature space.
+    """
+    from fusion.base import as_batch
+
+    for name, value, low in (("cv", cv, 2), ("class_folds", class_folds, 2), ("max_touches", max_touches, 1),
+                             ("neighbors", neighbors, 1)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise InvalidArgumentError(f"calibrate: {name} must be an integer >= {low}, got {value!r}")
+    if max_touches > MAX_TOUCHES:
+        raise InvalidArgumentError(f"calibrate: max_touches {max_touches} is above {MAX_TOUCHES}")
+    keep = _check_keep(keep)
+    if score != "auto" and score not in SCORES:
+        raise InvalidArgumentError(f"calibrate: unknown score {score!r}; choose auto or one of {', '.join(SCORES)}")
+    batch = as_batch(X)
+    names = model._label_names(batch, y).astype(str)
+    classes = np.array(sorted(set(names.tolist())), dtype=object)
+    if len(classes) < 2:
+        raise DatasetError("calibrate: the training data has one class; need at least two")
+    yi = np.searchsorted(classes.astype(str), names)
+    keys = object_keys(batch)
+    per_class = {c: len(set(keys[yi == i].tolist())) for i, c in enumerate(classes)}
+    short = {c: n for c, n in per_class.items() if n < cv}
+    if short:
+        raise DatasetError(f"calibrate: classes with fewer objects than the {cv} calibration folds: {short}; "
+                           "lower cv or add objects")
+    if open_set and (class_folds > len(classes) or len(classes) - -(-len(classes) // class_folds) < 2):
+        raise DatasetError(f"calibrate: {len(classes)} classes cannot be split into {class_folds} leave-classes-out "
+                           "folds that each keep two classes in training (fewer class_folds, or open_set=False)")
+    # the model first: a classifier that tunes itself while fitting (e.g. the conventional pipeline search) gives
+    # the inner folds its choice through make_pipeline
+    if refit or not hasattr(model, "classes_"):
+        model.fit(batch, y=names)
+    model.__dict__.pop("calibration_", None)
+    rng = np.random.default_rng(random_state)
+    inner = _Inner(model, batch, yi, classes, neighbors)
+    folds = _object_folds(keys, yi, cv, rng)
+    has_space = inner.features is not None or callable(getattr(model, "embed", None))
+    if score in ("distance", "class_distance") and not has_space:
+        raise InvalidArgumentError(f"calibrate: score {score!r} needs a feature space; {type(model).__name__} has "
+                                   "none (use score='probability')")
+
+    # 1. calibration folds: temperature, then the dependence of touches of one object.
+    held = np.zeros((len(yi), len(classes)))
+    usable = np.zeros(len(yi), dtype=bool)
+    for f in range(cv):
+        train, test = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
+        log.info("calibrate: calibration fold %d of %d", f + 1, cv)
+        proba, present, _ = inner.run(train, test, want_distances=False)
+        held[test] = proba
+        usable[test] = present[yi[test]]
+    idx = np.flatnonzero(usable)
+    temperature, smoothing = fit_calibration(log_proba(held[idx]), yi[idx])
+    calibrated = apply_calibration(held, temperature, smoothing)
+    groups_k = {k: _groups(keys, idx, k, random_state) for k in range(1, max_touches + 1)}
+    sets = [calibrated[g] for k, g in groups_k.items() if k >= 2 and len(g)]
+    labels = [yi[g[:, 0]] for k, g in groups_k.items() if k >= 2 and len(g)]
+    dependence = fit_dependence(sets, labels) if sets else 0.0
+    state: dict = {"temperature": float(temperature), "smoothing": float(smoothing), "dependence": float(dependence),
+                   "keep": keep, "neighbors": int(neighbors), "max_touches": int(max_touches)}
+    knots, values = [], []
+    for k in range(1, max_touches + 1):  # a K without groups (objects with fewer touches) reuses the last map
+        g = groups_k[k]
+        if len(g):
+            kn, v = fit_confidence_map(fuse_tempered(calibrated[g], dependence), yi[g[:, 0]])
+        knots.append(kn)
+        values.append(v)
+    state |= {"map_knots": knots, "map_values": values}
+
+    # 2. leave classes out: thresholds per K and the choice of score.
+    if open_set:
+        order = rng.permutation(len(classes))
+        left_out = [np.sort(order[j::class_folds]) for j in range(class_folds)]
+        known_scores: dict = {}
+        unknown_scores: dict = {}
+        for j, out in enumerate(left_out):
+            unknown = np.isin(yi, out)
+            held_known = ~unknown & (folds == j % cv)
+            train = np.flatnonzero(~unknown & ~held_known)
+            test = np.flatnonzero(unknown | held_known)
+            log.info("calibrate: leave-classes-out fold %d of %d (%s out)", j + 1, class_folds,
+                     ", ".join(classes[out]))
+            proba, present, dist = inner.run(train, test, want_distances=has_space)
+            cal = np.zeros_like(proba)
+            cal[:, present] = apply_calibration(proba[:, present], temperature, smoothing)
+            if dist is not None:
+                dist = dist[:, present]
+            position = np.empty(len(yi), dtype=np.int64)
+            position[test] = np.arange(len(test))
+            for k in range(1, max_touches + 1):
+                for which, store in ((held_known, known_scores), (unknown, unknown_scores)):
+                    g = _groups(keys, np.flatnonzero(which), k, random_state + j)
+                    if not len(g):
+                        continue
+                    s = group_scores(cal[:, present], position[g], state, dist)
+                    for name in SCORES:
+                        if name in s:
+                            store.setdefault((name, k), []).append(s[name])
+        available = [n for n in SCORES if (n, 1) in known_scores]
+        aurocs = {n: [auroc(np.concatenate(known_scores[(n, k)]), np.concatenate(unknown_scores[(n, k)]))
+                      if (n, k) in known_scores and (n, k) in unknown_scores else float("nan")
+                      for k in range(1, max_touches + 1)] for n in available}
+        chosen = score if score != "auto" else max(available, key=lambda n: np.nanmean(aurocs[n]))
+        thresholds = []
+        for k in range(1, max_touches + 1):
+            known = known_scores.get((chosen, k))
+            thresholds.append(threshold_keeping(np.concatenate(known), keep) if known else thresholds[-1])
+        state |= {"score": chosen, "thresholds": np.asarray(thresholds, dtype=np.float64),
+                  "inner_auroc": {n: [round(float(a), 6) if np.isfinite(a) else None for a in v]
+                                  for n, v in aurocs.items()}}
+
+    # 3. the reference features of the model fitted on all the data.
+    if open_set and state["score"] != "probability":
+        ref = embedding(model, batch, inner.features)
+        state |= {"reference": ref, "reference_labels": np.searchsorted(model.classes_.astype(str), names)}
+    model.calibration_ = state
+    return model
+
+
+# ------------------------------------------------------------------------------------------ using it
+def per_touch(model, batch) -> tuple[np.ndarray, np.ndarray | None]:
+    """(per-touch (S, C) probabilities temperature-scaled and smoothed (not yet confidence-mapped: see
+    :func:`group_scores`), class distances (S, C) or None) of a calibrated ``model``."""
+    cal = _state(model)
+    proba = apply_calibration(model.predict_proba_uncalibrated(batch), cal["temperature"], cal.get("smoothing", 0.0))
+    distances = None
+    if "reference" in cal:
+        emb = embedding(model, batch)
+        distances = class_distances(emb, cal["reference"], cal["reference_labels"], len(model.classes_),
+                                    cal["neighbors"])
+    return proba, distances
+
+
+def threshold_for(model, k: int) -> float:
+    """The reject threshold of a calibrated ``model`` for decisions on ``k`` touches."""
+    cal = _state(model)
+    if "thresholds" not in cal:
+        raise InvalidArgumentError(f"{type(model).__name__} was calibrated without the open-set folds "
+                                   "(open_set=False): it has no reject threshold")
+    t = cal["thresholds"]
+    return float(t[min(int(k), len(t)) - 1])
+
+
+def decide(model, X, groups=None) -> dict[str, np.ndarray]:
+    """Open-set decisions of a calibrated ``model`` on sequences ``X`` in (G, K) index ``groups`` (default: each
+    sequence alone).
+
+    Returns:
+        {"label": (G,) class or :data:`UNKNOWN`, "closest": (G,) the best known class, "probability": (G,) its
+        calibrated fused probability, "score": (G,) the known score, "threshold": the threshold used, "fused":
+        (G, C) posteriors}.
+
+    Raises:
+        NotFittedError: not calibrated. InvalidArgumentError: calibrated without the open-set folds.
+    """
+    from fusion.base import as_batch
+
+    batch = as_batch(X)
+    groups = np.arange(len(batch))[:, None] if groups is None else np.asarray(groups, dtype=np.int64)
+    if groups.ndim != 2 or groups.size == 0 or groups.min() < 0 or groups.max() >= len(batch):
+        raise InvalidArgumentError(f"decide: groups must be a (G, K) index array into {len(batch)} sequences")
+    cal = _state(model)
+    threshold = threshold_for(model, groups.shape[1])
+    proba, distances = per_touch(model, batch)
+    s = group_scores(proba, groups, cal, distances)
+    closest = np.asarray(model.classes_, dtype=object)[s["decision"]]
+    unknown = s[cal["score"]] < threshold
+    return {"label": np.where(unknown, UNKNOWN, closest).astype(object), "closest": closest,
+            "probability": s["probability"], "score": s[cal["score"]], "threshold": threshold, "fused": s["fused"]}
+
+
+def _state(model) -> dict:
+    from perception.errors import NotFittedError
+
+    cal = getattr(model, "calibration_", None)
+    if not isinstance(cal, dict):
+        raise NotFittedError(f"{type(model).__name__} is not calibrated; call fusion.openset.calibrate(model, X) "
+                             "on its training data")
+    return cal
+
+
+def check_calibration(state, n_classes: int, where: str) -> dict:
+    """``state`` (a model file's ``calibration_``) checked: finite temperature > 0, rho in [0, 1], keep in (0, 1],
+    a known score, finite thresholds, reference features consistent with the classes.
+
+    Raises:
+        ModelFileError: anything else, naming ``where``.
+    """
+    def bad(what: str):
+        return ModelFileError(f"{where}: the model's calibration has {what}")
+
+    if not isinstance(state, dict):
+        raise bad("no mapping")
+    allowed = {"temperature", "smoothing", "dependence", "keep", "neighbors", "max_touches", "score", "thresholds",
+               "inner_auroc", "reference", "reference_labels", "map_knots", "map_values"}
+    if set(state) - allowed:
+        raise bad(f"unknown entries {sorted(set(state) - allowed)[:5]}")
+    try:
+        check_temperature(state.get("temperature"))
+        check_dependence(state.get("dependence"))
+        check_smoothing(state.get("smoothing", 0.0))
+        _check_keep(state.get("keep"))
+    except InvalidArgumentError as exc:
+        raise bad(f"a bad value ({exc})") from None
+    for name, top in (("neighbors", 10_000), ("max_touches", MAX_TOUCHES)):
+        v = state.get(name)
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= top:
+            raise bad(f"{name} {str(v)[:20]} outside 1..{top}")
+    if "map_knots" in state or "map_values" in state:
+        knots, values = state.get("map_knots"), state.get("map_values")
+        n = state["max_touches"]
+        if not (isinstance(knots, list) and isinstance(values, list) and len(knots) == len(values) == n
+                and all(isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype == np.float64
+                        and a.ndim == 1 and a.shape == b.shape and 1 <= len(a) <= 1_000_000
+                        and np.isfinite(a).all() and np.isfinite(b).all() and (np.diff(a) >= 0).all()
+                        and ((b >= 0) & (b <= 1)).all() for a, b in zip(knots, values))):
+            raise bad(f"no {n} valid confidence maps (sorted finite knots, values in [0, 1])")
+    if "thresholds" in state or "score" in state:
+        t = state.get("thresholds")
+        if state.get("score") not in SCORES:
+            raise bad(f"an unknown score {str(state.get('score'))[:20]!r}")
+        if (not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.shape != (state["max_touches"],)
+                or not np.isfinite(t).all()):
+            raise bad(f"no {state['max_touches']} finite thresholds")
+        needs_reference = state["score"] != "probability"
+        ref, labels = state.get("reference"), state.get("reference_labels")
+        if needs_reference or ref is not None:
+            if not (isinstance(ref, np.ndarray) and ref.dtype == np.float64 and ref.ndim == 2
+                    and 1 <= len(ref) <= MAX_REFERENCE and 1 <= ref.shape[1] <= 4096 and np.isfinite(ref).all()
+                    and isinstance(labels, np.ndarray) and labels.dtype.kind == "i" and labels.shape == (len(ref),)
+                    and labels.min() >= 0 and labels.max() < n_classes):
+                raise bad("inconsistent reference features or labels")
+    return state
+
+
+__all__ = ["DISTANCE_FLOOR", "SCORES", "UNKNOWN", "auroc", "calibrate", "calibrated_fusion", "check_calibration", "class_distances",
+           "decide", "embedding", "group_scores", "object_keys", "per_touch", "rejected_share", "threshold_for",
+           "threshold_keeping"]

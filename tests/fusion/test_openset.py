@@ -1,0 +1,194 @@
+"""Open set: AUROC against scikit-learn, thresholds that keep the asked share, and on a separable toy problem the
+calibrated reject rule keeps the known clusters and answers "unknown" for a far-away one; the calibration state
+round-trips through the model file and a damaged one is refused."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from sklearn.metrics import roc_auc_score
+
+from fusion.base import TactileClassifier, load_model
+from fusion.openset import (
+    UNKNOWN,
+    auroc,
+    calibrate,
+    class_distances,
+    decide,
+    group_scores,
+    object_keys,
+    rejected_share,
+    threshold_keeping,
+)
+from perception.errors import DatasetError, InvalidArgumentError, ModelFileError, NotFittedError
+from tests.fusion._synthetic import circle_batch
+
+
+class MeanClassifier(TactileClassifier):
+    """A stand-in with a feature space: the mean taxel value of a sequence, Gaussian class-conditional posteriors."""
+
+    def __init__(self, width: float = 1.0):
+        self.width = width
+
+    def _x(self, batch) -> np.ndarray:
+        return batch.frames.astype(np.float64).mean(axis=(1, 2, 3))
+
+    def _fit(self, batch, y_index):
+        x = self._x(batch)
+        self.means_ = np.array([x[y_index == c].mean() for c in range(len(self.classes_))])
+        self.scale_ = float(self.width * max(np.std(x - self.means_[y_index]), 1e-3))
+
+    def _predict_proba(self, batch):
+        z = -0.5 * ((self._x(batch)[:, None] - self.means_[None]) / self.scale_) ** 2
+        p = np.exp(z - z.max(axis=1, keepdims=True))
+        return p / p.sum(axis=1, keepdims=True)
+
+    def embed(self, batch):
+        return self._x(batch)[:, None] / self.scale_
+
+
+def toy_batch(centres, objects_per_class=4, per_object=6, seed=0, class_names=None):
+    """Sequences whose frames hold a value near their class's centre (object offset + sequence noise)."""
+    rng = np.random.default_rng(seed)
+    values, labels, objects = [], [], []
+    for c, centre in enumerate(centres):
+        for j in range(objects_per_class):
+            offset = rng.normal(0, 0.5)
+            for _ in range(per_object):
+                values.append(centre + offset + rng.normal(0, 1.0))
+                labels.append(c)
+                objects.append(len(objects) // per_object)
+    batch = circle_batch(np.full(len(values), 30.0), probes=4, grid=(2, 2), seed=seed, labels=labels)
+    frames = np.broadcast_to(np.asarray(values, np.float32)[:, None, None, None], batch.frames.shape).copy()
+    n_objects = objects[-1] + 1
+    return dataclasses.replace(
+        batch, frames=frames, object_ids=np.asarray(objects), object_names=tuple(f"o{seed}-{k}" for k in range(n_objects)),
+        class_names=tuple(class_names or (f"c{k}" for k in range(len(centres)))))
+
+
+KNOWN = [10.0, 20.0, 30.0, 40.0]
+
+
+@pytest.fixture(scope="module")
+def calibrated():
+    return calibrate(MeanClassifier(), toy_batch(KNOWN, seed=1), class_folds=2, max_touches=4)
+
+
+class TestScores:
+    def test_auroc_matches_scikit_learn_with_ties(self):
+        rng = np.random.default_rng(0)
+        known, unknown = rng.integers(0, 6, 300).astype(float), rng.integers(-2, 4, 200).astype(float)
+        expected = roc_auc_score(np.r_[np.ones(300), np.zeros(200)], np.r_[known, unknown])
+        assert auroc(known, unknown) == pytest.approx(expected, abs=1e-12)
+        assert auroc([1.0, 2.0], [0.0]) == 1.0 and auroc([0.0], [1.0]) == 0.0
+
+    def test_threshold_keeps_the_asked_share_and_no_more_than_needed(self):
+        scores = np.random.default_rng(2).normal(size=1000)
+        t = threshold_keeping(scores, 0.95)
+        assert np.mean(scores >= t) >= 0.95
+        assert np.mean(scores >= np.min(scores[scores > t])) < 0.95  # the next larger threshold keeps too few
+        assert rejected_share(scores, t) == pytest.approx(1 - np.mean(scores >= t))
+        assert threshold_keeping(scores, 1.0) == scores.min()
+
+    def test_refuses_bad_input(self):
+        with pytest.raises(DatasetError):
+            auroc([], [1.0])
+        with pytest.raises(InvalidArgumentError, match="keep"):
+            threshold_keeping([1.0], 0.0)
+
+    def test_class_distances_hand_computed(self):
+        reference = np.array([[0.0], [1.0], [10.0], [12.0]])
+        d = class_distances(np.array([[0.0]]), reference, np.array([0, 0, 1, 1]), 2, neighbors=2)
+        assert np.allclose(d, [[0.5, 11.0]])
+
+    def test_group_scores_of_a_group_that_fits_its_decision(self):
+        proba = np.array([[0.9, 0.1], [0.8, 0.2]])
+        distances = np.array([[1.0, 5.0], [np.e, 5.0]])
+        s = group_scores(proba, np.array([[0, 1]]), {"dependence": 0.0}, distances)
+        assert s["decision"][0] == 0 and s["class_distance"][0] == pytest.approx(-0.5)
+        assert s["probability"][0] == pytest.approx(0.72 / (0.72 + 0.02))
+
+    def test_captures_count_with_their_cad_twin(self):
+        batch = dataclasses.replace(toy_batch([0.0, 5.0], objects_per_class=1, per_object=1),
+                                    object_names=("a/1", "a/1@capture"))
+        assert list(object_keys(batch)) == ["a/1", "a/1"]
+
+
+class TestCalibrate:
+    def test_known_clusters_kept_far_cluster_rejected(self, calibrated):
+        cal = calibrated.calibration_
+        assert cal["score"] in ("distance", "class_distance")  # chosen by leaving classes out
+        known = toy_batch(KNOWN, seed=7)
+        far = toy_batch([200.0], objects_per_class=3, seed=8, class_names=["c0"])
+        assert np.mean(calibrated.predict(known, reject=True) != UNKNOWN) >= 0.9
+        assert np.mean(calibrated.predict(known) == np.asarray(known.class_names)[known.labels]) > 0.9
+        assert (calibrated.predict(far, reject=True) == UNKNOWN).all()
+        groups = np.arange(len(far)).reshape(-1, 3)
+        result = decide(calibrated, far, groups)
+        assert (result["label"] == UNKNOWN).all() and (result["closest"] == "c3").all()
+        # the posterior alone cannot tell: the far cluster is "c3" with certainty
+        assert (result["probability"] > 0.99).all()
+
+    def test_calibrated_probabilities_and_tempered_rule(self, calibrated):
+        batch = toy_batch(KNOWN, seed=9)
+        cal = calibrated.calibration_
+        assert 0.02 <= cal["temperature"] <= 200 and 0.0 <= cal["dependence"] <= 1.0
+        fused = calibrated.predict_proba_touches(batch, np.arange(len(batch)).reshape(-1, 6))
+        assert np.allclose(fused.sum(axis=1), 1.0) and np.isfinite(fused).all()
+        assert np.allclose(fused, calibrated.predict_proba_touches(batch, np.arange(len(batch)).reshape(-1, 6),
+                                                                   rule="tempered"))
+
+    def test_refitting_drops_the_stale_calibration(self):
+        model = calibrate(MeanClassifier(), toy_batch(KNOWN, seed=1), open_set=False)
+        assert "thresholds" not in model.calibration_
+        with pytest.raises(InvalidArgumentError, match="open_set"):
+            model.predict(toy_batch(KNOWN, seed=2), reject=True)
+        model.fit(toy_batch(KNOWN, seed=1))
+        with pytest.raises(NotFittedError, match="not calibrated"):
+            model.predict(toy_batch(KNOWN, seed=2), reject=True)
+
+    def test_same_seed_same_state(self, calibrated):
+        again = calibrate(MeanClassifier(), toy_batch(KNOWN, seed=1), class_folds=2, max_touches=4)
+        assert again.calibration_["thresholds"].tobytes() == calibrated.calibration_["thresholds"].tobytes()
+        assert again.calibration_["temperature"] == calibrated.calibration_["temperature"]
+
+    def test_refuses_too_few_objects_for_the_folds(self):
+        with pytest.raises(DatasetError, match="fewer objects"):
+            calibrate(MeanClassifier(), toy_batch(KNOWN, objects_per_class=2), cv=3)
+        with pytest.raises(DatasetError, match="leave-classes-out"):
+            calibrate(MeanClassifier(), toy_batch(KNOWN[:3]), class_folds=2)  # one class would train
+
+
+class TestModelFile:
+    def test_round_trip(self, calibrated, tmp_path):
+        path = calibrated.save(tmp_path / "m.vtm")
+        loaded = load_model(path)
+        batch = toy_batch(KNOWN + [200.0], seed=11)
+        assert np.array_equal(loaded.predict_proba(batch), calibrated.predict_proba(batch))
+        assert np.array_equal(loaded.predict(batch, reject=True), calibrated.predict(batch, reject=True))
+
+    @pytest.mark.parametrize("change", [{"temperature": -1.0}, {"dependence": 2.0}, {"score": "magic"},
+                                        {"thresholds": np.array([np.nan, 0.0, 0.0, 0.0])}, {"extra": 1}])
+    def test_damaged_calibration_refused(self, calibrated, tmp_path, change):
+        saved = dict(calibrated.calibration_)
+        try:
+            calibrated.calibration_ = {**saved, **change}
+            path = calibrated.save(tmp_path / "bad.vtm")
+        finally:
+            calibrated.calibration_ = saved
+        with pytest.raises(ModelFileError, match="calibration"):
+            load_model(path)
+
+
+class TestRecognize:
+    def test_an_object_unlike_any_known_is_answered_unknown(self, calibrated):
+        from fusion.experiments.recognize import recognize
+        from perception.shapes import make_object
+
+        # the stand-in knows mean readings of 10 to 40 mm; a real box pressed by the 2 x 2 pad reads near 0
+        result = recognize(calibrated, make_object("box", 0), touches=2, strategy="blind")
+        assert result.label == UNKNOWN and result.unknown and result.closest == "c0"
+        assert result.summary() == f"unknown; closest: c0, {result.probabilities['c0']:.2f}"
+        assert result.to_dict()["unknown"] is True and result.rule == "tempered"
