@@ -28,6 +28,17 @@ def _fill_row_gaps(depth: np.ndarray, max_gap: int, keep: int = 2) -> np.ndarray
     return out
 
 
+def _in_footprint(flat: np.ndarray, outline: np.ndarray, grow: float) -> np.ndarray:
+    """(N,) True where the 2-D points ``flat`` lie within ``grow`` of the convex hull of ``outline`` (mm)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        equations = ConvexHull(outline).equations  # a . p + b <= 0 inside, a unit
+    except (QhullError, ValueError):  # a degenerate outline (a line of points): no limit
+        return np.ones(len(flat), dtype=bool)
+    return np.all(flat @ equations[:, :2].T + equations[:, 2] <= grow, axis=1)
+
+
 @dataclass
 class Carving:
     """The space RGB-D frames leave for an object on a table (:func:`carve`): voxels no ray showed empty.
@@ -107,6 +118,7 @@ def carve(
     table_mm: float = 2.0,
     margin_mm: float | None = None,
     max_gap_px: int = 48,
+    footprint: bool = True,
 ) -> Carving:
     """Space carving around an object's ``points`` (world mm) standing on the table ``plane``.
 
@@ -117,6 +129,14 @@ def carve(
     farther of their ends (:func:`_fill_row_gaps`). What stays is the object together with what the
     cameras could not see: where it rests on the table, the inside of a mug below the sight lines, the
     back of a one-view capture; solid pieces that hold no observed point (specks no ray reached) go.
+
+    ``footprint``: the solid is also kept within the object's footprint, the convex hull of its points seen
+    from above the table grown by one voxel (a prism from the table up): an object stands on the table
+    within the outline of what the cameras saw of it. One view leaves the whole shadow behind the object
+    uncarved, down to the table and as far back as the grid reaches, and the raw depth's flying pixels at
+    the object's silhouette (left out of ``points``, :func:`~perception.reconstruct.tabletop.flying_pixels`)
+    still stop their rays short of the table: without the prism the closed surface swells into both
+    (measured on the GraspNet frame, single view: the soup can 153 mm across against 122 mm true).
     """
     from scipy import ndimage
 
@@ -151,6 +171,8 @@ def carve(
         hit = (cam[ok] * (depth[ok] / z[ok])[:, None]) @ rot.T + eye  # the point this pixel saw
         on_table = measured[ok] & (hit @ normal + plane[3] <= table_mm)
         free[np.nonzero(ok)[0]] |= on_table | (z[ok] < depth[ok] - 0.5 * s)
+    if footprint:
+        free |= ~_in_footprint(centres[:, :2], local[:, :2], s)
     solid = ~free.reshape(shape)
     pieces, _ = ndimage.label(solid)
     cells = np.clip(np.floor((local - lo) / s).astype(int), 0, np.array(shape) - 1)

@@ -119,6 +119,7 @@ def reconstruct_frames(
     cluster_eps_mm: float = 8.0,
     method: str = "euclidean",
     close: bool = True,
+    drop_flying: bool = False,
     seed: int = 0,
     **surface_kwargs,
 ) -> Reconstruction:
@@ -142,6 +143,8 @@ def reconstruct_frames(
     ``density_trim=1.0`` then to cut away Poisson's extrapolation (an open surface, as before).
     ``method`` is the segmentation of :func:`~perception.reconstruct.tabletop.segment_table` (``"smooth"`` for cluttered real scenes).
     With a ``target``, only points within ``roi_mm`` of it are segmented (speed; ``None``: all).
+    ``drop_flying``: leave out the flying pixels at depth edges
+    (:func:`~perception.reconstruct.tabletop.flying_pixels`; for real depth cameras).
 
     Raises:
         InvalidMeshError: no depth, no table, no object, or no surface.
@@ -155,7 +158,7 @@ def reconstruct_frames(
     scenes, picked = [], []
     index, warnings = 0, []
     for i, frame in enumerate(frames):
-        pts, cols, views = frames_to_points([frame], max_depth_mm=max_depth_mm)
+        pts, cols, views = frames_to_points([frame], max_depth_mm=max_depth_mm, drop_flying=drop_flying)
         if target is not None and roi_mm is not None:  # only the neighbourhood of the object matters
             near = np.linalg.norm(pts - target, axis=1) <= roi_mm
             if near.sum() >= 3 * MIN_POINTS:
