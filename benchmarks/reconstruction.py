@@ -172,7 +172,7 @@ def real_frame(figure: str | None, method: str = "convex") -> dict | None:
         return None
     (frame,) = read_recording(folder)
     start = time.perf_counter()
-    points, colors, views = frames_to_points([frame])
+    points, colors, views = frames_to_points([frame], drop_flying=True)  # as the camera path does
     scene = segment_table(points, colors, views, method=method)
     seconds = time.perf_counter() - start
     meta = loadmat(folder / "meta.mat")
