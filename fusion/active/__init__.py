@@ -19,10 +19,13 @@ from fusion.active.policies import (
     information_gain,
     make_policy,
     noisy_copy,
+    plan_scores,
     same_plane,
+    smoothed,
+    visual_belief,
     visual_key,
 )
 
 __all__ = ["POLICIES", "ActiveState", "Episode", "InformationPolicy", "Policy", "RandomPolicy", "SaliencyPolicy",
-           "information_gain", "make_policy", "noisy_copy", "run_episode", "same_plane", "stopped", "touch_seed",
-           "visual_key"]
+           "information_gain", "make_policy", "noisy_copy", "plan_scores", "run_episode", "same_plane", "smoothed",
+           "stopped", "touch_seed", "visual_belief", "visual_key"]

@@ -15,14 +15,17 @@ plane chosen on one is touched on the other. Policies (:data:`POLICIES`):
 
 - ``"random"``: blind, two random vertices of the visual model (the ``"blind"`` sampling strategy).
 - ``"saliency"``: the paper's, two of the visual model's multiview interest points (``"guided"``).
-- ``"information"``: expected information gain. ``candidates`` blind planes of the visual model are touched
-  *there* (simulated with :func:`tactile.touch`, ``variants`` times: once as planned and then with pose jitter
-  of ``jitter_mm``, since the finger lands only near the plan and the visual model is only near the truth) and
-  classified, once per visual model and cached. Each step then picks the untouched candidate whose simulated
-  outcomes q move the current posterior p most: the mean over variants of KL(p * q / Z || p) in nats, the
-  expected information gain of the touch when its outcome is drawn from the simulated ones (the log rule's
-  Bayesian update, :func:`information_gain`). With a uniform posterior this picks the contour the classifier
-  reads most confidently; later, the one that best separates the hypotheses still in doubt.
+- ``"information"``: planning on simulated touches. ``candidates`` blind planes of the visual model are touched
+  *there* (simulated with :func:`tactile.touch` on the visual model after Taubin smoothing, :func:`smoothed`: the
+  pad reads tenths of a millimetre and a raw noisy surface reads as noise; ``variants`` times, once as planned and
+  then with pose jitter of ``jitter_mm``) and classified, once per visual model and cached. What the robot
+  believes the object is (:func:`visual_belief`) is those simulated outcomes pooled (worth ``visual_weight``
+  touches) times the real touches so far (log rule). Each step picks the untouched candidate whose simulated
+  outcome, fused with the real touches, is expected to give the true class the most probability under that
+  belief (:func:`plan_scores`): first the contour that best confirms the camera's view; once real touches
+  disagree with it, the one that best lifts the classes still believed in. (The first version maximised the
+  expected KL move of the posterior, :func:`information_gain`, on the unsmoothed model: its first pick, the
+  contour read most confidently on a noisy surface, was 11 points worse than a random one.)
 """
 
 from __future__ import annotations
@@ -112,6 +115,54 @@ def information_gain(posterior, outcomes) -> np.ndarray:
     new /= new.sum(axis=-1, keepdims=True)
     log_new_norm = np.log(np.maximum(new, PROBA_FLOOR))
     return np.maximum(np.sum(new * (log_new_norm - log_p), axis=-1), 0.0)
+
+
+def _log(p) -> np.ndarray:
+    return np.log(np.maximum(np.asarray(p, dtype=np.float64), PROBA_FLOOR))
+
+
+def visual_belief(probabilities, outcomes, visual_weight: float = 1.0) -> np.ndarray:
+    """(C,) what the robot believes the object is: the touches so far (log rule) times the visual evidence, the
+    simulated outcomes of every candidate (M, V, C) pooled by their geometric mean and worth ``visual_weight``
+    touches (they are touches of one object, far from independent)."""
+    log_b = visual_weight * _log(outcomes).reshape(-1, np.shape(outcomes)[-1]).mean(axis=0)
+    if len(probabilities):
+        log_b = log_b + _log(probabilities).sum(axis=0)
+    log_b -= log_b.max()
+    b = np.exp(log_b)
+    return b / b.sum()
+
+
+def plan_scores(probabilities, outcomes, touched=None, *, visual_weight: float = 1.0) -> np.ndarray:
+    """(M,) the expected probability that the decision after touching each candidate gives the true class:
+    E_{c ~ b}[p'_m(c)] = b . p'_m, where b is :func:`visual_belief` (the camera's view and the touches so far)
+    and p'_m the log-rule posterior of the touches so far (``probabilities``, (K, C)) and candidate m's simulated
+    outcome (``outcomes`` (M, V, C), averaged over the V variants). With nothing touched it picks the contour whose
+    reading best confirms what the camera's view suggests; once real touches disagree with the view, the belief
+    moves and so does the choice (the contour that best lifts the classes still believed in). ``touched`` (M,)
+    bool: those score -inf.
+
+    Raises:
+        InvalidArgumentError: shapes that do not match, or negative / non-finite probabilities.
+    """
+    q = np.asarray(outcomes, dtype=np.float64)
+    if q.ndim != 3 or q.shape[0] < 1 or q.shape[-1] < 1:
+        raise InvalidArgumentError(f"plan_scores: outcomes must be (M, V, C), got {q.shape}")
+    probs = np.asarray(probabilities, dtype=np.float64)
+    if probs.size and (probs.ndim != 2 or probs.shape[1] != q.shape[-1]):
+        raise InvalidArgumentError(f"plan_scores: probabilities must be (K, {q.shape[-1]}), got {probs.shape}")
+    probs = probs.reshape(-1, q.shape[-1])
+    if not (np.isfinite(q).all() and np.isfinite(probs).all()) or (q < 0).any() or (probs < 0).any():
+        raise InvalidArgumentError("plan_scores: probabilities must be finite and non-negative")
+    belief = visual_belief(probs, q, visual_weight)
+    log_p = _log(probs).sum(axis=0) if len(probs) else np.zeros(q.shape[-1])
+    new = log_p + _log(q)
+    new = np.exp(new - new.max(axis=-1, keepdims=True))
+    new /= new.sum(axis=-1, keepdims=True)
+    scores = (new @ belief).mean(axis=1)
+    if touched is not None:
+        scores = np.where(np.asarray(touched, dtype=bool), -np.inf, scores)
+    return scores
 
 
 def visual_key(model: ObjectModel) -> str:
@@ -212,14 +263,20 @@ class InformationPolicy(Policy):
     name, strategy = "information", "blind"
 
     def __init__(self, seed: int = 0, *, candidates: int = 24, variants: int = 2, jitter_mm: float = 1.0,
-                 cache_size: int = 8) -> None:
+                 smooth_iterations: int = 10, visual_weight: float = 1.0, cache_size: int = 8) -> None:
         super().__init__(seed, cache_size=cache_size)
-        for label, value in (("candidates", candidates), ("variants", variants)):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise InvalidArgumentError(f"information policy: {label} must be an integer >= 1, got {value!r}")
+        for label, value, low in (("candidates", candidates, 1), ("variants", variants, 1),
+                                  ("smooth_iterations", smooth_iterations, 0)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+                raise InvalidArgumentError(f"information policy: {label} must be an integer >= {low}, got {value!r}")
         if isinstance(jitter_mm, bool) or not np.isfinite(jitter_mm) or jitter_mm < 0:
             raise InvalidArgumentError(f"information policy: jitter_mm must be a finite number >= 0, got {jitter_mm!r}")
         self.candidates, self.variants, self.jitter_mm = int(candidates), int(variants), float(jitter_mm)
+        self.smooth_iterations = int(smooth_iterations)
+        if isinstance(visual_weight, bool) or not np.isfinite(visual_weight) or visual_weight < 0:
+            raise InvalidArgumentError(f"information policy: visual_weight must be a finite number >= 0, "
+                                       f"got {visual_weight!r}")
+        self.visual_weight = float(visual_weight)
         #: Seconds spent simulating candidates (once per visual model), per model.
         self.simulation_seconds: list[float] = []
 
@@ -243,9 +300,10 @@ class InformationPolicy(Policy):
         if not planes:
             raise ContourError(f"{state.visual.name}: no candidate plane cuts the visual model")
         sensor, probes = state.sensor(), state.probes
+        surface = smoothed(state.visual, self.smooth_iterations)
         outcomes = []
         for v in range(self.variants):
-            sequences = touch(state.visual, "blind", len(planes), sensor, probes, seed=self.seed + v,
+            sequences = touch(surface, "blind", len(planes), sensor, probes, seed=self.seed + v,
                               planes=planes, jitter_mm=self.jitter_mm if v else 0.0)
             batch = SequenceBatch.from_sequences(sequences, class_names=state.classes, sensor_spec=sensor.spec())
             outcomes.append(np.asarray(state.classifier.predict_proba(batch), dtype=np.float64))
@@ -255,19 +313,37 @@ class InformationPolicy(Policy):
         return planes, outcomes
 
     def scores(self, state: ActiveState) -> np.ndarray:
-        """(M,) expected information gain (nats) of each candidate under the current posterior; touched
-        candidates score -inf."""
+        """(M,) each candidate's score under the current state (:func:`plan_scores`); touched candidates score
+        -inf."""
         planes, outcomes = self.simulated(state)
-        gain = information_gain(state.posterior, outcomes).mean(axis=1)
         touched = np.array([any(same_plane(c, p) for p in state.planes) for c in planes])
-        return np.where(touched, -np.inf, gain)
+        return plan_scores(state.probabilities, outcomes, touched, visual_weight=self.visual_weight)
 
     def _propose(self, state: ActiveState) -> Plane:
-        planes, _ = self.simulated(state)
+        planes, outcomes = self.simulated(state)
         scores = self.scores(state)
         if not np.isfinite(scores).any():  # every candidate touched: touch the best again
-            scores = information_gain(state.posterior, self.simulated(state)[1]).mean(axis=1)
+            scores = plan_scores(state.probabilities, outcomes, np.zeros(len(planes), dtype=bool),
+                                 visual_weight=self.visual_weight)
         return planes[int(np.argmax(scores))]
+
+
+def smoothed(model: ObjectModel, iterations: int) -> ObjectModel:
+    """``model`` after ``iterations`` steps of Taubin smoothing (no shrinking; same triangles and frame), 0: as is.
+
+    A camera's mesh is denoised before anything reads its surface: the FSR pad reads tenths of a millimetre, and
+    touches simulated on a raw noisy surface read the noise (on the 1 mm noisy copies of the experiments the
+    classifier's simulated answer agreed with the real touch's on 40 % of the contours; after 10 steps, on
+    most).
+    """
+    if iterations <= 0:
+        return model
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(model.vertices),
+                                     o3d.utility.Vector3iVector(model.triangles))
+    mesh = mesh.filter_smooth_taubin(number_of_iterations=int(iterations))
+    return ObjectModel(np.asarray(mesh.vertices), model.triangles, name=f"{model.name}@smoothed", label=None)
 
 
 def make_policy(name: str, seed: int = 0, **options) -> Policy:
@@ -300,4 +376,5 @@ def noisy_copy(model: ObjectModel, noise_mm: float = 1.0, seed: int = 0, *, name
 
 
 __all__ = ["POLICIES", "ActiveState", "InformationPolicy", "Policy", "RandomPolicy", "SaliencyPolicy",
-           "information_gain", "make_policy", "noisy_copy", "same_plane", "visual_key"]
+           "information_gain", "make_policy", "noisy_copy", "plan_scores", "same_plane", "smoothed",
+           "visual_belief", "visual_key"]

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from fusion.active import make_policy, noisy_copy, run_episode
+from fusion.active import ActiveState, make_policy, noisy_copy, run_episode
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
 from perception.errors import InvalidArgumentError
@@ -31,6 +31,8 @@ BOOTSTRAP = 1000
 TARGET = 0.9
 #: Posterior thresholds of the stopping-rule rows.
 THRESHOLDS = (0.9, 0.99)
+#: What the policies plan on (:func:`active_episodes`).
+VISUALS = ("noisy", "camera")
 
 
 def paired_over_objects(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict:
@@ -49,12 +51,55 @@ def paired_over_objects(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict:
     return {"difference": float(diff.mean()), "low": float(low), "high": float(high), "n_objects": len(diff)}
 
 
+#: Views of the virtual OAK-D orbit when the camera is in the loop (``visual="camera"``).
+CAMERA_VIEWS = 4
+
+
+def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
+    """(visual, true) for the camera in the loop: ``true`` (the object in its pose) set upright on a table and
+    captured by a virtual OAK-D from ``views`` orbit views (:func:`tactile.captures.virtual_capture`, stereo
+    noise seeded by ``seed``); the visual model is the reconstruction, the true model the mesh as placed, both
+    in the table's frame (mm, physical size). Cached under ``captures/`` of the report folder (a capture takes
+    20-50 s on 2 cores)."""
+    import os
+    import zlib
+
+    from perception.geometry import ObjectModel
+    from tactile.captures import virtual_capture
+
+    path = ctx.path("captures", f"{spec.name.replace('/', '_')}-{zlib.crc32(spec.name.encode()):08x}"
+                                f"-r{spec.rotation_seed}-s{seed}-v{views}.npz")
+    if path.is_file():
+        with np.load(path) as saved:
+            visual = ObjectModel(saved["visual_vertices"], saved["visual_triangles"], name=f"{true.name}@capture")
+            placed = ObjectModel(saved["true_vertices"], true.triangles, name=true.name, label=true.label)
+        if placed.n_vertices == true.n_vertices:
+            return visual, placed
+    capture = virtual_capture(true, views=views, seed=seed)
+    visual = ObjectModel(capture.world.vertices, capture.world.triangles, name=f"{true.name}@capture")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, visual_vertices=visual.vertices, visual_triangles=visual.triangles,
+             true_vertices=capture.truth.vertices)
+    os.replace(tmp, path)
+    return visual, capture.truth
+
+
 def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random", "saliency", "information"),
                     max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
-                    progress: bool = False) -> dict:
-    """Run every policy on every test object of the grouped folds; returns per-object records (JSON-able)."""
+                    visual: str = "noisy", progress: bool = False) -> dict:
+    """Run every policy on every test object of the grouped folds; returns per-object records (JSON-able).
+
+    ``visual``: what the policies plan on: ``"noisy"`` (the mesh in its pose with N(0, ``noise_mm``) mm along
+    the normals) or ``"camera"`` (a virtual OAK-D capture's reconstruction, :func:`camera_models`; the true
+    mesh is touched where it stands on the table).
+    """
+    from fusion.active.policies import InformationPolicy, visual_belief
     from fusion.experiments.data import any_pose
     from tactile.dataset import object_specs
+
+    if visual not in VISUALS:
+        raise InvalidArgumentError(f"active: visual must be one of {', '.join(VISUALS)}, got {visual!r}")
 
     sizes = ctx.sizes
     ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
@@ -72,11 +117,17 @@ def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random"
                        for name in policies}
         for n, name in enumerate(names):
             true = specs[name].load()
-            visual = noisy_copy(true, noise_mm, seed=ctx.seed + n + 1000 * i)
+            if visual == "camera":
+                seen, true = camera_models(ctx, specs[name], true, ctx.seed)
+            else:
+                seen = noisy_copy(true, noise_mm, seed=ctx.seed + n + 1000 * i)
             row = {"object": name, "label": true.label, "fold": i + 1, "policies": {}}
             for pname, policy in policy_objs.items():
                 start = time.perf_counter()
-                ep = run_episode(true, visual, model, policy, max_touches=max_touches, seed=ctx.seed)
+                ep = run_episode(true, seen, model, policy, max_touches=max_touches, seed=ctx.seed)
+                if isinstance(policy, InformationPolicy):  # what the camera's view alone would decide
+                    outcomes = policy.simulated(ActiveState(seen, model))[1]
+                    row["visual_decision"] = ep.classes[int(np.argmax(visual_belief([], outcomes)))]
                 row["policies"][pname] = {
                     "decisions": ep.decisions(), "posteriors": ep.posteriors.round(6).tolist(),
                     "planning_s": ep.planning_s.tolist(), "touching_s": ep.touching_s.tolist(),
@@ -86,7 +137,7 @@ def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random"
             log.info("active fold %d: %s (%s) %s", i + 1, name, true.label,
                      {p: r["decisions"][-1] for p, r in row["policies"].items()})
     return {"objects": rows, "classifier": classifier, "noise_mm": noise_mm, "candidates": candidates,
-            "variants": variants, "max_touches": max_touches}
+            "variants": variants, "max_touches": max_touches, "visual": visual}
 
 
 def _correct(rows, policy: str) -> np.ndarray:
@@ -101,7 +152,7 @@ def summarize(result: dict, seed: int = 0) -> dict:
     policies = list(rows[0]["policies"])
     ks = range(1, result["max_touches"] + 1)
     groups = np.arange(len(rows))
-    curve, differences, reach, stopping, timing = [], [], {}, [], []
+    curve, differences, reach, stopping, timing, accs_by_policy = [], [], {}, [], [], {}
     for p in policies:
         right = _correct(rows, p)
         accs = []
@@ -117,6 +168,7 @@ def summarize(result: dict, seed: int = 0) -> dict:
                                                                                seed)})
         hit = [k for k, a in zip(ks, accs) if a >= TARGET]
         reach[p] = hit[0] if hit else None
+        accs_by_policy[p] = accs
         for threshold in THRESHOLDS:
             used, good = [], []
             for r in rows:
@@ -137,23 +189,37 @@ def summarize(result: dict, seed: int = 0) -> dict:
                        "planning_mean_s": float(plan.mean()), "touching_s": float(np.median(touch_s)),
                        "classifying_s": float(np.median(clf_s)), "step_mean_s": float(step.mean()),
                        "episode_s": float(np.median(step.sum(axis=1)))})
+    # Touches each policy needs to reach random's accuracy after the full budget.
+    to_random = {}
+    if "random" in accs_by_policy:
+        goal = accs_by_policy["random"][-1]
+        to_random = {p: next((k for k, a in zip(ks, accs) if a >= goal - 1e-12), None)
+                     for p, accs in accs_by_policy.items()}
+    visual_only = None
+    if all("visual_decision" in r for r in rows):
+        visual_only = float(np.mean([r["visual_decision"] == r["label"] for r in rows]))
     return {"curve": curve, "differences": differences, "touches_to_90": reach, "stopping": stopping,
             "timing": timing, "n_objects": len(rows), "classifier": result["classifier"],
-            "noise_mm": result["noise_mm"], "candidates": result["candidates"], "variants": result["variants"]}
+            "noise_mm": result["noise_mm"], "candidates": result["candidates"], "variants": result["variants"],
+            "visual": result.get("visual", "noisy"), "touches_to_random_max": to_random,
+            "visual_only_accuracy": visual_only}
 
 
 def active_part(ctx, objects, **options) -> dict:
     """The ``active`` part (cached in the report folder): :func:`summarize` of :func:`active_episodes`."""
     record = {"objects": [str(o) for o in objects], "sizes": ctx.sizes.to_dict(), "seed": ctx.seed,
               "options": {k: v for k, v in options.items() if k != "progress"}}
-    result = ctx.cached_part("active", record, lambda: active_episodes(ctx, objects, **options))
-    return {**summarize(result, ctx.seed), "episodes": "parts/active.json"}
+    name = "active" if options.get("visual", "noisy") == "noisy" else f"active_{options['visual']}"
+    result = ctx.cached_part(name, record, lambda: active_episodes(ctx, objects, **options))
+    return {**summarize(result, ctx.seed), "episodes": f"parts/{name}.json"}
 
 
 def render_markdown(summary: dict) -> str:
     """The part's section of the report."""
+    seen = ("virtual OAK-D reconstruction" if summary.get("visual") == "camera"
+            else f"mesh + {summary['noise_mm']} mm noise")
     lines = [(f"## Active touch (unseen objects, any pose, {summary['n_objects']} objects, "
-             f"{summary['classifier']}, visual model: mesh + {summary['noise_mm']} mm noise, "
+             f"{summary['classifier']}, visual model: {seen}, "
              f"information: {summary['candidates']} candidates x {summary['variants']} variants)"), "",
              "Accuracy after K touches (95 % bootstrap over objects):", "",
              "| policy | " + " | ".join(f"K={k}" for k in sorted({r['k'] for r in summary["curve"]})) + " | K for 90 % |",
@@ -162,6 +228,12 @@ def render_markdown(summary: dict) -> str:
         cells = [f"{100 * r['accuracy']['value']:.1f} [{100 * r['accuracy']['low']:.0f}, {100 * r['accuracy']['high']:.0f}]"
                  for r in summary["curve"] if r["policy"] == p]
         lines.append(f"| {p} | " + " | ".join(cells) + f" | {summary['touches_to_90'][p] or '> max'} |")
+    if summary.get("touches_to_random_max"):
+        lines += ["", "Touches to reach random's accuracy after the whole budget: " + ", ".join(
+            f"{p} {k or '> max'}" for p, k in summary["touches_to_random_max"].items()) + "."]
+    if summary.get("visual_only_accuracy") is not None:
+        lines += ["", (f"The visual model alone (every candidate's simulated touch pooled, no real touch): "
+                       f"{100 * summary['visual_only_accuracy']:.1f} %.")]
     lines += ["", "Paired difference against random (points, 95 % bootstrap over objects):", "",
               "| policy | K | difference | interval |", "|---|---|---|---|"]
     lines += [f"| {d['policy']} | {d['k']} | {100 * d['difference']:+.1f} | [{100 * d['low']:+.1f}, {100 * d['high']:+.1f}] |"
@@ -206,6 +278,10 @@ def main(argv=None) -> dict:
     parser.add_argument("--noise-mm", type=float, default=1.0)
     parser.add_argument("--candidates", type=int, default=24)
     parser.add_argument("--variants", type=int, default=2)
+    parser.add_argument("--policies", default="random,saliency,information",
+                        help="comma-separated policies (random first: the others are paired against it)")
+    parser.add_argument("--visual", choices=VISUALS, default="noisy",
+                        help="plan on a noisy copy of the mesh or on a virtual OAK-D capture's reconstruction")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sizes = QUICK if args.quick else FULL
@@ -213,7 +289,8 @@ def main(argv=None) -> dict:
     objects = folder_objects(args.data, None, sizes.unseen_per_class)
     start = time.perf_counter()
     summary = active_part(ctx, objects, classifier=args.classifier, max_touches=args.max_touches,
-                          noise_mm=args.noise_mm, candidates=args.candidates, variants=args.variants)
+                          noise_mm=args.noise_mm, candidates=args.candidates, variants=args.variants,
+                          policies=tuple(p for p in args.policies.split(",") if p), visual=args.visual)
     summary |= {"command": "python -m fusion.experiments.active " + " ".join(argv if argv is not None else
                                                                             __import__("sys").argv[1:]),
                 "machine": machine_line(), "seconds": round(time.perf_counter() - start, 1)}

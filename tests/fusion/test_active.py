@@ -13,9 +13,11 @@ from fusion.active import (
     information_gain,
     make_policy,
     noisy_copy,
+    plan_scores,
     run_episode,
     same_plane,
     stopped,
+    visual_belief,
 )
 from perception.errors import InvalidArgumentError
 from perception.shapes import make_object
@@ -99,8 +101,8 @@ class TestContract:
         assert np.allclose(first[0].point, visual.center)  # through the visual model's centre
 
     def test_information_choice_follows_the_posterior(self, objects):
-        """Uniform posterior: the confident candidate gains most (KL(q || uniform) = 0.46 vs 0.15 nats); posterior
-        sure of "a": a confident "a" says little more, the torn candidate moves it more (0.016 vs 0.059 nats)."""
+        """Touches so far sure of "a": the candidate that confirms "a" (a flat plane reads it at 0.8) scores best;
+        sure of "b": the torn candidate, which moves the decision towards "b" (0.45) and away from "a"."""
         _, _, visual = objects
         clf = OrientationClassifier()
         policy = InformationPolicy(0, candidates=24, variants=1)
@@ -108,13 +110,37 @@ class TestContract:
         planes, _ = policy.simulated(state)
         flat = np.array([abs(p.normal[2]) > np.sqrt(0.5) for p in planes])
         assert flat.any() and (~flat).any()  # both kinds of candidate exist
-        first = policy.propose(state)
-        assert abs(first.normal[2]) > np.sqrt(0.5)
-        sure = ActiveState(visual, clf, planes=[planes[-1]], probabilities=[np.array([0.98, 0.01, 0.01])])
-        second = policy.propose(sure)
-        assert abs(second.normal[2]) <= np.sqrt(0.5)
-        torn_gain = information_gain([0.98, 0.01, 0.01], OrientationClassifier.TORN)
-        assert policy.scores(sure).max() == pytest.approx(torn_gain)
+        sure_a = ActiveState(visual, clf, planes=[planes[-1]], probabilities=[np.array([0.98, 0.01, 0.01])])
+        sure_b = ActiveState(visual, clf, planes=[planes[-1]], probabilities=[np.array([0.01, 0.98, 0.01])])
+        assert abs(policy.propose(sure_a).normal[2]) > np.sqrt(0.5)
+        assert abs(policy.propose(sure_b).normal[2]) <= np.sqrt(0.5)
+
+
+class TestPlanScores:
+    def test_hand_computed(self):
+        # Nothing touched, visual weight 1: belief = the normalised geometric mean of the candidates' outcomes;
+        # each candidate's score is belief . q (the decision after one touch is its outcome).
+        q = np.array([[[0.8, 0.2]], [[0.4, 0.6]]])
+        g = np.sqrt(q[0, 0] * q[1, 0])
+        belief = g / g.sum()
+        assert visual_belief([], q) == pytest.approx(belief)
+        assert plan_scores(np.zeros((0, 2)), q) == pytest.approx([belief @ q[0, 0], belief @ q[1, 0]])
+        # Visual weight 0 and one touch (0.5, 0.5): belief uniform, every decision sums to 1: 0.5 each.
+        assert plan_scores([[0.5, 0.5]], q, visual_weight=0.0) == pytest.approx([0.5, 0.5])
+        # One touch (0.9, 0.1), weight 0: belief (0.9, 0.1); after candidate 0 the decision is (0.72, 0.02) / 0.74.
+        assert plan_scores([[0.9, 0.1]], q, visual_weight=0.0)[0] == pytest.approx((0.9 * 0.72 + 0.1 * 0.02) / 0.74)
+        assert plan_scores(np.zeros((0, 2)), q, [True, False])[0] == -np.inf
+
+    def test_touches_that_contradict_the_camera_turn_the_belief(self):
+        q = np.array([[[0.7, 0.3]], [[0.6, 0.4]]])  # the camera's view leans to class 0
+        assert visual_belief([], q)[0] > 0.5
+        assert visual_belief([[0.05, 0.95]], q)[1] > 0.9
+
+    @pytest.mark.parametrize("probabilities, outcomes", [([], np.ones((2, 3))), ([[0.5, 0.5]], np.ones((2, 1, 3))),
+                                                         ([], np.full((2, 1, 2), np.nan))])
+    def test_bad_input(self, probabilities, outcomes):
+        with pytest.raises(InvalidArgumentError):
+            plan_scores(probabilities, outcomes)
 
 
 class TestEpisode:
@@ -149,6 +175,10 @@ class TestEpisode:
             make_policy("greedy")
         with pytest.raises(InvalidArgumentError, match="candidates"):
             make_policy("information", candidates=0)
+        with pytest.raises(InvalidArgumentError, match="visual_weight"):
+            make_policy("information", visual_weight=-1.0)
+        with pytest.raises(InvalidArgumentError, match="smooth_iterations"):
+            make_policy("information", smooth_iterations=-1)
         with pytest.raises(InvalidArgumentError, match="no options"):
             make_policy("random", candidates=3)
 
