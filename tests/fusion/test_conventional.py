@@ -122,13 +122,12 @@ def test_cross_validate_matches_sklearn():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=False,
-    reason="not met for kNN on this batch (2026-11-23: SOM 61.9 % vs PCA 65.8 %, 3 splits; SVM met); "
-    "on larger catalogue batches with normals SOM >= PCA for both; with invariant cues PCA is 2-3 points better",
-)
-def test_som_at_least_as_accurate_as_pca():
-    """The must-show for our reading of "SOM to 5": on the same splits it matches or beats PCA to 5."""
+def test_som_to_5_against_pca_to_5():
+    """Our reading of "SOM to 5" against PCA to 5 on the same splits (10 classes x 3 objects x 20 blind contours,
+    the paper's normals cue, 3 splits 80/20). Both must recognise far above chance (10 %). SOM is *not* at least as
+    accurate as PCA here (measured 2026-11-25: SVM 74.4 % vs 78.6 %, kNN 69.7 % vs 71.1 %), so that claim is not
+    asserted: it was an ``xfail(strict=False)`` that could not fail (and had stopped running at all: its features
+    did not match the classifier's default cue)."""
     from perception.shapes import CLASSES, make_object
     from tactile.explore import SequenceBatch
     from tactile.sampling import explore_object
@@ -149,13 +148,13 @@ def test_som_at_least_as_accurate_as_pca():
             test[members[: len(members) // 5]] = True
         for reduce in ("som", "pca"):
             for kind in ("svm", "knn"):
-                tail = ConventionalClassifier(kind=kind, reduce=reduce).make_pipeline(y[~test])[1:]
+                tail = ConventionalClassifier(kind=kind, reduce=reduce, cue="normals").make_pipeline(y[~test])[1:]
                 tail.fit(features[~test], y[~test])
                 accuracy.setdefault((reduce, kind), []).append(np.mean(tail.predict(features[test]) == y[test]))
     for kind in ("svm", "knn"):
         som, pca = np.mean(accuracy[("som", kind)]), np.mean(accuracy[("pca", kind)])
-        assert som >= pca - 0.01, f"{kind}: SOM {som:.3f} < PCA {pca:.3f}"
-        assert som > 0.5  # 10 classes: chance is 10 %
+        print(f"{kind}: SOM {som:.3f}, PCA {pca:.3f}")
+        assert som > 0.5 and pca > 0.5, f"{kind}: SOM {som:.3f}, PCA {pca:.3f}"  # 10 classes: chance is 10 %
 
 
 # ------------------------------------------------------------------------------ pipeline search
