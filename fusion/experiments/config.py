@@ -50,10 +50,11 @@ class Sizes:
         runtime_probes, runtime_grids: probes per contour and taxel grids (n x n) compared there.
         epochs: CNN epochs (None: the classifier's default).
         paper_classifiers, unseen_classifiers: which classifiers (see ``fusion.experiments.models``) each
-            part trains; the noise, K and run-time parts reuse the paper ones, attention the first of them.
+            part trains (the run-time and noise parts use the unseen ones, attention the first of them).
         calibration_classifiers, calibration_strategy: the classifiers and the strategy of the calibration and
             open-set parts (unseen-objects store, any pose; :mod:`fusion.experiments.openset`).
         openset_rotations: rotations of the open-set part (the classes are dealt to them; each leaves its own out).
+        active_*: the active-touch part (:meth:`active_options`, :mod:`fusion.experiments.active`).
     """
 
     strategies: tuple[str, ...] = PAPER_STRATEGIES
@@ -86,6 +87,12 @@ class Sizes:
     calibration_classifiers: tuple[str, ...] = ("svm", "knn")
     calibration_strategy: str = "blind"
     openset_rotations: int = 5
+    active_policies: tuple[str, ...] = ("random", "saliency", "information")
+    active_touches: int = 8
+    active_candidates: int = 24
+    active_variants: int = 2
+    active_noise_mm: float = 1.0
+    active_visual: str = "noisy"
 
     def __post_init__(self) -> None:
         for name in ("paper_classes", "objects_per_class", "paper_contours", "unseen_contours", "noise_contours",
@@ -118,6 +125,14 @@ class Sizes:
     def with_(self, **changes) -> Sizes:
         return replace(self, **changes)
 
+    def active_options(self) -> dict:
+        """The keyword arguments of :func:`fusion.experiments.active.active_part` (the ``active_*`` sizes: its
+        policies, touch budget, information-policy candidates x variants, the visual model's noise, and what the
+        policies plan on, "noisy" or "camera")."""
+        return {"policies": tuple(self.active_policies), "max_touches": self.active_touches,
+                "candidates": self.active_candidates, "variants": self.active_variants,
+                "noise_mm": self.active_noise_mm, "visual": self.active_visual}
+
 
 #: The full run (target: within 60 minutes on 2 cores).
 FULL = Sizes()
@@ -136,4 +151,7 @@ QUICK = Sizes(
     runtime_probes=(5, 25),
     runtime_grids=(8, 32),
     epochs=10,  # 5 stopped the CNN pair short of convergence (69 % on SHREC quick)
+    active_policies=("random", "information"),
+    active_candidates=12,
+    active_variants=1,
 )

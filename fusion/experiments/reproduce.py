@@ -6,7 +6,7 @@ pose differences over objects), ``touches`` (K per decision, on the paper and un
 ``runtime`` (error vs time, Pareto front), ``calibration`` (ECE at K touches before / after calibration fitted
 inside the training folds, reliability diagrams) and ``openset`` (classes rotated out of training: AUROC known vs
 unknown, share of unknown objects rejected; :mod:`fusion.experiments.openset`). ``touches`` needs ``paper`` (it reuses its predictions), ``noise``
-needs ``unseen`` (it reuses its fold models on their test objects). Everything expensive is cached under the report folder (stores, models, predictions, part
+needs ``unseen`` (it reuses its fold models on their test objects). ``active`` (random / saliency / information touch policies on the unseen objects in any pose, :mod:`fusion.experiments.active`) runs only when named. Everything expensive is cached under the report folder (stores, models, predictions, part
 results), so an interrupted run resumes and the same seed gives the same numbers.
 """
 
@@ -40,7 +40,7 @@ from perception.runtime import machine_line as machine
 
 log = logging.getLogger(__name__)
 
-PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime", "calibration", "openset")
+PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime", "calibration", "openset", "active")
 #: What runs when no parts are named: all but calibration and open set (each trains many models; ask by name).
 DEFAULT_PARTS = PARTS[:6]
 BOOTSTRAP_NOTE = ("over test sequences for the paper protocol; over objects (whole objects resampled) "
@@ -165,7 +165,7 @@ def reproduce(
         from fusion.experiments.runtime import runtime_rows
 
         record = {"objects": [str(p) for p, _ in paper_objects], "sizes": sizes.to_dict(), "seed": ctx.seed,
-                  "classifiers": [_describe(ctx, n) for n in sizes.paper_classifiers]}
+                  "classifiers": [_describe(ctx, n) for n in sizes.unseen_classifiers], "poses": 2}
         result = timed("runtime", lambda: ctx.cached_part("runtime", record, lambda: runtime_rows(ctx, paper_objects)))
         figures.plot_pareto(result, out / "pareto.png")
         results["runtime"] = {**result, "contours": sizes.runtime_contours, "figure": "pareto.png"}
@@ -181,6 +181,12 @@ def reproduce(
         compute = getattr(experiment, f"{part}_part")
         results[part] = timed(part, lambda: ctx.cached_part(part, record, lambda: compute(ctx, unseen_list)))
         results[part] |= {"n_objects": len(unseen_list), "contours": sizes.unseen_contours}
+        _write(out, results)
+    if "active" in parts:
+        from fusion.experiments.active import active_part
+
+        unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
+        results["active"] = timed("active", lambda: active_part(ctx, unseen_list, **sizes.active_options()))
         _write(out, results)
     _write(out, results)
     return results

@@ -1,8 +1,10 @@
 """Recognition error against run time per decision: probes per contour, taxel grid, K touches, classifier.
 
-For every (probes P, grid G) a store of the paper objects is generated with that sensor; each paper
-classifier is trained on some objects and tested on held-out ones (one instance per class when every class
-has at least two, else 20 % of the sequences). A decision touches K contours and classifies each:
+For every (probes P, grid G) a store of the paper objects is generated with that sensor, and one of the same
+objects each in its seeded random pose; each pose-free classifier is trained on some objects as stored and
+tested on held-out ones (one instance per class when every class has at least two, else 20 % of the
+sequences), upright and in any pose (the same test objects, paired). A decision touches K contours and
+classifies each:
 
     time per decision = K x (touching one contour + inference on one sequence)
 
@@ -20,8 +22,9 @@ import numpy as np
 
 from fusion.experiments.analysis import name_operating_points, pareto_front, touches_score
 from fusion.experiments.context import Context
-from fusion.experiments.data import ensure_store, load_models, split_loader
+from fusion.experiments.data import any_pose, ensure_store, load_models, split_loader
 from fusion.experiments.models import DISPLAY, digest, pick, train_and_predict
+from fusion.experiments.protocol import same_objects
 from fusion.experiments.touch import touch_object
 from perception.errors import VisuotactileError
 from tactile.sampling import PAPER_STRATEGIES
@@ -66,8 +69,8 @@ def touch_seconds(models: list, probes: int, grid: int, seed: int, attention: di
 
 
 def runtime_rows(ctx: Context, objects) -> dict:
-    """Points {classifier, strategy, probes, grid, k, error, seconds, ...}, the Pareto front and its named
-    operating points."""
+    """Points {classifier, strategy, probes, grid, k, error, seconds, error_any_pose, ...}, the Pareto front
+    (upright errors) and its named operating points."""
     sizes = ctx.sizes
     by_object = min(np.unique([label for _, label in objects], return_counts=True)[1]) >= 2
     timing_models = load_models(objects[:: max(1, len(objects) // TIMING_OBJECTS)][:TIMING_OBJECTS])
@@ -76,38 +79,48 @@ def runtime_rows(ctx: Context, objects) -> dict:
     for probes in sizes.runtime_probes:
         for grid in sizes.runtime_grids:
             sensor = FSRSensor(rows=grid, cols=grid)
-            ds, record = ensure_store(objects, ctx.path("stores"), strategies=sizes.runtime_strategies,
-                              contours=sizes.runtime_contours, seed=ctx.seed, sensor=sensor, probes=probes,
-                              workers=ctx.workers, progress=ctx.progress)
+            (ds, record), (any_ds, any_record) = (
+                ensure_store(pose_objects, ctx.path("stores"), strategies=sizes.runtime_strategies,
+                             contours=sizes.runtime_contours, seed=ctx.seed, sensor=sensor, probes=probes,
+                             workers=ctx.workers, progress=ctx.progress)
+                for pose_objects in (objects, any_pose(objects, ctx.seed)))
             seconds = touch_seconds(timing_models, probes, grid, ctx.seed, attention, sizes.runtime_strategies)
             for strategy in sizes.runtime_strategies:
                 index = ds.indices(strategy)
                 split = ds.split_by_object if by_object else ds.split_by_sequence
                 train, test = split(1 / 3 if by_object else 0.2, seed=ctx.seed, index=index)
+                any_test = same_objects(ds, test, any_ds, strategy) if by_object else None
                 batch = split_loader(ds, train, test)
-                for name, factory in pick(ctx.classifiers, sizes.paper_classifiers).items():
+                any_batch = split_loader(ds, train, any_test, any_ds) if by_object else None
+                folder = ctx.path("models", "runtime", f"p{probes}-g{grid}", strategy)
+                train_record = {"part": "runtime", "store": digest(record), "strategy": strategy, "train": digest(train)}
+                for name, factory in pick(ctx.classifiers, sizes.unseen_classifiers).items():
                     try:
-                        pred = train_and_predict(
-                            name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
-                            ctx.path("models", "runtime", f"p{probes}-g{grid}", strategy),
-                            {"part": "runtime", "store": digest(record), "strategy": strategy,
-                             "train": digest(train)}, {"tag": "test", "test": digest(test)})
+                        pred = train_and_predict(name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
+                                                 folder, train_record, {"tag": "test", "test": digest(test)})
+                        any_pred = None if any_batch is None else train_and_predict(
+                            name, factory, lambda b=batch: b("train"), lambda b=any_batch: b("test"), folder,
+                            train_record, {"tag": "anypose", "store": digest(any_record), "test": digest(any_test)})
                     except (VisuotactileError, ValueError, RuntimeError) as exc:
                         log.warning("runtime P%d G%d %s %s failed: %s", probes, grid, strategy, name, exc)
                         failures.append({"classifier": name, "strategy": strategy, "probes": probes, "grid": grid,
                                          "error": f"{type(exc).__name__}: {exc}"})
                         continue
                     per_touch = seconds[strategy] + pred.predict_seconds
+                    by = "object" if by_object else "decision"
                     for k in sizes.touches:
                         try:
-                            acc = touches_score(pred, k, "log", by="object" if by_object else "decision",
-                                                seed=ctx.seed)
+                            acc = touches_score(pred, k, "log", by=by, seed=ctx.seed)
+                            any_acc = None if any_pred is None else touches_score(any_pred, k, "log", by=by,
+                                                                                  seed=ctx.seed)
                         except VisuotactileError:
                             continue  # fewer than k test contours per object
                         points.append({
                             "classifier": DISPLAY.get(name, name), "name": name, "strategy": strategy,
                             "probes": probes, "grid": grid, "k": k, "accuracy": acc.to_dict(),
                             "error": round(1 - acc.value, 4), "seconds": k * per_touch,
+                            "accuracy_any_pose": None if any_acc is None else any_acc.to_dict(),
+                            "error_any_pose": None if any_acc is None else round(1 - any_acc.value, 4),
                             "touch_seconds_per_contour": seconds[strategy],
                             "inference_seconds_per_sequence": pred.predict_seconds,
                             "saliency_seconds_per_object": saliency_seconds[strategy],

@@ -333,6 +333,9 @@ def test_reproduce_every_part_both_strategies(tmp_path):
     for f in front:
         assert not any(p["seconds"] < f["seconds"] and p["error"] < f["error"] for p in runtime["points"])
     assert set(runtime["named"]) >= {"fastest", "most accurate"}
+    # the same held-out objects in their random poses beside each point: a pose-free stand-in errs alike (within
+    # one of the three test objects, where saliency on a turned, near-symmetric object picks other contours)
+    assert all(abs(p["error_any_pose"] - p["error"]) < 0.34 for p in runtime["points"])
     for name in ("pareto.png", "accuracy_vs_k.png", "accuracy_vs_noise.png"):
         assert (tmp_path / "report" / name).stat().st_size > 10_000
 
