@@ -48,8 +48,8 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
 
 #: fusion.experiments.PARTS, spelled out so that the command line starts without the experiment modules.
-PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime", "calibration", "openset")
-#: fusion.experiments.reproduce.DEFAULT_PARTS (calibration and open set are asked for by name).
+PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime", "calibration", "openset", "active")
+#: fusion.experiments.reproduce.DEFAULT_PARTS (calibration, open set and active touch are asked for by name).
 DEFAULT_PARTS = PARTS[:6]
 
 

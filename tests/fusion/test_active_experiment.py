@@ -53,3 +53,22 @@ def test_summary_known_answers():
     assert timing["random"]["planning_first_s"] == pytest.approx(0.2)
     assert timing["random"]["step_mean_s"] == pytest.approx((0.26 + 0.07) / 2)
     assert "| information | 1 | +90.0 |" in render_markdown(summary)
+
+
+def test_reproduce_part_options():
+    """The ``active`` reproduce part: its sizes are active_part's keywords, quick is smaller, the report renders it."""
+    import inspect
+
+    from fusion.experiments.active import active_episodes
+    from fusion.experiments.config import FULL, QUICK
+    from fusion.experiments.reproduce import DEFAULT_PARTS, PARTS
+
+    assert "active" in PARTS and "active" not in DEFAULT_PARTS
+    keywords = set(inspect.signature(active_episodes).parameters)
+    assert set(FULL.active_options()) <= keywords
+    assert QUICK.active_options()["candidates"] < FULL.active_options()["candidates"]
+    from fusion.experiments.report import render
+
+    text = render({"command": "c", "data": "d", "date": "t", "machine": "m", "seed": 0, "bootstrap": "b", "sizes": {},
+                   "active": summarize(episodes())})
+    assert "## Active touch" in text and "| information | 1 | +90.0 |" in text
