@@ -125,6 +125,15 @@ def run_demo(out: Path, seed: int = 0, *, sizes: Sizes = DEMO_SIZES, classifiers
                            classes=list(models), echo=echo)
         summary["figures"] += result.pop("figures")
         summary["recognition"] = result
+        if (out / "models" / "svm.vtm").is_file():  # one active-touch episode with the trained SVM
+            from fusion.active.figure import demo_episode
+            from fusion.base import load_model
+
+            summary["active"] = demo_episode(out, load_model(out / "models" / "svm.vtm"),
+                                             instance_seed=seed + sizes.objects_per_class, seed=seed)
+            summary["figures"].append(summary["active"]["figure"])
+            echo(f"\nActive touch, {summary['active']['object']} (unseen), information policy: decisions "
+                 f"{summary['active']['decisions']} ({summary['active']['seconds']} s)")
     write_text(out / "summary.json", json.dumps(summary, indent=2, default=str))
     write_text(out / "report.md", _report(summary))
     echo(f"\nWrote report.md, summary.json and {len(summary['figures'])} figures to {out}/")
@@ -265,6 +274,13 @@ def _report(summary: dict) -> str:
         lines += [f"![{f}]({f})" for f in summary["figures"] if f.startswith("confusion")]
         lines += ["", f"Recognition took {rec['seconds']} s (data {rec['data_seconds']} s). Models: "
                   + ", ".join(f"`{m}`" for m in rec["models"]), ""]
+    act = summary.get("active")
+    if act:
+        lines += ["## Active touch", "", (f"{act['object']} (an instance nobody trained on), its visual model a 1 mm "
+                  "noisy copy; the information policy plans each touch on it (simulated touches of 12 candidate "
+                  "contours), the SVM reads the real touch, the log rule fuses. Probability of the true class after "
+                  "each touch: " + ", ".join(f"{p:.2f}" for p in act["posterior_true"])
+                  + f" ({act['seconds']} s)."), "", "![active episode](active_episode.png)", ""]
     return "\n".join(lines)
 
 

@@ -196,3 +196,12 @@ class TestNoisyCopy:
     def test_bad_noise(self, objects):
         with pytest.raises(InvalidArgumentError):
             noisy_copy(objects[0], -1.0)
+
+
+def test_episode_figure(objects, tmp_path):
+    from fusion.active.figure import plot_episode
+
+    mug, _, visual = objects
+    episode = run_episode(mug, visual, OrientationClassifier(), make_policy("random"), max_touches=2)
+    path = plot_episode(episode, mug, tmp_path / "episode.png", label="a")
+    assert path.is_file() and path.stat().st_size > 10_000
