@@ -396,7 +396,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, max_touche
                                   for n, v in aurocs.items()}}
 
     # 3. the reference features of the model fitted on all the data.
-    if open_set and state["score"] != "probability":
+    if open_set and has_space:  # kept even when the probability won: the distance scores stay available
         ref = embedding(model, batch, inner.features)
         state |= {"reference": ref, "reference_labels": np.searchsorted(model.classes_.astype(str), names)}
     model.calibration_ = state

@@ -80,7 +80,7 @@ class TestTemperature:
 class TestSmoothing:
     def test_recovers_planted_temperature_and_uniform_share(self):
         rng = np.random.default_rng(3)
-        z = rng.normal(0, 3.0, size=(20000, 4))
+        z = rng.normal(0, 3.0, size=(8000, 4))
         p = 0.8 * softmax(z / 0.5, axis=1) + 0.2 / 4
         y = (p.cumsum(axis=1) > rng.random((len(z), 1))).argmax(axis=1)
         t, eps = fit_calibration(z, y)
