@@ -160,8 +160,10 @@ def _cli_train(path: Path, version: int, set_inputs) -> None:
 
 
 def _store_settings() -> dict:
-    return {"objects": [["box", 0]], "strategies": ["blind"], "contours_per_object": 2, "probes": 3,
-            "sensor": {"rows": 4, "cols": 4}, "seed": 0}
+    """A store's settings as generate writes them (read_attrs checks every field)."""
+    return {"objects": [{"name": "box/0", "label": "box", "catalogue": ["box", 0]}], "class_names": ["box"],
+            "strategies": ["blind"], "contours_per_object": 2, "probes": 3, "sensor": {"rows": 4, "cols": 4},
+            "seed": 0, "encoding": {"dtype": "uint16", "scale": 1e-4, "max_error": 5e-5}}
 
 
 def writers(models, set_inputs) -> dict:

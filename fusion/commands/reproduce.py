@@ -17,6 +17,9 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     out = args.out or ("out/reproduce-quick" if args.quick else "out/reproduce")
     check_output_folder(out, "--out")
     if args.classes is not None and len(set(args.classes)) < 2:
+        from fusion.experiments.data import folder_objects
+
+        folder_objects(args.data, classes=args.classes)  # a bad folder or an unknown class is named first
         raise InvalidArgumentError(f"--classes {' '.join(args.classes)}: recognition needs at least two classes")
     results = reproduce(args.data, out, classes=args.classes, objects_per_class=args.objects_per_class,
                         quick=args.quick, seed=args.seed, parts=args.parts, workers=args.workers,

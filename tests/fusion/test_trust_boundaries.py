@@ -158,7 +158,9 @@ def test_bad_options_are_one_line_and_exit_2(store, model, tmp_path, capsys):
     a_file = tmp_path / "a-file"
     a_file.write_text("x")
     folder = tmp_path / "folder"
-    folder.mkdir()
+    for cls, size in (("Cup", 10), ("Mug", 20)):  # a mesh set: --classes Cup names a class that exists
+        (folder / "meshes" / cls).mkdir(parents=True)
+        (folder / "meshes" / cls / "a.off").write_text(_box_off(10, 10, size))
     ev = ["evaluate", "--model", str(model), "--store", str(store)]
     tr = ["train", "--store", str(store), "--model", "knn", "--split", "none"]
     cases = [
@@ -190,7 +192,7 @@ def test_bad_options_are_one_line_and_exit_2(store, model, tmp_path, capsys):
         (["camera", "--source", "virtual:box", "--contours", "0"], "--contours must be at least 1"),
         (["camera", "--source", "virtual:box", "--strategy", "nowhere"], "unknown --strategy"),
         (["reproduce", "--data", str(tmp_path), "--out", str(a_file)], "is a file, not a folder"),
-        (["reproduce", "--data", str(tmp_path), "--out", str(tmp_path / "r"), "--classes", "Cup"],
+        (["reproduce", "--data", str(folder / "meshes"), "--out", str(tmp_path / "r"), "--classes", "Cup"],
          "at least two classes"),
     ]
     for argv, message in cases:
