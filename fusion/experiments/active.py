@@ -22,7 +22,7 @@ import numpy as np
 from fusion.active import ActiveState, make_policy, noisy_copy, run_episode
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
-from perception.errors import InvalidArgumentError
+from perception.errors import InvalidArgumentError, InvalidMeshError
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +53,17 @@ def paired_over_objects(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict:
 
 #: Views of the virtual OAK-D orbit when the camera is in the loop (``visual="camera"``).
 CAMERA_VIEWS = 4
+
+
+def fold_order(names, specs) -> list[str]:
+    """``names`` (sorted) taken class by class in turn: the first instance of every class, then the second..."""
+    seen: dict[str, int] = {}
+    rank = {}
+    for name in names:
+        label = specs[name].label
+        rank[name] = seen.get(label, 0)
+        seen[label] = rank[name] + 1
+    return sorted(names, key=lambda n: (rank[n], specs[n].label, n))
 
 
 def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
@@ -87,12 +98,15 @@ def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
 
 def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random", "saliency", "information"),
                     max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
-                    visual: str = "noisy", progress: bool = False) -> dict:
+                    visual: str = "noisy", per_fold: int | None = None, progress: bool = False) -> dict:
     """Run every policy on every test object of the grouped folds; returns per-object records (JSON-able).
 
     ``visual``: what the policies plan on: ``"noisy"`` (the mesh in its pose with N(0, ``noise_mm``) mm along
     the normals) or ``"camera"`` (a virtual OAK-D capture's reconstruction, :func:`camera_models`; the true
-    mesh is touched where it stands on the table).
+    mesh is touched where it stands on the table). ``per_fold``: only the first N test objects of each fold, taken
+    class by class in turn (a balanced subset; camera captures take 20-80 s each on 2 cores). An object whose
+    capture cannot be reconstructed (no object found on the table) is left out and listed in
+    ``capture_failures``.
     """
     from fusion.active.policies import InformationPolicy, visual_belief
     from fusion.experiments.data import any_pose
@@ -106,19 +120,26 @@ def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random"
     factory = pick(ctx.classifiers, [classifier])[classifier]
     specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)
-    rows = []
+    rows, failures = [], []
     for i, (train, test) in enumerate(folds):
         model, _fit_s = fit_cached(factory, lambda t=train: ds.load(t), ctx.path("models", "active", f"fold{i + 1}",
                                                                                 f"{classifier}.vtm"),
                                   {"part": "active", "store": record, "train": [int(x) for x in train]})
-        names = sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])})
+        names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
+        if per_fold is not None:
+            names = names[:int(per_fold)]
         policy_objs = {name: make_policy(name, ctx.seed, **({"candidates": candidates, "variants": variants}
                                                              if name == "information" else {}))
                        for name in policies}
         for n, name in enumerate(names):
             true = specs[name].load()
             if visual == "camera":
-                seen, true = camera_models(ctx, specs[name], true, ctx.seed)
+                try:
+                    seen, true = camera_models(ctx, specs[name], true, ctx.seed)
+                except InvalidMeshError as exc:
+                    log.warning("active: %s left out, its capture failed (%s)", name, exc)
+                    failures.append(name)
+                    continue
             else:
                 seen = noisy_copy(true, noise_mm, seed=ctx.seed + n + 1000 * i)
             row = {"object": name, "label": true.label, "fold": i + 1, "policies": {}}
@@ -137,7 +158,7 @@ def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random"
             log.info("active fold %d: %s (%s) %s", i + 1, name, true.label,
                      {p: r["decisions"][-1] for p, r in row["policies"].items()})
     return {"objects": rows, "classifier": classifier, "noise_mm": noise_mm, "candidates": candidates,
-            "variants": variants, "max_touches": max_touches, "visual": visual}
+            "variants": variants, "max_touches": max_touches, "visual": visual, "capture_failures": failures}
 
 
 def _correct(rows, policy: str) -> np.ndarray:
@@ -255,8 +276,9 @@ __all__ = ["TARGET", "THRESHOLDS", "active_episodes", "active_part", "paired_ove
 
 
 def main(argv=None) -> dict:
-    """``python -m fusion.experiments.active --data FOLDER --out FOLDER [--quick]``: the part on its own; writes
-    ``results.json`` and ``report.md`` to ``--out`` (stores, models and episodes cached there)."""
+    """``python -m fusion.experiments.active --data FOLDER --out FOLDER [--quick] [--visual camera]``: the part on
+    its own; writes ``results.json`` and ``report.md`` (``results_camera.json``, ``report_camera.md``) to ``--out``
+    (stores, models, captures and episodes cached there)."""
     import argparse
     import json
     from pathlib import Path
@@ -280,6 +302,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--variants", type=int, default=2)
     parser.add_argument("--policies", default="random,saliency,information",
                         help="comma-separated policies (random first: the others are paired against it)")
+    parser.add_argument("--per-fold", type=int, default=None,
+                        help="only the first N test objects of each fold, class by class in turn")
     parser.add_argument("--visual", choices=VISUALS, default="noisy",
                         help="plan on a noisy copy of the mesh or on a virtual OAK-D capture's reconstruction")
     args = parser.parse_args(argv)
@@ -290,12 +314,14 @@ def main(argv=None) -> dict:
     start = time.perf_counter()
     summary = active_part(ctx, objects, classifier=args.classifier, max_touches=args.max_touches,
                           noise_mm=args.noise_mm, candidates=args.candidates, variants=args.variants,
-                          policies=tuple(p for p in args.policies.split(",") if p), visual=args.visual)
+                          policies=tuple(p for p in args.policies.split(",") if p), visual=args.visual,
+                          per_fold=args.per_fold)
     summary |= {"command": "python -m fusion.experiments.active " + " ".join(argv if argv is not None else
                                                                             __import__("sys").argv[1:]),
                 "machine": machine_line(), "seconds": round(time.perf_counter() - start, 1)}
-    write_text(Path(args.out) / "results.json", json.dumps(summary, indent=2, default=str))
-    write_text(Path(args.out) / "report.md", f"`{summary['command']}` ({summary['machine']}, "
+    suffix = "" if args.visual == "noisy" else f"_{args.visual}"
+    write_text(Path(args.out) / f"results{suffix}.json", json.dumps(summary, indent=2, default=str))
+    write_text(Path(args.out) / f"report{suffix}.md", f"`{summary['command']}` ({summary['machine']}, "
                f"{summary['seconds']} s)\n\n" + render_markdown(summary))
     return summary
 
