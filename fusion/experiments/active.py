@@ -96,7 +96,7 @@ def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
     return visual, capture.truth
 
 
-def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random", "saliency", "information"),
+def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("random", "saliency", "information"),
                     max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
                     visual: str = "noisy", per_fold: int | None = None, progress: bool = False) -> dict:
     """Run every policy on every test object of the grouped folds; returns per-object records (JSON-able).
@@ -117,6 +117,8 @@ def active_episodes(ctx, objects, *, classifier: str = "svm", policies=("random"
 
     sizes = ctx.sizes
     ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
+    if classifier is None:  # the SVM when the run has one, else its first unseen-objects classifier
+        classifier = "svm" if "svm" in ctx.classifiers else ctx.sizes.unseen_classifiers[0]
     factory = pick(ctx.classifiers, [classifier])[classifier]
     specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)

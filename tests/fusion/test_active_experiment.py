@@ -72,3 +72,20 @@ def test_reproduce_part_options():
     text = render({"command": "c", "data": "d", "date": "t", "machine": "m", "seed": 0, "bootstrap": "b", "sizes": {},
                    "active": summarize(episodes())})
     assert "## Active touch" in text and "| information | 1 | +90.0 |" in text
+
+
+@pytest.mark.slow
+def test_reproduce_runs_the_active_part(tmp_path):
+    """End to end through ``reproduce(parts=("active",))`` on tiny sizes with a stand-in classifier."""
+    from fusion.experiments.reproduce import reproduce
+    from tests.fusion.test_experiments import STANDINS, TINY, mesh_folder
+
+    sizes = TINY.with_(active_policies=("random", "information"), active_touches=2, active_candidates=3,
+                       active_variants=1)
+    results = reproduce(mesh_folder(tmp_path / "meshes"), tmp_path / "report", sizes=sizes, classifiers=STANDINS,
+                        parts=("active",), workers=1, progress=False)
+    summary = results["active"]
+    assert summary["classifier"] == "nm" and summary["n_objects"] >= 6
+    assert {(r["policy"], r["k"]) for r in summary["curve"]} == {(p, k) for p in ("random", "information")
+                                                                   for k in (1, 2)}
+    assert "## Active touch" in (tmp_path / "report" / "report.md").read_text()
