@@ -1,9 +1,11 @@
 """Active touch: next-touch policies planned on the camera's view, sequential decisions, a Gymnasium environment.
 
-- :mod:`fusion.active.policies`: ``random``, ``saliency`` and ``information`` (expected information gain over
-  contours simulated on the visual model), with the contract that a policy never reads the true object.
+- :mod:`fusion.active.policies`: ``random``, ``saliency`` and ``information`` (contours simulated on the smoothed
+  visual model; the one whose outcome best serves the camera's belief, :func:`plan_scores`), with the contract
+  that a policy never reads the true object.
 - :mod:`fusion.active.episode`: :func:`run_episode`, touches fused by the log rule until a confidence threshold
   or a touch budget.
+- :mod:`fusion.active.figure`: one episode as a figure (``make demo``).
 - :mod:`fusion.active.env`: ``ActiveTouchEnv``, the same loop as a Gymnasium / ``ap_gym`` active-classification
   environment (imported on demand: it needs ``gymnasium`` and ``ap_gym``).
 """
