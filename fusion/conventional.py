@@ -232,14 +232,16 @@ class ConventionalClassifier(TactileClassifier):
 
     def _search(self, features: np.ndarray, y: np.ndarray, objects: np.ndarray) -> dict | None:
         """Mean inner accuracy of every candidate over folds of whole training objects, and the best one;
-        None (configured pipeline) when a class has fewer than two objects."""
+        None (configured pipeline) when a class has fewer than two objects or a fold would lack a class."""
         objects = np.asarray(objects)
-        if min(len(np.unique(objects[y == c])) for c in np.unique(y)) < 2:
-            log.info("pipeline search skipped: a class has a single training object")
+        n_folds = min(SEARCH_FOLDS, *(len(np.unique(objects[y == c])) for c in np.unique(y)))
+        folds = [] if n_folds < 2 else list(StratifiedGroupKFold(n_splits=n_folds, shuffle=True,
+                                                                 random_state=self.random_state).split(features, y, objects))
+        # every inner training fold must hold every class (the SVM's Platt folds: two sequences of each)
+        needed = 2 if self.kind == "svm" else 1
+        if not folds or any(np.bincount(y[train], minlength=len(self.classes_)).min() < needed for train, _ in folds):
+            log.info("pipeline search skipped: too few training objects per class for grouped folds")
             return None
-        splitter = StratifiedGroupKFold(n_splits=min(SEARCH_FOLDS, len(np.unique(objects))), shuffle=True,
-                                        random_state=self.random_state)
-        folds = list(splitter.split(features, y, objects))
         wavelet = self.make_pipeline(y)[1]  # stateless: the statistics of every sequence, once
         statistics = wavelet.fit_transform(features)
         scores = []

@@ -171,7 +171,8 @@ def test_search_scores_are_grouped_cross_validation_over_training_objects(search
     assert len(search["scores"]) == len(SEARCH_GRID["knn"]) and search["chosen"] == int(np.argmax(search["scores"]))
     # scikit-learn's own cross-validation of each candidate, folds of whole objects, gives the same scores
     features = sequence_features(train, "invariant")
-    folds = StratifiedGroupKFold(3, shuffle=True, random_state=0).split(features, train.labels, train.object_ids)
+    # two objects per class: two grouped folds (the most that leave every class on both sides)
+    folds = StratifiedGroupKFold(2, shuffle=True, random_state=0).split(features, train.labels, train.object_ids)
     folds = list(folds)
     for candidate, score in enumerate(search["scores"]):
         tail = clf.make_pipeline(train.labels, candidate)[1:]
@@ -211,3 +212,14 @@ def test_search_falls_back_to_the_configured_pipeline_with_one_object_per_class(
     one = batch.subset(np.isin(batch.object_ids, [i for i in np.unique(batch.object_ids) if i % 2 == 0]))
     clf = ConventionalClassifier(kind="knn", som_iterations=300, n_select=30).fit(one)
     assert clf.search_ is None and "reduce" in clf.pipeline_.named_steps
+
+
+def test_search_with_one_sequence_per_object_uses_folds_it_can_fill():
+    from tests.fusion._synthetic import circle_batch
+
+    batch = circle_batch([10, 11, 20, 21, 30, 31], labels=[0, 0, 1, 1, 2, 2], seed=0)  # 2 objects per class
+    knn = ConventionalClassifier(kind="knn", som_iterations=100, n_select=10).fit(batch)
+    assert len(knn.search_["scores"]) == len(SEARCH_GRID["knn"])  # two grouped folds, each class on both sides
+    # the SVM's Platt folds need two sequences of each class in every inner training fold: no search
+    svm = ConventionalClassifier(kind="svm", som_iterations=100, n_select=10).fit(batch)
+    assert svm.search_ is None and "reduce" in svm.pipeline_.named_steps
