@@ -643,14 +643,27 @@ CHILDREN: list[dict] = []
 
 def _run_child(manifest, cases, start, results, timeout_s, memory_mb, startup_s, tmp, progress) -> int:
     """One child from case ``start`` on; returns where the next child must start."""
-    read_fd, write_fd = os.pipe()
-    log_path = tmp / f"child-{start}.log"
+    def result(i: int, record: dict) -> Result:
+        return Result(cases[i], record["outcome"], record["detail"], record["seconds"], record["peak_mb"],
+                      tuple(record["shape"]) if record["shape"] else None)
+
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MALLOC_ARENA_MAX": "2", "PYTHONPATH": str(ROOT)}
+    return supervise_child("benchmarks.fuzz", manifest, start, memory_mb, cwd=ROOT, env=env, cases=cases,
+                           results=results, result=result, result_type=Result, timeout_s=timeout_s,
+                           startup_s=startup_s, log_path=tmp / f"child-{start}.log", progress=progress)
+
+
+def supervise_child(module: str, manifest, start: int, memory_mb: int, *, cwd, env: dict, cases, results, result,
+                    result_type, timeout_s: float, startup_s: float, log_path: Path, progress) -> int:
+    """Run ``python -m module --child manifest start fd memory_mb`` and fill ``results`` from the JSON lines it
+    writes on ``fd`` (``result(i, record)`` makes each entry) until it ends, crashes or overruns ``timeout_s`` CPU
+    seconds on a case (``startup_s`` before it says ready; 20 x that in wall time); the case it was on is then a
+    ``result_type`` "timeout" or "crash". Returns where the next child must start. Shared by the fuzzers."""
+    read_fd, write_fd = os.pipe()
     with open(log_path, "wb") as log:
         child = subprocess.Popen(
-            [sys.executable, "-m", "benchmarks.fuzz", "--child", str(manifest), str(start), str(write_fd),
-             str(memory_mb)],
-            cwd=ROOT, stdin=subprocess.DEVNULL, stdout=log, stderr=log, pass_fds=(write_fd,), env=env,
+            [sys.executable, "-m", module, "--child", str(manifest), str(start), str(write_fd), str(memory_mb)],
+            cwd=cwd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, pass_fds=(write_fd,), env=env,
         )
     os.close(write_fd)
     i, ready, buffer = start, False, b""
@@ -672,8 +685,7 @@ def _run_child(manifest, cases, start, results, timeout_s, memory_mb, startup_s,
                         CHILDREN.append({"rss_mb": record["rss_mb"], "limit_mb": record["limit_mb"]})
                     else:
                         i = record["i"]
-                        results[i] = Result(cases[i], record["outcome"], record["detail"], record["seconds"],
-                                            record["peak_mb"], tuple(record["shape"]) if record["shape"] else None)
+                        results[i] = result(i, record)
                         i += 1
                         if progress:
                             progress(1)
@@ -686,8 +698,8 @@ def _run_child(manifest, cases, start, results, timeout_s, memory_mb, startup_s,
                 child.wait()
                 if not ready:
                     raise RuntimeError(f"fuzz child did not start: {_log_tail(log_path)}")
-                results[i] = Result(cases[i], "timeout", f"over {limit:g} s of CPU ({cpu:.1f} s) or "
-                                    f"{20 * limit:g} s of wall time ({wall:.1f} s)", wall, float("nan"))
+                results[i] = result_type(cases[i], "timeout", f"over {limit:g} s of CPU ({cpu:.1f} s) or "
+                                         f"{20 * limit:g} s of wall time ({wall:.1f} s)", wall, float("nan"))
                 if progress:
                     progress(1)
                 return i + 1
@@ -699,8 +711,8 @@ def _run_child(manifest, cases, start, results, timeout_s, memory_mb, startup_s,
     if not ready:
         raise RuntimeError(f"fuzz child died starting (exit {code}): {_log_tail(log_path)}")
     how = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit {code}"
-    results[i] = Result(cases[i], "crash", f"child died ({how}): {_log_tail(log_path)}"[:600],
-                        time.monotonic() - case_began, float("nan"))
+    results[i] = result_type(cases[i], "crash", f"child died ({how}): {_log_tail(log_path)}"[:600],
+                             time.monotonic() - case_began, float("nan"))
     if progress:
         progress(1)
     return i + 1

@@ -43,9 +43,7 @@ import io
 import json
 import os
 import pickle
-import select
 import shutil
-import signal
 import struct
 import subprocess
 import sys
@@ -58,7 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.fuzz import _cpu_seconds, _log_tail, _reset_peak, _status_kb
+from benchmarks.fuzz import CHILDREN, _reset_peak, _status_kb, supervise_child
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("store_meta", "store_chunk", "store_record", "model_bytes", "model_header", "model_payload", "recording")
@@ -460,71 +458,18 @@ def run_cases(cases: list[Case], *, timeout_s: float = 60.0, memory_mb: int = 10
     return results  # type: ignore[return-value]
 
 
-#: Per child started: its resident size after start-up and its address-space limit (MB).
-CHILDREN: list[dict] = []
-
-
 def _run_child(manifest, cases, start, results, timeout_s, memory_mb, tmp, progress) -> int:
-    read_fd, write_fd = os.pipe()
-    log_path = tmp / f"child-{start}.log"
+    """One child from case ``start`` on (see :func:`benchmarks.fuzz.supervise_child`)."""
+    def result(i: int, record: dict) -> Result:
+        outcome, detail = classify(cases[i], record)
+        numbers = _numbers(record["stdout"]) if record["code"] == 0 else None
+        return Result(cases[i], outcome, detail, record["seconds"], record["peak_mb"], numbers)
+
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MALLOC_ARENA_MAX": "2", "PYTHONPATH": str(ROOT),
            "VISUOTACTILE_MAX_MEMORY_MB": str(max(memory_mb // 2, 64)), "VISUOTACTILE_PROGRESS": "0"}
-    with open(log_path, "wb") as log:
-        child = subprocess.Popen(
-            [sys.executable, "-m", "benchmarks.fuzz_files", "--child", str(manifest), str(start), str(write_fd),
-             str(memory_mb)],
-            cwd=tmp, stdin=subprocess.DEVNULL, stdout=log, stderr=log, pass_fds=(write_fd,), env=env,
-        )
-    os.close(write_fd)
-    i, ready, buffer, limit = start, False, b"", 300.0
-    case_began, cpu_began = time.monotonic(), _cpu_seconds(child.pid)
-    try:
-        while True:
-            if select.select([read_fd], [], [], 0.5)[0]:
-                chunk = os.read(read_fd, 1 << 16)
-                if not chunk:
-                    break
-                buffer += chunk
-                *lines, buffer = buffer.split(b"\n")
-                for line in lines:
-                    record = json.loads(line)
-                    if record.get("ready"):
-                        ready, limit = True, timeout_s
-                        CHILDREN.append({"rss_mb": record["rss_mb"], "limit_mb": record["limit_mb"]})
-                    else:
-                        i = record["i"]
-                        outcome, detail = classify(cases[i], record)
-                        numbers = _numbers(record["stdout"]) if record["code"] == 0 else None
-                        results[i] = Result(cases[i], outcome, detail, record["seconds"], record["peak_mb"], numbers)
-                        i += 1
-                        if progress:
-                            progress(1)
-                    case_began, cpu_began = time.monotonic(), _cpu_seconds(child.pid)
-                continue
-            cpu, wall = _cpu_seconds(child.pid) - cpu_began, time.monotonic() - case_began
-            if cpu > limit or wall > 20 * limit:
-                child.kill()
-                child.wait()
-                if not ready:
-                    raise RuntimeError(f"fuzz child did not start: {_log_tail(log_path)}")
-                results[i] = Result(cases[i], "timeout", f"over {limit:g} CPU s ({cpu:.1f}) or {20 * limit:g} wall s",
-                                    wall, float("nan"))
-                if progress:
-                    progress(1)
-                return i + 1
-    finally:
-        os.close(read_fd)
-    code = child.wait()
-    if i >= len(cases):
-        return i
-    if not ready:
-        raise RuntimeError(f"fuzz child died starting (exit {code}): {_log_tail(log_path)}")
-    how = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit {code}"
-    results[i] = Result(cases[i], "crash", f"child died ({how}): {_log_tail(log_path)}"[:600],
-                        time.monotonic() - case_began, float("nan"))
-    if progress:
-        progress(1)
-    return i + 1
+    return supervise_child("benchmarks.fuzz_files", manifest, start, memory_mb, cwd=tmp, env=env, cases=cases,
+                           results=results, result=result, result_type=Result, timeout_s=timeout_s, startup_s=300.0,
+                           log_path=tmp / f"child-{start}.log", progress=progress)
 
 
 # ------------------------------------------------------------------------------------------------- reporting
