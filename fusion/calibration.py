@@ -108,6 +108,19 @@ def negative_log_likelihood(proba, y) -> float:
     return float(-log_proba(proba[np.arange(len(y)), y]).mean())
 
 
+def _checked_logits(logits, y, bounds, where: str) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(logits, labels, low T, high T) checked for the temperature fits: finite (N >= 2, C >= 2) logits, N class
+    indices, and 0 < low < high < inf (DatasetError / InvalidArgumentError naming ``where``)."""
+    z = np.asarray(logits, dtype=np.float64)
+    if z.ndim != 2 or z.shape[1] < 2 or len(z) < 2 or not np.isfinite(z).all():
+        raise DatasetError(f"{where}: expected finite (N >= 2, C >= 2) logits, got shape {z.shape}")
+    y = _check_labels(y, len(z), z.shape[1], where)
+    lo, hi = (float(b) for b in bounds)
+    if not 0 < lo < hi or not np.isfinite(hi):
+        raise InvalidArgumentError(f"{where}: bounds must satisfy 0 < low < high < inf, got {bounds!r}")
+    return z, y, lo, hi
+
+
 def fit_temperature(logits, y, *, bounds=TEMPERATURE_BOUNDS) -> float:
     """The temperature T minimising the mean NLL of softmax(logits / T) for true classes ``y``.
 
@@ -118,15 +131,10 @@ def fit_temperature(logits, y, *, bounds=TEMPERATURE_BOUNDS) -> float:
         bounds: the searched interval of T (a fit at a bound is returned as that bound).
 
     Raises:
-        DatasetError: bad shapes, non-finite logits, or fewer than 2 samples.
+        DatasetError: bad shapes, non-finite logits, or fewer than 2 samples. InvalidArgumentError: bounds not
+            0 < low < high < inf.
     """
-    z = np.asarray(logits, dtype=np.float64)
-    if z.ndim != 2 or z.shape[1] < 2 or len(z) < 2 or not np.isfinite(z).all():
-        raise DatasetError(f"fit_temperature: expected finite (N >= 2, C >= 2) logits, got shape {z.shape}")
-    y = _check_labels(y, len(z), z.shape[1], "fit_temperature")
-    lo, hi = (float(b) for b in bounds)
-    if not 0 < lo < hi or not np.isfinite(hi):
-        raise InvalidArgumentError(f"fit_temperature: bounds must satisfy 0 < low < high < inf, got {bounds!r}")
+    z, y, lo, hi = _checked_logits(logits, y, bounds, "fit_temperature")
     rows = np.arange(len(y))
 
     def nll(log_t: float) -> float:
@@ -164,15 +172,12 @@ def fit_calibration(logits, y, *, bounds=TEMPERATURE_BOUNDS, max_smoothing: floa
     decision to pay for those few; the uniform share eps pays for them instead, so T can fit the rest.
 
     Raises:
-        DatasetError: bad shapes, non-finite logits, or fewer than 2 samples.
+        DatasetError: bad shapes, non-finite logits, or fewer than 2 samples. InvalidArgumentError: bounds not
+            0 < low < high < inf.
     """
     from scipy.optimize import minimize
 
-    z = np.asarray(logits, dtype=np.float64)
-    if z.ndim != 2 or z.shape[1] < 2 or len(z) < 2 or not np.isfinite(z).all():
-        raise DatasetError(f"fit_calibration: expected finite (N >= 2, C >= 2) logits, got shape {z.shape}")
-    y = _check_labels(y, len(z), z.shape[1], "fit_calibration")
-    lo, hi = (float(b) for b in bounds)
+    z, y, lo, hi = _checked_logits(logits, y, bounds, "fit_calibration")
     rows, c = np.arange(len(y)), z.shape[1]
 
     def nll(params) -> float:
@@ -332,7 +337,7 @@ def ece_interval(proba, y, groups, *, bins: int = DEFAULT_BINS, n_boot: int = 10
         pick = np.concatenate([members[g] for g in rng.integers(0, len(names), len(names))])
         boot[b] = expected_calibration_error(proba[pick], y[pick], bins)
     low, high = np.percentile(boot, [2.5, 97.5])
-    return {"ece": value, "low": float(low), "high": float(high), "n": int(len(y)), "n_groups": int(len(names))}
+    return {"ece": value, "low": float(low), "high": float(high), "n": len(y), "n_groups": len(names)}
 
 
 def ece_noise_floor(confidence, bins: int = DEFAULT_BINS, draws: int = 200, seed: int = 0) -> float:
@@ -367,7 +372,26 @@ def plot_reliability(curves: dict, path, title: str = "") -> object:
     return save_figure(fig, path, dpi=120)
 
 
-__all__ = ["DEFAULT_BINS", "TEMPERATURE_BOUNDS", "apply_calibration", "apply_temperature", "check_smoothing",
-           "fit_calibration", "apply_confidence_map", "fit_confidence_map", "check_dependence", "check_temperature",
-           "ece_interval", "ece_noise_floor", "expected_calibration_error", "fit_dependence", "fit_temperature", "fuse_tempered",
-           "log_proba", "negative_log_likelihood", "plot_reliability", "reliability", "tempered_exponent"]
+__all__ = [
+    "DEFAULT_BINS",
+    "TEMPERATURE_BOUNDS",
+    "apply_calibration",
+    "apply_confidence_map",
+    "apply_temperature",
+    "check_dependence",
+    "check_smoothing",
+    "check_temperature",
+    "ece_interval",
+    "ece_noise_floor",
+    "expected_calibration_error",
+    "fit_calibration",
+    "fit_confidence_map",
+    "fit_dependence",
+    "fit_temperature",
+    "fuse_tempered",
+    "log_proba",
+    "negative_log_likelihood",
+    "plot_reliability",
+    "reliability",
+    "tempered_exponent",
+]
