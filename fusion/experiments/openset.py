@@ -28,6 +28,7 @@ from fusion.experiments.context import Context
 from fusion.experiments.data import split_loader
 from fusion.experiments.models import DISPLAY, pick
 from fusion.experiments.protocol import pose_stores, same_objects
+from fusion.experiments.report import pivot
 from fusion.openset import (
     SCORES,
     auroc,
@@ -62,7 +63,7 @@ def calibration_part(ctx: Context, objects) -> dict:
     """ECE rows and reliability figures (module docstring); returns {"rows", "fits", "figures"}."""
     sizes = ctx.sizes
     strategy = sizes.calibration_strategy
-    ds, record, test_ds, test_record = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
+    ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
     collected: dict[str, list] = {}
     fits = []
@@ -131,7 +132,7 @@ def openset_part(ctx: Context, objects) -> dict:
     """Open-set rows (module docstring); returns {"rows", "rotations"}."""
     sizes = ctx.sizes
     strategy = sizes.calibration_strategy
-    ds, record, test_ds, test_record = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
+    ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
     index = ds.indices(strategy)
     n_rot = sizes.openset_rotations
     folds = ds.kfold_by_object(n_rot, seed=ctx.seed, index=index)
@@ -159,8 +160,8 @@ def openset_part(ctx: Context, objects) -> dict:
             _, ids = np.unique(obj, return_inverse=True)
             cal = model.calibration_
             rotations.append({"rotation": r + 1, "classifier": DISPLAY.get(name, name), "left_out": left_out[r],
-                              "known_test_objects": int(len(np.unique(obj[~is_unknown]))),
-                              "unknown_objects": int(len(np.unique(obj[is_unknown]))),
+                              "known_test_objects": len(np.unique(obj[~is_unknown])),
+                              "unknown_objects": len(np.unique(obj[is_unknown])),
                               "score": cal["score"], "temperature": round(cal["temperature"], 4),
                               "smoothing": round(cal["smoothing"], 4),
                               "dependence": round(cal["dependence"], 4), "inner_auroc": cal["inner_auroc"]})
@@ -211,39 +212,25 @@ def openset_part(ctx: Context, objects) -> dict:
 
 def calibration_table(rows: list[dict]) -> list[dict]:
     """Markdown rows: classifier, variant, then ECE [interval] (accuracy, mean confidence) per K."""
-    ks = sorted({r["k"] for r in rows})
-    out = []
-    for key in dict.fromkeys((r["classifier"], r["variant"]) for r in rows):
-        row = {"classifier": key[0], "variant": key[1]}
-        for k in ks:
-            hit = [r for r in rows if (r["classifier"], r["variant"]) == key and r["k"] == k]
-            row[f"K={k}"] = (f"{hit[0]['ece']:.3f} [{hit[0]['low']:.3f}, {hit[0]['high']:.3f}] "
-                             f"(floor {hit[0]['noise_floor']:.3f}; acc {100 * hit[0]['accuracy']:.0f} %, "
-                             f"conf {100 * hit[0]['mean_confidence']:.0f} %)" if hit else "-")
-        out.append(row)
-    return out
+    return pivot(rows, ("classifier", "variant"), _ece_cell)
 
 
 def openset_table(rows: list[dict]) -> list[dict]:
     """Markdown rows: classifier, score, then AUROC [interval] per K; the chosen score also shows the shares."""
-    ks = sorted({r["k"] for r in rows})
-    out = []
-    for key in dict.fromkeys((r["classifier"], r["score"]) for r in rows):
-        row = {"classifier": key[0], "score": key[1]}
-        for k in ks:
-            hit = [r for r in rows if (r["classifier"], r["score"]) == key and r["k"] == k]
-            if not hit:
-                row[f"K={k}"] = "-"
-                continue
-            h = hit[0]
-            text = f"{h['auroc']:.3f} [{h['auroc_low']:.3f}, {h['auroc_high']:.3f}]"
-            if "unknown_rejected" in h:
-                text += (f"; kept {100 * h['known_kept']:.0f} %, rejected {100 * h['unknown_rejected']:.0f} % "
-                         f"[{100 * h['unknown_rejected_low']:.0f}, {100 * h['unknown_rejected_high']:.0f}]")
-            text += f"; @95 % test-known {100 * h['rejected_at_test_95']:.0f} %"
-            row[f"K={k}"] = text
-        out.append(row)
-    return out
+    return pivot(rows, ("classifier", "score"), _auroc_cell)
+
+
+def _ece_cell(h: dict) -> str:
+    return (f"{h['ece']:.3f} [{h['low']:.3f}, {h['high']:.3f}] (floor {h['noise_floor']:.3f}; "
+            f"acc {100 * h['accuracy']:.0f} %, conf {100 * h['mean_confidence']:.0f} %)")
+
+
+def _auroc_cell(h: dict) -> str:
+    text = f"{h['auroc']:.3f} [{h['auroc_low']:.3f}, {h['auroc_high']:.3f}]"
+    if "unknown_rejected" in h:
+        text += (f"; kept {100 * h['known_kept']:.0f} %, rejected {100 * h['unknown_rejected']:.0f} % "
+                 f"[{100 * h['unknown_rejected_low']:.0f}, {100 * h['unknown_rejected_high']:.0f}]")
+    return text + f"; @95 % test-known {100 * h['rejected_at_test_95']:.0f} %"
 
 
 __all__ = ["calibration_part", "calibration_table", "openset_part", "openset_table"]

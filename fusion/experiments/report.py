@@ -29,32 +29,34 @@ def table1(rows: list[dict]) -> list[dict]:
     return out
 
 
+def pivot(rows: list[dict], keys: tuple[str, ...], cell, *, column: str = "k", head=lambda v: f"K={v}") -> list[dict]:
+    """Rows of a results table: one per distinct ``keys`` tuple of ``rows`` (in order of first appearance), holding
+    those key fields, then a column ``head(v)`` per sorted value ``v`` of ``rows``' field ``column``; the cell is
+    ``cell(row)`` of the first row with that key and value, or '-' where there is none."""
+    values = sorted({r[column] for r in rows})
+    out = []
+    for key in dict.fromkeys(tuple(r[f] for f in keys) for r in rows):
+        row = dict(zip(keys, key))
+        for v in values:
+            hit = [r for r in rows if tuple(r[f] for f in keys) == key and r[column] == v]
+            row[head(v)] = cell(hit[0]) if hit else "-"
+        out.append(row)
+    return out
+
+
 def touches_table(rows: list[dict], setting: str) -> list[dict]:
     """K columns per (classifier, strategy, rule) of one setting."""
-    sel = [r for r in rows if r["setting"] == setting]
-    ks = sorted({r["k"] for r in sel})
-    out = []
-    for key in dict.fromkeys((r["classifier"], r["strategy"], r["rule"]) for r in sel):
-        row = {"classifier": key[0], "strategy": key[1], "rule": "sum of log" if key[2] == "log" else "sum"}
-        for k in ks:
-            hit = [r for r in sel if (r["classifier"], r["strategy"], r["rule"]) == key and r["k"] == k]
-            row[f"K={k}"] = pct(hit[0]["accuracy"]) if hit else "-"
-        out.append(row)
+    out = pivot([r for r in rows if r["setting"] == setting], ("classifier", "strategy", "rule"),
+                lambda r: pct(r["accuracy"]))
+    for row in out:
+        row["rule"] = "sum of log" if row["rule"] == "log" else "sum"
     return out
 
 
 def difference_table(rows: list[dict], group: str) -> list[dict]:
     """Paired differences (percentage points, 95 % interval, smallest detectable) as rows per ``group`` value
     (pose or strategy) and classifier, K columns."""
-    ks = sorted({r["k"] for r in rows})
-    out = []
-    for key in dict.fromkeys((r[group], r["classifier"]) for r in rows):
-        row = {group: key[0], "classifier": key[1]}
-        for k in ks:
-            hit = [r for r in rows if (r[group], r["classifier"]) == key and r["k"] == k]
-            row[f"K={k}"] = _difference(hit[0]) if hit else "-"
-        out.append(row)
-    return out
+    return pivot(rows, (group, "classifier"), _difference)
 
 
 def _difference(d: dict | None) -> str:
@@ -66,17 +68,9 @@ def _difference(d: dict | None) -> str:
 
 def noise_table(rows: list[dict], kind: str) -> list[dict]:
     """Accuracy per level (columns) of one noise kind, a row per (pose, classifier, strategy)."""
-    sel = [r for r in rows if r["kind"] == kind]
-    levels = sorted({r["level"] for r in sel})
-    out = []
-    for key in dict.fromkeys((r.get("pose", "upright"), r["classifier"], r["strategy"]) for r in sel):
-        row = {"pose": key[0], "classifier": key[1], "strategy": key[2]}
-        for level in levels:
-            hit = [r for r in sel if (r.get("pose", "upright"), r["classifier"], r["strategy"]) == key
-                   and r["level"] == level]
-            row[f"{level:g}"] = pct(hit[0]["accuracy"]) if hit else "-"
-        out.append(row)
-    return out
+    sel = [{"pose": "upright", **r} for r in rows if r["kind"] == kind]
+    return pivot(sel, ("pose", "classifier", "strategy"), lambda r: pct(r["accuracy"]), column="level",
+                 head=lambda v: f"{v:g}")
 
 
 def _image(name: str, caption: str) -> str:

@@ -26,7 +26,7 @@ from fusion.experiments.analysis import (
 )
 from fusion.experiments.data import any_pose, folder_objects
 from fusion.experiments.models import Predictions
-from fusion.experiments.report import table1
+from fusion.experiments.report import pivot, table1
 from fusion.experiments.touch import load_batch, save_batch, touch_object, touch_objects
 from perception.errors import DatasetError, InvalidArgumentError
 from perception.shapes import make_object
@@ -127,6 +127,16 @@ def test_table1_puts_paper_numbers_only_next_to_the_papers_classifiers():
     assert out["SVM (normals cue)"]["paper blind"] == "77.21 %"
     assert out["CNN cutaneous"]["paper guided"] == "-" and out["SVM"]["paper guided"] == "-"
     assert out["SVM"]["guided"] == "90.0 % [80.0, 95.0]"
+
+
+def test_pivot_gives_a_row_per_key_in_first_seen_order_and_a_dash_where_a_cell_is_missing():
+    """Keys keep the order they first appear in; columns are the sorted values; a missing (key, K) is '-'."""
+    rows = [{"c": "b", "k": 2, "v": 1}, {"c": "a", "k": 1, "v": 2}, {"c": "b", "k": 1, "v": 3},
+            {"c": "b", "k": 1, "v": 9}]
+    assert pivot(rows, ("c",), lambda r: str(r["v"])) == [{"c": "b", "K=1": "3", "K=2": "1"},
+                                                           {"c": "a", "K=1": "2", "K=2": "-"}]
+    assert pivot(rows, ("c",), lambda r: r["v"], column="v", head=str)[1] == {"c": "a", "1": "-", "2": 2, "3": "-",
+                                                                               "9": "-"}
 
 
 def test_paired_difference_by_hand():
