@@ -224,26 +224,29 @@ class ConventionalClassifier(TactileClassifier):
     def _fit(self, batch: SequenceBatch, y_index: np.ndarray) -> None:
         features = sequence_features(batch, self.cue)
         self.search_ = None
+        # The front step (series) is stateless and the wavelet step, the same in every candidate, stateless but
+        # for its input check: the statistics of every sequence are computed once, for the search and the fit.
+        wavelet = self.make_pipeline(y_index)[1]
+        statistics = wavelet.fit_transform(features, y_index)
         if self.search == "objects":
-            self.search_ = self._search(features, y_index, batch.object_ids)
-        pipeline = self.make_pipeline(y_index)
-        pipeline[1:].fit(features, y_index)  # the front step is stateless: fit the rest on its output
+            self.search_ = self._search(statistics, y_index, batch.object_ids)
+        pipeline = self.make_pipeline(y_index).set_params(wavelet=wavelet)
+        pipeline[2:].fit(statistics, y_index)
         self.pipeline_ = pipeline
 
-    def _search(self, features: np.ndarray, y: np.ndarray, objects: np.ndarray) -> dict | None:
+    def _search(self, statistics: np.ndarray, y: np.ndarray, objects: np.ndarray) -> dict | None:
         """Mean inner accuracy of every candidate over folds of whole training objects, and the best one;
-        None (configured pipeline) when a class has fewer than two objects or a fold would lack a class."""
+        None (configured pipeline) when a class has fewer than two objects or a fold would lack a class.
+        ``statistics``: the wavelet step's output for every training sequence (each candidate's ``[2:]`` input)."""
         objects = np.asarray(objects)
         n_folds = min(SEARCH_FOLDS, *(len(np.unique(objects[y == c])) for c in np.unique(y)))
         folds = [] if n_folds < 2 else list(StratifiedGroupKFold(n_splits=n_folds, shuffle=True,
-                                                                 random_state=self.random_state).split(features, y, objects))
+                                                                 random_state=self.random_state).split(statistics, y, objects))
         # every inner training fold must hold every class (the SVM's Platt folds: two sequences of each)
         needed = 2 if self.kind == "svm" else 1
         if not folds or any(np.bincount(y[train], minlength=len(self.classes_)).min() < needed for train, _ in folds):
             log.info("pipeline search skipped: too few training objects per class for grouped folds")
             return None
-        wavelet = self.make_pipeline(y)[1]  # stateless: the statistics of every sequence, once
-        statistics = wavelet.fit_transform(features)
         scores = []
         for candidate in range(len(SEARCH_GRID[self.kind])):
             correct = []
@@ -488,4 +491,4 @@ def cross_validate(clf: TactileClassifier, X, folds: int = 5, seed: int = 0) -> 
     return np.array(scores)
 
 
-__all__ = ["KINDS", "REDUCERS", "SEARCH_FOLDS", "SEARCH_GRID", "SEARCHES", "ConventionalClassifier", "conventional_pipeline", "cross_validate"]
+__all__ = ["KINDS", "REDUCERS", "SEARCHES", "SEARCH_FOLDS", "SEARCH_GRID", "ConventionalClassifier", "conventional_pipeline", "cross_validate"]
