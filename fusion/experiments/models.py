@@ -79,24 +79,88 @@ def digest(*parts) -> str:
     return h.hexdigest()[:16]
 
 
-#: Modules of ``fusion`` that do not define how a classifier learns (their changes keep cached models valid).
-NOT_MODEL_CODE = {"cli.py", "demo.py", "evaluate.py", "decide.py", "__init__.py"}
+#: Modules that only use a fitted model's outputs (fusing, calibrating, scoring its probabilities; calibration is
+#: fitted outside the cache): never part of a classifier's code version, nor followed for imports.
+NOT_MODEL_CODE = frozenset({"fusion.decide", "fusion.evaluate", "fusion.calibration", "fusion.openset"})
+
+
+def _source_text(path: Path) -> str:
+    return path.read_text(encoding="utf-8")
+
+
+def _module_file(name: str) -> Path | None:
+    """The source file of module ``name`` of the ``fusion`` package (a package: its ``__init__.py``), or None."""
+    root = Path(__file__).resolve().parents[2]
+    base = root.joinpath(*name.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+def _fusion_imports(source: str, module: str, is_package: bool) -> set[str]:
+    """Names of the ``fusion`` modules a source imports (at any depth: top level and inside functions)."""
+    import ast
+
+    names = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: from the module's package
+                parts = module.split(".")[:len(module.split(".")) - node.level + is_package]
+                origin = ".".join(parts + ([node.module] if node.module else []))
+            else:
+                origin = node.module or ""
+            names.add(origin)
+            names.update(f"{origin}.{alias.name}" for alias in node.names)  # `from package import module`
+    return {n for n in names if n == "fusion" or n.startswith("fusion.")}
+
+
+def model_code_files(cls: type) -> list[Path]:
+    """The files a classifier's code lives in: the modules of ``cls`` and of its base classes that belong to
+    ``fusion`` (or are ``cls``'s own), and every ``fusion`` module they import, transitively (imports read from
+    the source), but :data:`NOT_MODEL_CODE`. For CNNClassifier, say: fusion/cnn.py, base.py, cues.py, leakage.py,
+    modelfile.py; not fusion/demo.py, the commands or the experiments."""
+    starts = [cls.__module__] + [c.__module__ for c in cls.__mro__[1:] if c.__module__.split(".")[0] == "fusion"]
+    seen, files, todo = set(), {}, list(dict.fromkeys(starts))
+    while todo:
+        name = todo.pop()
+        if name in seen or name in NOT_MODEL_CODE:
+            continue
+        seen.add(name)
+        path = _module_file(name) if name.split(".")[0] == "fusion" else None
+        if path is None and name == cls.__module__:  # a classifier defined outside fusion (a test's stand-in)
+            import inspect
+
+            try:
+                found = inspect.getsourcefile(cls)
+            except (TypeError, OSError):  # defined interactively: only its fusion modules count
+                found = None
+            path = Path(found).resolve() if found else None
+        if path is None:
+            continue
+        files[name] = path
+        todo.extend(_fusion_imports(_source_text(path), name, path.name == "__init__.py"))
+    return sorted(files.values())
 
 
 @functools.cache
-def model_code_version() -> str:
-    """A hash of the classifier code (``fusion/*.py`` but :data:`NOT_MODEL_CODE`): a cached model trained by
-    other code is trained again (an old pickle may not even run with the new code). Read once per process:
-    the code that runs is the code that was imported, whatever happens to the files during a long run."""
-    folder = Path(__file__).resolve().parents[1]
-    files = sorted(p for p in folder.glob("*.py") if p.name not in NOT_MODEL_CODE)
-    return digest(*[f"{p.name}:{p.read_text(encoding='utf-8')}" for p in files])
+def model_code_version(cls: type) -> str:
+    """A hash of the code of classifier class ``cls`` (the files of :func:`model_code_files`): a cached model
+    trained by other code is trained again, while an edit to a module the classifier does not use (the demo,
+    the commands, the experiments, :data:`NOT_MODEL_CODE`) keeps cached models valid. Read once per process and
+    class: the code that runs is the code that was imported, whatever happens to the files during a long run."""
+    root = Path(__file__).resolve().parents[2]
+    return digest(*[f"{p.relative_to(root) if p.is_relative_to(root) else p.name}:{_source_text(p)}"
+                    for p in model_code_files(cls)])
 
 
 def describe(estimator: TactileClassifier) -> str:
     """The estimator's class, parameters and code version (part of the cache record)."""
     params = {k: v for k, v in estimator.get_params(deep=False).items() if k != "progress"}
-    return f"{type(estimator).__name__}({json.dumps(params, sort_keys=True, default=str)}) code {model_code_version()}"
+    return (f"{type(estimator).__name__}({json.dumps(params, sort_keys=True, default=str)}) "
+            f"code {model_code_version(type(estimator))}")
 
 
 def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[TactileClassifier, float]:

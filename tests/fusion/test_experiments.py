@@ -403,6 +403,63 @@ def test_model_cache_reloads_only_the_same_estimator_on_the_same_data(tmp_path):
     assert len(calls) == 3
 
 
+class TestModelCodeVersion:
+    """A cached model's code key covers the modules its classifier's code lives in, and only those."""
+
+    @staticmethod
+    def _key_after_edit(monkeypatch, cls, edited: str, addition: str = "\n# an edit\n") -> str:
+        """The key of ``cls`` as it would be with ``addition`` appended to the file ``edited`` (fusion/...);
+        the real files are read, never written."""
+        from fusion.experiments import models
+
+        real = models._source_text
+        monkeypatch.setattr(models, "_source_text",
+                            lambda path: real(path) + (addition if path.as_posix().endswith(edited) else ""))
+        return models.model_code_version.__wrapped__(cls)
+
+    def test_files_of_each_classifier(self):
+        from fusion.cnn import CNNClassifier
+        from fusion.conventional import ConventionalClassifier
+        from fusion.experiments.models import model_code_files
+
+        cnn = {p.name for p in model_code_files(CNNClassifier)}
+        conventional = {p.name for p in model_code_files(ConventionalClassifier)}
+        assert {"cnn.py", "base.py", "cues.py", "modelfile.py", "leakage.py"} <= cnn
+        assert {"conventional.py", "features.py", "contourlet.py", "base.py", "cues.py"} <= conventional
+        assert not {"demo.py", "cli.py", "decide.py", "evaluate.py", "models.py"} & (cnn | conventional)
+        assert "conventional.py" not in cnn and "cnn.py" not in conventional
+
+    def test_an_edit_to_an_unrelated_module_keeps_the_key(self, monkeypatch):
+        from fusion.cnn import CNNClassifier
+        from fusion.experiments.models import model_code_version
+
+        assert self._key_after_edit(monkeypatch, CNNClassifier, "fusion/demo.py") == model_code_version(CNNClassifier)
+
+    def test_an_edit_to_the_classifiers_module_changes_the_key(self, monkeypatch):
+        from fusion.cnn import CNNClassifier
+        from fusion.experiments.models import model_code_version
+
+        assert self._key_after_edit(monkeypatch, CNNClassifier, "fusion/cnn.py") != model_code_version(CNNClassifier)
+
+    def test_an_edit_to_another_classifier_keeps_the_key(self, monkeypatch):
+        from fusion.conventional import ConventionalClassifier
+        from fusion.experiments.models import model_code_version
+
+        unchanged = model_code_version(ConventionalClassifier)
+        assert self._key_after_edit(monkeypatch, ConventionalClassifier, "fusion/cnn.py") == unchanged
+        assert self._key_after_edit(monkeypatch, ConventionalClassifier, "fusion/contourlet.py") != unchanged
+
+    def test_a_new_import_brings_its_module_in(self, monkeypatch):
+        """An edit that makes a classifier's module import another puts that module's code in the key."""
+        from fusion.cnn import CNNClassifier
+        from fusion.experiments import models
+
+        real = models._source_text
+        monkeypatch.setattr(models, "_source_text", lambda path: real(path) + (
+            "\n\ndef later():\n    from fusion.demo import run_demo\n" if path.name == "cues.py" else ""))
+        assert "demo.py" in {p.name for p in models.model_code_files(CNNClassifier)}
+
+
 def test_reproduce_command_offers_exactly_the_parts():
     from fusion.commands.reproduce import PARTS as COMMAND_PARTS
     from fusion.experiments import PARTS
