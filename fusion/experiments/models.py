@@ -79,6 +79,32 @@ def digest(*parts) -> str:
     return h.hexdigest()[:16]
 
 
+def write_cache(path: str | Path, meta: dict, arrays: dict[str, np.ndarray]) -> Path:
+    """Write a cache file atomically: an ``.npz`` of ``arrays`` and their ``meta`` (JSON, one string entry)."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, meta=np.array(json.dumps(meta, default=str)), **arrays)
+    return Path(path)
+
+
+def read_cache(path: str | Path, field: str, key, read: Callable):
+    """``read(meta, data)`` of the cache file at ``path`` (:func:`write_cache`; ``data``: the open ``.npz``), or
+    None when it is absent, unreadable (logged), or its ``meta[field]`` is not ``key`` (after the same JSON
+    round trip; ``key=None``: any)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            if key is not None and meta.get(field) != json.loads(json.dumps(key, default=str)):
+                log.info("%s was made with other settings; making it again", path)
+                return None
+            return read(meta, data)
+    except (OSError, ValueError, KeyError) as exc:
+        log.warning("%s is unreadable (%s); making it again", path, exc)
+        return None
+
+
 #: Modules that only use a fitted model's outputs (fusing, calibrating, scoring its probabilities; calibration is
 #: fitted outside the cache): never part of a classifier's code version, nor followed for imports.
 NOT_MODEL_CODE = frozenset({"fusion.decide", "fusion.evaluate", "fusion.calibration", "fusion.openset"})
@@ -240,24 +266,16 @@ class Predictions:
                 "predict_seconds": self.predict_seconds, "record": record}
         arrays = {"proba": self.proba, "labels": self.labels.astype(str), "object_ids": self.object_ids}
         arrays |= {f"modality_{k}": v for k, v in self.modalities.items()}
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez(f, meta=np.array(json.dumps(meta, default=str)), **arrays)
+        write_cache(path, meta, arrays)
 
     @classmethod
     def load(cls, path: Path, record: dict) -> Predictions | None:
-        if not path.is_file():
-            return None
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                meta = json.loads(str(data["meta"]))
-                if meta["record"] != json.loads(json.dumps(record, default=str)):
-                    return None
-                modalities = {k[len("modality_"):]: data[k] for k in data.files if k.startswith("modality_")}
-                return cls(data["proba"], data["labels"].astype(object), data["object_ids"], meta["classes"],
-                           meta["object_names"], modalities, meta["fit_seconds"], meta["predict_seconds"])
-        except (OSError, ValueError, KeyError) as exc:
-            log.warning("cached predictions %s unreadable (%s); recomputing", path, exc)
-            return None
+        def read(meta, data):
+            modalities = {k[len("modality_"):]: data[k] for k in data.files if k.startswith("modality_")}
+            return cls(data["proba"], data["labels"].astype(object), data["object_ids"], meta["classes"],
+                       meta["object_names"], modalities, meta["fit_seconds"], meta["predict_seconds"])
+
+        return read_cache(path, "record", record, read)
 
 
 def predict(model: TactileClassifier, test: SequenceBatch, fit_seconds: float = 0.0) -> Predictions:

@@ -10,21 +10,15 @@ noise level touches the same contours and only the perturbation differs.
 
 from __future__ import annotations
 
-import json
-import logging
 from pathlib import Path
 
-import numpy as np
-
-from perception.atomic import atomic_path
+from fusion.experiments.models import read_cache, write_cache
 from perception.geometry import ObjectModel
 from perception.runtime import progress_bar
 from tactile.contours import Contour
 from tactile.explore import SequenceBatch, TactileSequence
 from tactile.sensor import FSRSensor
 from tactile.touching import TouchTiming, touch
-
-log = logging.getLogger(__name__)
 
 
 def touch_object(
@@ -92,26 +86,15 @@ def save_batch(batch: SequenceBatch, path: str | Path, key: dict | None = None) 
     """Write ``batch`` (and a cache ``key``) to ``path`` (.npz) atomically."""
     meta = {"class_names": list(batch.class_names), "object_names": list(batch.object_names),
             "sensor_spec": batch.sensor_spec, "key": key or {}}
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        np.savez(f, meta=np.array(json.dumps(meta, default=str)), **{a: getattr(batch, a) for a in _ARRAYS})
-    return Path(path)
+    return write_cache(path, meta, {a: getattr(batch, a) for a in _ARRAYS})
 
 
 def load_batch(path: str | Path, key: dict | None = None) -> SequenceBatch | None:
     """The batch cached at ``path``, or None when absent, unreadable or made with another ``key``."""
-    path = Path(path)
-    if not path.is_file():
+    found = read_cache(path, "key", key, lambda meta, data: (meta, {a: data[a] for a in _ARRAYS}))
+    if found is None:
         return None
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"]))
-            if key is not None and meta.get("key") != json.loads(json.dumps(key, default=str)):
-                log.info("%s was made with other settings; rebuilding it", path)
-                return None
-            arrays = {a: data[a] for a in _ARRAYS}
-    except (OSError, ValueError, KeyError) as exc:
-        log.warning("%s is unreadable (%s); rebuilding it", path, exc)
-        return None
+    meta, arrays = found
     return SequenceBatch(**arrays, class_names=meta["class_names"], object_names=meta["object_names"],
                          sensor_spec=meta["sensor_spec"])
 
