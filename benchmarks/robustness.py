@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from benchmarks._common import DATA, machine, median_time
 from perception import curvature, meshio
-from perception.geometry import load_dataset, normalize
+from perception.geometry import list_collection, normalize
 from perception.isolate import run_isolated
 from perception.orientation import orient_outward
 
@@ -96,7 +96,7 @@ def measure_mesh(path, repeats: int) -> dict:
 
 
 def measure(repeats: int, limit: int | None) -> dict:
-    items = load_dataset(DATA / "shrec07")[:limit]
+    items = list_collection(DATA / "shrec07")[:limit]
     rows = [measure_mesh(path, repeats) for path, _ in tqdm(items, desc="meshes", leave=False)]
     summary = {}
     for key in (*STEPS, "total"):

@@ -37,7 +37,7 @@ from tqdm import tqdm
 
 from benchmarks._common import DATA, machine
 from perception.curvature import quiet_stdout
-from perception.geometry import ObjectModel, load_dataset, load_object
+from perception.geometry import ObjectModel, list_collection, load_object
 from perception.saliency import METHODS, PCL_METHODS, saliency
 
 PEER_BINARY = Path(__file__).resolve().parent / "peers" / "pcl_keypoints"
@@ -108,7 +108,7 @@ def _run_peer(model: ObjectModel, reference: np.ndarray) -> dict:
 
 
 def measure(folder: Path, limit: int | None, methods: list[str], peers: bool) -> dict:
-    items = load_dataset(folder)[:limit]
+    items = list_collection(folder)[:limit]
     rows, peer_rows = [], []
     peer_note = None
     if peers and not PEER_BINARY.exists():

@@ -36,7 +36,7 @@ from tqdm import tqdm
 from benchmarks._common import DATA, machine, median_time
 from perception import primitives
 from perception.errors import ContourError
-from perception.geometry import ObjectModel, load_dataset, load_object
+from perception.geometry import ObjectModel, list_collection, load_object
 from tactile.contours import interpolate_normals, make_contour, plane_through, section_chains
 from tactile.sensor import FSRSensor
 
@@ -155,7 +155,7 @@ class _CountingScene:
 
 
 def _real_meshes(k: int) -> list[ObjectModel]:
-    items = load_dataset(DATA / "shrec07")
+    items = list_collection(DATA / "shrec07")
     # Spread over the classes: every (len / k)-th file.
     picks = [items[i] for i in np.linspace(0, len(items) - 1, k).round().astype(int)]
     return [load_object(path, label=label, name=f"{label}/{path.stem}") for path, label in picks]

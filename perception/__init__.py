@@ -17,6 +17,7 @@ _EXPORTS = {
     "VisuotactileError": "errors",
     "Curvature": "geometry",
     "ObjectModel": "geometry",
+    "list_collection": "geometry",
     "load_dataset": "geometry",
     "load_object": "geometry",
     "CLASSES": "shapes",
@@ -24,7 +25,7 @@ _EXPORTS = {
     "load_points": "reconstruct.surface",
 }
 
-__all__ = ["CLASSES", "Curvature", "ObjectModel", "VisuotactileError", "__version__", "load_dataset", "load_object", "load_points", "make_object"]
+__all__ = ["CLASSES", "Curvature", "ObjectModel", "VisuotactileError", "__version__", "list_collection", "load_dataset", "load_object", "load_points", "make_object"]
 
 
 def __getattr__(name: str):

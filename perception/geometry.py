@@ -558,8 +558,9 @@ def load_object(
     )
 
 
-def load_dataset(folder: str | Path) -> list[tuple[Path, str]]:
-    """List a class-per-subfolder mesh collection ``<root>/<Class>/<instance>.<ext>``.
+def list_collection(folder: str | Path) -> list[tuple[Path, str]]:
+    """List a class-per-subfolder mesh collection ``<root>/<Class>/<instance>.<ext>`` (what a tactile dataset
+    store is generated from; "dataset" names the store only).
 
     Returns (path, class name) pairs sorted by class then file name. Hidden entries are ignored.
 
@@ -593,3 +594,7 @@ def load_dataset(folder: str | Path) -> list[tuple[Path, str]]:
             )
         items.extend((p, text_name(class_dir.name)) for p in files)
     return items
+
+
+#: The former name of :func:`list_collection`, kept for existing scripts.
+load_dataset = list_collection

@@ -26,16 +26,16 @@ def folder_objects(folder: str | Path, classes=None, per_class: int | None = Non
     out), so no split can put a copy of a test object in training.
 
     Raises:
-        DatasetError: a bad folder (see :func:`perception.geometry.load_dataset`), an unknown class, or a
+        DatasetError: a bad folder (see :func:`perception.geometry.list_collection`), an unknown class, or a
             class with fewer than ``per_class`` files.
         InvalidArgumentError: ``per_class`` below 1.
     """
-    from perception.geometry import load_dataset
+    from perception.geometry import list_collection
 
     if per_class is not None and (isinstance(per_class, bool) or int(per_class) != per_class or per_class < 1):
         raise InvalidArgumentError(f"objects per class must be an integer >= 1, got {per_class!r}")
 
-    items = unique_meshes(load_dataset(folder))
+    items = unique_meshes(list_collection(folder))
     available = sorted({label for _, label in items})
     if classes:
         unknown = [c for c in classes if c not in available]

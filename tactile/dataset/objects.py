@@ -97,7 +97,7 @@ class ObjectSpec:
 def object_specs(objects) -> list[ObjectSpec]:
     """Normalise what :func:`generate` accepts into specs.
 
-    ``objects`` is a class-per-folder mesh collection (a path, see :func:`perception.geometry.load_dataset`;
+    ``objects`` is a class-per-folder mesh collection (a path, see :func:`perception.geometry.list_collection`;
     names "Class/stem"), a list of (path, label) pairs (names "label/stem"), a list of catalogue pairs
     (class, seed) with a class of :data:`perception.shapes.CLASSES` (names "class/seed"), or a list of
     :class:`ObjectSpec` (mixing is allowed).
@@ -107,9 +107,9 @@ def object_specs(objects) -> list[ObjectSpec]:
             objects with the same name.
     """
     if isinstance(objects, (str, Path)):
-        from perception.geometry import load_dataset
+        from perception.geometry import list_collection
 
-        objects = load_dataset(objects)
+        objects = list_collection(objects)
     from perception.shapes import CLASSES
 
     specs: list[ObjectSpec] = []

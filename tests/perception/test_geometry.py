@@ -7,7 +7,7 @@ import open3d as o3d
 import pytest
 
 from perception.errors import DatasetError, InvalidMeshError, MeshLoadError, VisuotactileError
-from perception.geometry import ObjectModel, load_dataset, load_object, normalize
+from perception.geometry import ObjectModel, list_collection, load_object, normalize
 from perception.primitives import sphere
 
 # A unit cube as quads: 8 vertices, 6 faces -> 12 triangles after triangulation.
@@ -169,30 +169,37 @@ def test_normalize_rejects_point_and_bad_size():
         normalize(np.eye(3), size_mm=-1.0)
 
 
-# ----------------------------------------------------------------------------------------- dataset
-def test_load_dataset_lists_class_folders(tmp_path):
+# ------------------------------------------------------------------------------- mesh collection
+def test_list_collection_lists_class_folders(tmp_path):
     for cls, files in {"Cup": ["b.off", "a.off"], "Box": ["x.obj"]}.items():
         (tmp_path / cls).mkdir()
         for f in files:
             write(tmp_path / cls, f, CUBE_OFF)
     (tmp_path / "Cup" / "notes.txt").write_text("ignored")
     (tmp_path / ".hidden").mkdir()
-    items = load_dataset(tmp_path)
+    items = list_collection(tmp_path)
     assert [(p.name, label) for p, label in items] == [("x.obj", "Box"), ("a.off", "Cup"), ("b.off", "Cup")]
 
 
-def test_load_dataset_errors(tmp_path):
+def test_list_collection_errors(tmp_path):
     with pytest.raises(DatasetError, match="not a folder"):
-        load_dataset(tmp_path / "missing")
+        list_collection(tmp_path / "missing")
     with pytest.raises(DatasetError, match="no class subfolders") as info:
-        load_dataset(tmp_path)
+        list_collection(tmp_path)
     assert str(tmp_path) in str(info.value)
     (tmp_path / "Empty").mkdir()
     with pytest.raises(DatasetError, match="'Empty' holds no mesh files"):
-        load_dataset(tmp_path)
+        list_collection(tmp_path)
     write(tmp_path, "loose.off", CUBE_OFF)
     with pytest.raises(DatasetError, match="directly in the root"):
-        load_dataset(tmp_path)
+        list_collection(tmp_path)
+
+
+def test_the_former_name_is_the_same_function():
+    import perception
+    from perception import geometry
+
+    assert geometry.load_dataset is list_collection and perception.load_dataset is perception.list_collection
 
 
 # ------------------------------------------------------------------------------------- derived data

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.geometry import load_dataset, load_object
+from perception.geometry import list_collection, load_object
 
 
 def check_finite(model) -> None:
@@ -22,7 +22,7 @@ def check_finite(model) -> None:
 
 
 def test_all_shrec07_meshes_load(shrec07):
-    items = load_dataset(shrec07)
+    items = list_collection(shrec07)
     assert len(items) == 100 and len({label for _, label in items}) == 10
     for path, label in items:
         model = load_object(path, label=label)

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from perception import primitives
 from perception.errors import ContourError, InvalidArgumentError
-from perception.geometry import load_dataset, load_object
+from perception.geometry import list_collection, load_object
 from tactile.contours import (
     Plane,
     choose_chain,
@@ -134,7 +134,7 @@ def test_axial_cut_of_a_cylinder_is_its_exact_rectangle():
 
 def test_section_matches_trimesh_on_a_real_mesh(shrec07):
     trimesh = pytest.importorskip("trimesh")
-    path, _ = load_dataset(shrec07)[25]
+    path, _ = list_collection(shrec07)[25]
     model = load_object(path)
     peer = trimesh.Trimesh(model.vertices, model.triangles, process=False)
     rng = np.random.default_rng(4)
@@ -221,7 +221,7 @@ def test_soup_contours_are_finite(psb_open):
 
 
 def test_contours_on_real_meshes_lie_on_the_surface(shrec07):
-    model = load_object(load_dataset(shrec07)[0][0])
+    model = load_object(list_collection(shrec07)[0][0])
     rng = np.random.default_rng(1)
     for _ in range(5):
         i, j = rng.choice(model.n_vertices, 2, replace=False)

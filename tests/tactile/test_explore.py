@@ -7,7 +7,7 @@ import pytest
 
 from perception import primitives
 from perception.errors import SensorSpecError
-from perception.geometry import load_dataset, load_object
+from perception.geometry import list_collection, load_object
 from tactile import FSRSensor, explore, make_contour, plane_through
 from tactile.contours import Contour
 
@@ -57,7 +57,7 @@ def test_contour_without_probes_is_rejected(torus):
 
 
 def test_real_object_sequence_is_finite(shrec07):
-    path, label = load_dataset(shrec07)[70]
+    path, label = list_collection(shrec07)[70]
     model = load_object(path, label=label)
     rng = np.random.default_rng(5)
     i, j = rng.choice(model.n_vertices, 2, replace=False)

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 import tactile.sensor as sensor_module
 from perception import primitives
 from perception.errors import SensorSpecError
-from perception.geometry import load_dataset, load_object
+from perception.geometry import list_collection, load_object
 from tactile.contours import interpolate_normals, make_contour, plane_through
 from tactile.sensor import FSRSensor
 
@@ -268,7 +268,7 @@ def test_batches_give_the_same_frames(fine_sphere, monkeypatch):
 
 
 def test_real_meshes_give_finite_frames(shrec07):
-    model = load_object(load_dataset(shrec07)[40][0])
+    model = load_object(list_collection(shrec07)[40][0])
     rng = np.random.default_rng(2)
     sensor = FSRSensor()
     for _ in range(3):
