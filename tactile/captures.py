@@ -52,13 +52,23 @@ class Capture:
     seconds: float
 
 
-def _check(views, distance_mm, size_mm) -> None:
+#: Camera elevation of :func:`virtual_capture` above the table, degrees (the orbit of ``visuotactile camera``).
+DEFAULT_ELEVATION_DEG = 35.0
+#: What :func:`virtual_capture` passes on to :func:`~perception.reconstruct.multiview.reconstruct_frames`.
+RECONSTRUCT_OPTIONS = ("method", "voxel_mm", "drop_flying")
+
+
+def _check(views, distance_mm, size_mm, elevation_deg=DEFAULT_ELEVATION_DEG) -> None:
     if isinstance(views, bool) or not isinstance(views, (int, np.integer)) or views < 1:
         raise InvalidArgumentError(f"virtual capture: views must be a positive integer, got {views!r}")
     for name, value in (("distance_mm", distance_mm), ("size_mm", size_mm)):
         if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not np.isfinite(value) \
                 or value <= 0:
             raise InvalidArgumentError(f"virtual capture: {name} must be a positive number, got {value!r}")
+    if isinstance(elevation_deg, bool) or not isinstance(elevation_deg, (int, float, np.number)) \
+            or not 0 < elevation_deg < 90:
+        raise InvalidArgumentError(
+            f"virtual capture: elevation_deg must be a number in (0, 90) degrees, got {elevation_deg!r}")
 
 
 def virtual_capture(
@@ -69,35 +79,93 @@ def virtual_capture(
     size_mm: float = DEFAULT_SIZE_MM,
     seed: int = 0,
     name: str | None = None,
+    elevation_deg: float = DEFAULT_ELEVATION_DEG,
+    reconstruct: dict | None = None,
 ) -> Capture:
     """``model`` standing upright on a table, captured by a virtual OAK-D from ``views`` views evenly spaced in
-    azimuth at ``distance_mm`` (35 degrees elevation, stereo noise seeded by ``seed``), reconstructed closed
-    against the table and rescaled to ``size_mm`` (the enclosing-sphere diameter of the pose-free frame).
+    azimuth at ``distance_mm`` (``elevation_deg`` above the table, 35 degrees by default; stereo noise seeded by
+    ``seed``), reconstructed closed against the table and rescaled to ``size_mm`` (the enclosing-sphere diameter
+    of the pose-free frame).
 
     Args:
         model: the object (mm), in the pose it stands on the table in (+z up).
-        views, distance_mm: the orbit of the camera.
+        views, distance_mm, elevation_deg: the orbit of the camera (a robot's camera looking down at a table
+            sees it from 30 to 80 degrees; the GraspNet RealSense from about 57 to 79).
         size_mm: the size the reconstruction is brought to (that of the training objects).
         seed: seeds the stereo noise and the reconstruction (RANSAC).
         name: the reconstruction's name (default ``"<model name>@capture"``).
+        reconstruct: settings of :func:`~perception.reconstruct.multiview.reconstruct_frames` among
+            :data:`RECONSTRUCT_OPTIONS` (e.g. those ``fusion.camera.reconstruct_capture`` uses on real frames:
+            ``{"method": "convex", "voxel_mm": 3.0, "drop_flying": True}``); default: its defaults.
 
     Raises:
-        InvalidArgumentError: views not a positive integer, or a non-positive distance or size.
+        InvalidArgumentError: views not a positive integer, a non-positive distance or size, an elevation
+            outside (0, 90) degrees, or an unknown reconstruction setting.
         InvalidMeshError: the frames hold no object that can be reconstructed.
     """
     from perception.camera import VirtualOakCamera
     from perception.geometry import rescale
     from perception.reconstruct.multiview import reconstruct_frames
 
-    _check(views, distance_mm, size_mm)
+    _check(views, distance_mm, size_mm, elevation_deg)
+    options = dict(reconstruct or {})
+    unknown = sorted(set(options) - set(RECONSTRUCT_OPTIONS))
+    if unknown:
+        raise InvalidArgumentError(f"virtual capture: unknown reconstruction settings {unknown}; "
+                                   f"choose among {', '.join(RECONSTRUCT_OPTIONS)}")
     name = name or f"{model.name}{CAPTURE_SUFFIX}"
     start = time.perf_counter()
     camera = VirtualOakCamera(model, seed=int(seed))
-    rec = reconstruct_frames(camera.capture_views(int(views), float(distance_mm)), target=camera.target,
-                             name=name, label=model.label, seed=int(seed))
+    rec = reconstruct_frames(camera.capture_views(int(views), float(distance_mm), float(elevation_deg)),
+                             target=camera.target, name=name, label=model.label, seed=int(seed), **options)
     seconds = time.perf_counter() - start
     scaled = rescale(rec.model, float(size_mm), name=name)
     return Capture(scaled, rec.model, camera.truth, seconds)
+
+
+def resting_rotation(model: ObjectModel, seed: int | np.random.Generator) -> np.ndarray:
+    """(3, 3) rotation that sets ``model`` down on a table (+z up) in a stable resting pose, as an object dropped
+    gently in a random orientation comes to rest: its convex hull lands on the face the ray from its centre of
+    mass along a uniformly random direction meets, and rolls over an edge while the centre of mass lies
+    outside the face (quasi-static toppling), until it lies on a face that holds it; then a uniformly random turn
+    about the vertical. A box lies on a face (never on a corner, as a random rotation leaves it), a can on its
+    side or its end, with the probabilities of the drop. The centre of mass is the area-weighted surface
+    centroid (:attr:`~perception.geometry.ObjectModel.center`, about which :func:`~perception.geometry.rotate`
+    turns). Same seed, same bytes.
+
+    Raises:
+        InvalidMeshError: the model's vertices span no volume (a flat or degenerate mesh has no resting face).
+    """
+    from scipy.spatial import ConvexHull, QhullError
+    from scipy.spatial.transform import Rotation
+
+    from perception.errors import InvalidMeshError
+
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    centre = model.center
+    try:
+        hull = ConvexHull(model.vertices - centre)
+    except (QhullError, ValueError) as exc:
+        raise InvalidMeshError(f"{model.name}: no resting pose, the vertices span no volume ({exc})") from None
+    normals, offsets = hull.equations[:, :3], -hull.equations[:, 3]  # n . x = offset on each face, offset > 0
+    points, faces = hull.points, hull.simplices
+    down = rng.normal(size=3)
+    down /= np.linalg.norm(down)
+    reach = normals @ down
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(reach > 0, offsets / reach, np.inf)
+    face = int(np.argmin(t))  # the face the drop direction meets
+    for _ in range(4 * len(faces)):  # each roll lowers the centre of mass or walks across one flat face
+        a, b, c = points[faces[face]]
+        foot = offsets[face] * normals[face]  # the centre of mass projected onto the face's plane
+        w = np.linalg.lstsq(np.stack([b - a, c - a], axis=1), foot - a, rcond=None)[0]
+        bary = np.array([1.0 - w.sum(), w[0], w[1]])
+        if bary.min() >= -1e-9:
+            break
+        face = int(hull.neighbors[face][int(np.argmin(bary))])  # over the edge opposite the most negative vertex
+    turn = Rotation.from_rotvec([0.0, 0.0, rng.uniform(0.0, 2.0 * np.pi)])
+    align, _ = Rotation.align_vectors([[0.0, 0.0, -1.0]], [normals[face]])
+    return (turn * align).as_matrix()
 
 
 def catalogue_capture(
@@ -187,6 +255,6 @@ def training_specs(objects, source: str = "both", *, views: int = 4, distance_mm
 
 
 __all__ = [
-    "CAPTURE_SUFFIX", "SOURCES", "Capture", "capture_name", "catalogue_capture", "is_capture", "training_specs",
-    "virtual_capture",
+    "CAPTURE_SUFFIX", "DEFAULT_ELEVATION_DEG", "RECONSTRUCT_OPTIONS", "SOURCES", "Capture", "capture_name",
+    "catalogue_capture", "is_capture", "resting_rotation", "training_specs", "virtual_capture",
 ]
