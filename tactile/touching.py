@@ -64,6 +64,16 @@ class TouchTiming:
         return float(np.median(self.saliency_seconds)) if self.saliency_seconds else 0.0
 
 
+def check_strategy(strategy: str) -> None:
+    """Refuse an unknown sampling strategy before anything is loaded or computed (what :func:`touch` checks first;
+    callers above tactile check here, through the touching road, not in :mod:`tactile.sampling`).
+
+    Raises:
+        InvalidArgumentError: ``strategy`` is not a key of :data:`tactile.sampling.STRATEGIES` (the keys named).
+    """
+    sampling.check_strategy(strategy)
+
+
 def object_seed(seed: int, name: str, strategy: str) -> np.random.SeedSequence:
     """The seed sequence of one object's contours in the "object" scheme: (seed, object name, strategy) only."""
     return np.random.SeedSequence([int(seed), zlib.crc32(name.encode()), zlib.crc32(strategy.encode())])
@@ -321,5 +331,5 @@ def touch(
 explore_object = touch
 
 
-__all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher", "explore_object",
-           "jitter_contour", "object_seed", "touch"]
+__all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher", "check_strategy",
+           "explore_object", "jitter_contour", "object_seed", "touch"]
