@@ -34,10 +34,10 @@ from benchmarks._common import machine
 from fusion.evaluate import accuracy
 from perception.reconstruct.surface import surface_error
 from perception.shapes import CLASSES, make_object
+from tactile import touch
 from tactile.captures import SOURCES, is_capture, training_specs, virtual_capture
 from tactile.dataset import generate, open_dataset
 from tactile.explore import SequenceBatch
-from tactile.sampling import explore_object
 from tactile.sensor import FSRSensor
 
 TEST_SEED = 1000
@@ -119,7 +119,7 @@ def run(classes, train_objects: int, test_objects: int, contours: int, touches: 
                             if (tested, cls, s) not in touched:  # the same touches for every classifier
                                 start = time.perf_counter()
                                 model = make_object(cls, s) if tested == "cad" else recs[cls, s]
-                                touched[tested, cls, s] = explore_object(model, "blind", touches, sensor=sensor, seed=s)
+                                touched[tested, cls, s] = touch(model, "blind", touches, sensor=sensor, seed=s)
                                 touch_times.append(time.perf_counter() - start)
                             sequences = touched[tested, cls, s]
                             full[tested].append(np.mean([np.mean(q.pad_sides_mm >= sensor.side_mm) for q in sequences]))

@@ -39,14 +39,14 @@ PAPER = {"cnn": (98.97, 83.29), "svm": (88.44, 77.21), "knn": (86.07, 73.11)}
 def catalogue_batch(objects: int, contours: int, strategy: str, seed: int):
     """Every catalogue class, ``objects`` instances each, ``contours`` sequences per instance."""
     from perception.shapes import CLASSES, make_object
+    from tactile import touch
     from tactile.explore import SequenceBatch
-    from tactile.sampling import explore_object
     from tactile.sensor import FSRSensor
 
     sequences = []
     for c, name in enumerate(CLASSES):
         for k in range(objects):
-            sequences += explore_object(make_object(name, k), strategy, contours, seed=seed + 1000 * c + k)
+            sequences += touch(make_object(name, k), strategy, contours, seed=seed + 1000 * c + k)
     return SequenceBatch.from_sequences(sequences, CLASSES, sensor_spec=FSRSensor().spec())
 
 
