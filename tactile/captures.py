@@ -1,4 +1,4 @@
-"""Capture-like training objects: what a virtual OAK-D reconstructs of an object, as a dataset object.
+"""Capture-like training objects: what a virtual OAK-D reconstructs of an object, as an object to touch in training.
 
 A classifier trained on CAD meshes meets, on the robot, the camera's reconstruction of an object: surfaces
 that ripple by tenths of a millimetre, a bottom closed against the table, insides (a mug's, a bowl's) that the
