@@ -157,8 +157,8 @@ def recognize_file(mesh: str | Path, model_path: str | Path, *, touches: int = 4
     """
     from fusion.base import load_model
     from perception.errors import DatasetError
-    from perception.geometry import load_object
-    from tactile.sampling import check_strategy
+    from perception.loading import load_object
+    from tactile.touching import check_strategy
 
     check_strategy(strategy)
     if not Path(model_path).is_file():
