@@ -133,6 +133,12 @@ def _figure(frames, rec, model, contours, path: Path) -> Path:
     return save_figure(fig, path, dpi=110)
 
 
+#: Reconstruction settings (:func:`perception.reconstruct.multiview.reconstruct_frames`) by kind of camera, see
+#: :func:`reconstruct_capture`.
+REAL_RECONSTRUCTION = {"method": "convex", "voxel_mm": 3.0, "drop_flying": True}
+VIRTUAL_RECONSTRUCTION = {"method": "euclidean", "voxel_mm": 2.0, "drop_flying": False}
+
+
 def reconstruct_capture(frames, *, virtual: bool, target=None, target_pixel=None, name: str = "capture",
                         seed: int = 0):
     """The picked object of a capture reconstructed with the settings its kind of camera needs
@@ -143,9 +149,8 @@ def reconstruct_capture(frames, *, virtual: bool, target=None, target_pixel=None
     robot base behind it (522 mm) and made the soup can 175 mm across (122 mm true)."""
     from perception.reconstruct.multiview import reconstruct_frames
 
-    return reconstruct_frames(frames, target=target, target_pixel=target_pixel, name=name,
-                              method="euclidean" if virtual else "convex", voxel_mm=2.0 if virtual else 3.0,
-                              drop_flying=not virtual, seed=seed)
+    settings = VIRTUAL_RECONSTRUCTION if virtual else REAL_RECONSTRUCTION
+    return reconstruct_frames(frames, target=target, target_pixel=target_pixel, name=name, seed=seed, **settings)
 
 
 def recognize_capture(
@@ -271,4 +276,4 @@ def recognize_capture(
     return summary
 
 
-__all__ = ["acquire", "recognize_capture", "reconstruct_capture"]
+__all__ = ["REAL_RECONSTRUCTION", "VIRTUAL_RECONSTRUCTION", "acquire", "recognize_capture", "reconstruct_capture"]
