@@ -18,8 +18,13 @@ Architecture (``CutaneousNet``, input (B, 1, P, R, C) standardised gaps):
 batch norm, ReLU; circular over probes, zero over cue channels, as the paper's 2D kernels over 25 x 3) and
 two fully connected layers (-> 64 -> classes).
 
-Training (:class:`CNNClassifier`): Adam, cross-entropy, each net on its own for the paper's 50 epochs on all
-the training data. Early stopping is optional (``val_fraction > 0``: whole training objects held out,
+Training (:class:`CNNClassifier`): each net on its own for the paper's 50 epochs on all the training data,
+AdamW (weight decay 0.01) under a one-cycle learning-rate schedule (peak ``lr`` = 3e-3, cosine annealing),
+cross-entropy with label smoothing 0.1. This recipe was chosen on a development set that is not the benchmark
+(built-in catalogue objects: 6 training and 4 held-out instances per class, blind, 24 contours; fusion / cutaneous
+/ kinesthetic accuracy of single touches on the held-out instances 98.4 / 92.7 / 95.4 % with the paper's Adam at a
+constant 1e-3, 99.0 / 96.9 / 97.3 % with this recipe, 40 objects); ``schedule="constant"``, ``weight_decay=0``,
+``label_smoothing=0`` and ``lr=1e-3`` give the paper's Adam. Early stopping is optional (``val_fraction > 0``: whole training objects held out,
 stopping on their accuracy, ties broken by loss, the best epoch's weights restored). It is off by default
 because on objects never trained on it cost more than it saved: unseen SHREC objects (grouped 3-fold, blind,
 one fold), K = 1 / 8: 73.5 / 88.9 % with it (nets stopped after 9-43 epochs, noisy validation on about ten
@@ -60,6 +65,8 @@ log = logging.getLogger(__name__)
 
 MODALITIES = ("fusion", "cutaneous", "kinesthetic")
 AUGMENT = ("none", "kinesthetic", "cutaneous", "both")
+#: Learning-rate schedules: one cycle (warm-up to ``lr``, cosine annealing to ~0) or ``lr`` throughout.
+SCHEDULES = ("onecycle", "constant")
 #: Standardised inputs are clipped to this many standard deviations (no overflow on absurd readings).
 INPUT_CLIP = 20.0
 #: Invariant cue channels whose sign flips with the contour's direction (standardised without centring).
@@ -164,7 +171,10 @@ class CNNClassifier(TactileClassifier):
             depends on how each object is posed; for reproducing the paper), see :mod:`fusion.cues`.
         epochs: most training epochs per net (the paper: 50).
         batch_size: sequences per step.
-        lr: Adam learning rate.
+        lr: the learning rate: the peak of the one-cycle schedule, or the constant rate.
+        schedule: ``"onecycle"`` (default) or ``"constant"`` (see :data:`SCHEDULES`).
+        weight_decay: AdamW's decoupled weight decay (0: plain Adam, the paper's).
+        label_smoothing: share of the target mass spread over all classes in the training loss.
         patience: epochs without a better validation score before stopping.
         val_fraction: part of the training data held out for early stopping (0, the default: none, train all
             epochs): whole objects of each class that has several (the epoch is chosen on objects not trained
@@ -193,7 +203,8 @@ class CNNClassifier(TactileClassifier):
         (['box', 'can'], (8, 2))
     """
 
-    def __init__(self, cue: str = "invariant", epochs: int = 50, batch_size: int = 64, lr: float = 1e-3,
+    def __init__(self, cue: str = "invariant", epochs: int = 50, batch_size: int = 64, lr: float = 3e-3,
+                 schedule: str = "onecycle", weight_decay: float = 0.01, label_smoothing: float = 0.1,
                  patience: int = 6, val_fraction: float = 0.0, random_state: int = 0, device: str = "auto",
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
                  frame_size: int = 16, augment: bool | str = "both", **renamed):
@@ -202,6 +213,9 @@ class CNNClassifier(TactileClassifier):
         self.epochs = epochs
         self.batch_size = batch_size
         self.lr = lr
+        self.schedule = schedule
+        self.weight_decay = weight_decay
+        self.label_smoothing = label_smoothing
         self.patience = patience
         self.val_fraction = val_fraction
         self.random_state = random_state
@@ -227,6 +241,12 @@ class CNNClassifier(TactileClassifier):
             raise InvalidArgumentError(f"CNNClassifier: val_fraction must be in [0, 1), got {self.val_fraction!r}")
         if not (self.lr > 0 and np.isfinite(self.lr)):
             raise InvalidArgumentError(f"CNNClassifier: lr must be a positive number, got {self.lr!r}")
+        if self.schedule not in SCHEDULES:
+            raise InvalidArgumentError(f"CNNClassifier: schedule must be one of {SCHEDULES}, got {self.schedule!r}")
+        if not (np.isfinite(self.weight_decay) and self.weight_decay >= 0):
+            raise InvalidArgumentError(f"CNNClassifier: weight_decay must be >= 0, got {self.weight_decay!r}")
+        if not 0 <= self.label_smoothing < 1:
+            raise InvalidArgumentError(f"CNNClassifier: label_smoothing must be in [0, 1), got {self.label_smoothing!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
@@ -330,7 +350,7 @@ class CNNClassifier(TactileClassifier):
         train_idx, val_idx = split
         augment = self._augmented(kind)
         net.to(device)
-        opt = torch.optim.Adam(net.parameters(), lr=self.lr)
+        opt, scheduler = self._optimizer(net, len(train_idx))
         y_t = torch.from_numpy(y.astype(np.int64))
         best, best_state, best_epoch, since = (-1.0, np.inf), None, 0, 0
         epoch_times, curve = [], []
@@ -347,10 +367,12 @@ class CNNClassifier(TactileClassifier):
                 xb = x[idx].to(device, torch.float32)
                 if augment:
                     xb = self._augment(xb, kind, gen)
-                loss = F.cross_entropy(net(xb), y_t[idx].to(device))
+                loss = F.cross_entropy(net(xb), y_t[idx].to(device), label_smoothing=self.label_smoothing)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
+                if scheduler is not None:
+                    scheduler.step()
                 total += float(loss.detach()) * len(idx)
             epoch_times.append(time.perf_counter() - started)
             if len(val_idx) == 0:
@@ -377,6 +399,22 @@ class CNNClassifier(TactileClassifier):
         return {"epochs": epoch + 1, "best_epoch": best_epoch + 1,
                 "val_accuracy": None if len(val_idx) == 0 else best[0], "val_curve": curve,
                 "epoch_seconds": float(np.median(epoch_times)) if epoch_times else 0.0}
+
+    def _steps_per_epoch(self, n_train: int) -> int:
+        """Optimizer steps in one epoch of ``n_train`` sequences (a last batch of one is skipped: batch norm)."""
+        full, rest = divmod(n_train, self.batch_size)
+        return full + (1 if rest >= 2 or n_train == 1 else 0)
+
+    def _optimizer(self, net: nn.Module, n_train: int):
+        """(optimizer, per-step scheduler or None): Adam, AdamW when ``weight_decay`` > 0, under the schedule."""
+        if self.weight_decay > 0:
+            opt = torch.optim.AdamW(net.parameters(), lr=self.lr, weight_decay=self.weight_decay)
+        else:
+            opt = torch.optim.Adam(net.parameters(), lr=self.lr)
+        steps = self.epochs * self._steps_per_epoch(n_train)
+        if self.schedule == "constant" or steps < 2:
+            return opt, None
+        return opt, torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.lr, total_steps=steps)
 
     @staticmethod
     def _logits(net: nn.Module, x: torch.Tensor, device: torch.device) -> torch.Tensor:
@@ -518,4 +556,4 @@ class CNNClassifier(TactileClassifier):
             setattr(self, f"{kind}_net_", net)
 
 
-__all__ = ["MODALITIES", "CNNClassifier", "CutaneousNet", "KinestheticNet", "pool_frames"]
+__all__ = ["MODALITIES", "SCHEDULES", "CNNClassifier", "CutaneousNet", "KinestheticNet", "pool_frames"]

@@ -225,6 +225,40 @@ def test_constant_and_huge_inputs_give_finite_probabilities():
         assert np.isfinite(proba).all() and np.allclose(proba.sum(1), 1.0)
 
 
+@pytest.mark.parametrize("n_train,batch_size,steps", [(48, 16, 3), (49, 16, 3), (50, 16, 4), (1, 16, 1), (7, 64, 1)])
+def test_steps_per_epoch_counts_the_batches_the_loop_runs(n_train, batch_size, steps):
+    # 49 = 3 x 16 + 1: the last batch of one sequence is skipped (batch norm); 50 leaves a batch of two.
+    assert CNNClassifier(batch_size=batch_size)._steps_per_epoch(n_train) == steps
+
+
+def test_one_cycle_schedule_peaks_at_lr_and_runs_exactly_its_steps(monkeypatch):
+    # Record the learning rate of every optimizer step: the schedule must be stepped once per batch, reach
+    # lr at 30 % of the steps (OneCycleLR's default warm-up share) and end near lr / (25 * 1e4).
+    seen = []
+    original = torch.optim.AdamW.step
+
+    def step(self, *args, **kwargs):
+        seen.append(self.param_groups[0]["lr"])
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.AdamW, "step", step)
+    batch = make_batch(n_per_class=10)  # 30 sequences: 16 + 14 per epoch, 2 steps
+    CNNClassifier(**{**FAST, "epochs": 10, "lr": 2e-3, "modality": "kinesthetic"}).fit(batch)
+    assert len(seen) == 20
+    assert max(seen) == pytest.approx(2e-3, rel=0.02) and int(np.argmax(seen)) in (5, 6)
+    assert seen[0] == pytest.approx(2e-3 / 25) and seen[-1] < 2e-3 / 100
+
+
+def test_paper_recipe_is_plain_adam_at_a_constant_rate(monkeypatch):
+    made = []
+    for cls in (torch.optim.Adam, torch.optim.AdamW):
+        monkeypatch.setattr(cls, "step", lambda self, *a, _c=cls, _s=cls.step, **k: (made.append(_c.__name__), _s(self, *a, **k))[1])
+    batch = make_batch(n_per_class=10)
+    model = CNNClassifier(**{**FAST, "epochs": 2, "schedule": "constant", "weight_decay": 0.0, "label_smoothing": 0.0,
+                             "modality": "kinesthetic"}).fit(batch)
+    assert set(made) == {"Adam"} and len(made) == 4 and model.history_["kinesthetic"]["epochs"] == 2
+
+
 def test_bad_input_is_refused():
     train = make_batch(n_per_class=3)
     nan = make_batch(n_per_class=3)
@@ -241,6 +275,10 @@ def test_bad_input_is_refused():
         CNNClassifier(augment="sometimes", **FAST).fit(train)
     with pytest.raises(InvalidArgumentError, match="val_fraction"):
         CNNClassifier(**{**FAST, "val_fraction": 1.0}).fit(train)
+    for name, value in (("schedule", "cyclic"), ("weight_decay", -0.1), ("weight_decay", np.nan),
+                        ("label_smoothing", 1.0), ("label_smoothing", -0.2)):
+        with pytest.raises(InvalidArgumentError, match=name):
+            CNNClassifier(**{**FAST, name: value}).fit(train)
     model = CNNClassifier(**{**FAST, "epochs": 1}).fit(train)
     with pytest.raises(DatasetError, match="NaN"):
         model.predict(nan)
