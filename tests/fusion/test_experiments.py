@@ -26,7 +26,7 @@ from fusion.experiments.analysis import (
 )
 from fusion.experiments.data import any_pose, folder_objects
 from fusion.experiments.models import Predictions
-from fusion.experiments.report import pivot, table1
+from fusion.experiments.report import pct, pivot, table1
 from fusion.experiments.touch import load_batch, save_batch, touch_object, touch_objects
 from perception.errors import DatasetError, InvalidArgumentError
 from perception.shapes import make_object
@@ -139,6 +139,27 @@ def test_pivot_gives_a_row_per_key_in_first_seen_order_and_a_dash_where_a_cell_i
                                                                                "9": "-"}
 
 
+def test_touches_and_noise_tables_name_the_rule_and_keep_each_rows_pose():
+    """The K-touch table spells the fusion rule out ('log' -> 'sum of log', else 'sum') and keeps one setting;
+    the noise table gives a row without a pose the pose 'upright' but keeps a row's own pose, one column per
+    level ('{level:g}')."""
+    from fusion.experiments.report import noise_table, touches_table
+
+    acc = {"value": 0.5, "low": 0.4, "high": 0.6, "n": 10}
+    rows = [{"setting": "s", "classifier": "SVM", "strategy": "guided", "rule": r, "k": 1, "accuracy": acc}
+            for r in ("log", "sum")] + [{"setting": "t", "classifier": "kNN", "strategy": "blind", "rule": "log",
+                                         "k": 2, "accuracy": acc}]
+    table = touches_table(rows, "s")
+    assert [(r["classifier"], r["rule"]) for r in table] == [("SVM", "sum of log"), ("SVM", "sum")]
+    assert all(set(r) == {"classifier", "strategy", "rule", "K=1"} for r in table)
+    noise = [{"kind": "n", "classifier": "SVM", "strategy": "blind", "level": 0.5, "accuracy": acc},
+             {"kind": "n", "pose": "tilted", "classifier": "SVM", "strategy": "blind", "level": 2.0, "accuracy": acc},
+             {"kind": "other", "classifier": "SVM", "strategy": "blind", "level": 9.0, "accuracy": acc}]
+    assert noise_table(noise, "n") == [
+        {"pose": "upright", "classifier": "SVM", "strategy": "blind", "0.5": pct(acc), "2": "-"},
+        {"pose": "tilted", "classifier": "SVM", "strategy": "blind", "0.5": "-", "2": pct(acc)}]
+
+
 def test_paired_difference_by_hand():
     """Object a/0: A right 4 of 4, B right 2 of 4; object b/0: A 1 of 4, B 1 of 4 -> differences 0.5 and 0:
     mean 0.25, bootstrap interval within [0, 0.5], detectable = 2.8 x std(ddof 1) / sqrt(2) = 0.7."""
@@ -226,6 +247,29 @@ def test_batch_cache_round_trip_and_key(tmp_path):
     assert np.array_equal(back.frames, batch.frames) and back.class_names == ("box", "can")
     assert back.labels.tolist() == [1, 1] and back.sensor_spec == batch.sensor_spec
     assert load_batch(path, {"level": 2}) is None and load_batch(tmp_path / "none.npz") is None
+
+
+def test_an_unreadable_or_incomplete_cache_is_made_again_not_raised(tmp_path):
+    """A cache file that is not an .npz, or whose meta matches but an array is missing, reads back as None
+    (made again) instead of raising."""
+    from fusion.experiments.models import write_cache
+
+    (tmp_path / "garbage.npz").write_bytes(b"not a cache at all")
+    assert load_batch(tmp_path / "garbage.npz", {"level": 1}) is None
+    assert Predictions.load(tmp_path / "garbage.npz", {"level": 1}) is None
+    write_cache(tmp_path / "partial.npz", {"key": {"level": 1}, "class_names": ["a"], "object_names": ["a/0"],
+                                           "sensor_spec": {}}, {"frames": np.zeros((1, 2, 4, 4))})
+    assert load_batch(tmp_path / "partial.npz", {"level": 1}) is None
+
+
+@pytest.mark.xfail(raises=__import__("zipfile").BadZipFile, strict=True,
+                   reason="read_cache catches OSError/ValueError/KeyError, not zipfile.BadZipFile")
+def test_a_cache_cut_short_is_made_again_not_raised(tmp_path):
+    """A cache file cut short (a copy interrupted, a full disk) reads back as None, like any unreadable one."""
+    batch = touch_objects([make_object("can", 1)], ["box", "can"], "blind", 2, probes=6, seed=1)
+    whole = save_batch(batch, tmp_path / "b.npz", {"level": 1}).read_bytes()
+    (tmp_path / "short.npz").write_bytes(whole[: len(whole) // 2])
+    assert load_batch(tmp_path / "short.npz", {"level": 1}) is None
 
 
 def test_folder_objects_choose_and_refuse(tmp_path):
@@ -458,6 +502,22 @@ class TestModelCodeVersion:
         monkeypatch.setattr(models, "_source_text", lambda path: real(path) + (
             "\n\ndef later():\n    from fusion.demo import run_demo\n" if path.name == "cues.py" else ""))
         assert "demo.py" in {p.name for p in models.model_code_files(CNNClassifier)}
+
+    def test_a_relative_import_is_followed_from_a_module_and_from_a_package(self, monkeypatch):
+        """``from .x import y`` in fusion/cues.py names fusion.x; in a package's __init__.py (reached through
+        ``from fusion.commands import ...``), ``from .x import y`` names fusion.commands.x."""
+        from fusion.cnn import CNNClassifier
+        from fusion.experiments import models
+
+        real = models._source_text
+        extra = {"fusion/cues.py": "\n\ndef later():\n    from .demo import run_demo\n"
+                                   "    from fusion.commands import main\n",
+                 "fusion/commands/__init__.py": "\n\ndef later():\n    from .verify import x\n"}
+        monkeypatch.setattr(models, "_source_text", lambda path: real(path) + next(
+            (text for end, text in extra.items() if path.as_posix().endswith(end)), ""))
+        files = {p.relative_to(Path(models.__file__).resolve().parents[2]).as_posix()
+                 for p in models.model_code_files(CNNClassifier)}
+        assert {"fusion/demo.py", "fusion/commands/__init__.py", "fusion/commands/verify.py"} <= files
 
 
 def test_reproduce_command_offers_exactly_the_parts():
