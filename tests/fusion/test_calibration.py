@@ -99,6 +99,16 @@ class TestSmoothing:
         with pytest.raises(DatasetError, match=f"{fit.__name__}: expected finite"):
             fit(np.array([[0.0, 1.0]]), np.array([1]))
 
+    @pytest.mark.parametrize("fit", [fit_temperature, fit_calibration])
+    @pytest.mark.parametrize("y", [[0, 2], [0, -1], [0], [0, 1, 1], [0.0, 1.0], [[0], [1]]])
+    def test_both_fits_refuse_labels_that_are_not_class_indices_naming_themselves(self, fit, y):
+        """Labels out of 0..C-1 (a negative index would silently pick the last class), of another count or
+        shape, or not integers are refused before any fitting."""
+        z = np.array([[0.0, 1.0], [1.0, 0.0]])
+        with pytest.raises(DatasetError, match=f"{fit.__name__}: expected 2 class indices"):
+            fit(z, np.array(y))
+
+
     def test_refuses_smoothing_of_one(self):
         with pytest.raises(InvalidArgumentError, match="smoothing"):
             apply_calibration(np.array([[0.5, 0.5]]), 1.0, 1.0)
