@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import json
 
-from benchmarks.walk import FLOORS, SHARED, Walk, floor_of, main
+from benchmarks import walk as walk_module
+from benchmarks.walk import FLOORS, SHARED, Walk, floor_of, main, upward_imports
 
 
 class TestTheWalkOfOneObject:
@@ -43,3 +44,32 @@ class TestTheWalkOfOneObject:
         assert report["two_floors"][0]["floors"] == ["tactile", "fusion"]
         assert [m["module"] for m in report["shared"]] == ["perception.runtime"]
         assert report["upward"] == [{"caller": "perception.render", "callee": "tactile.contours"}]
+
+    def test_an_upward_import_in_a_lower_floors_source_is_found(self, tmp_path):
+        """Imports of a higher floor in perception or tactile source are listed (file, line, name), at any depth;
+        imports of the same or a lower floor, and fusion's own imports, are not."""
+        for floor, text in {"perception": "import numpy\nfrom perception import errors\n\n\ndef f():\n"
+                                          "    import tactile.sampling\n",
+                            "tactile": "from perception.geometry import ObjectModel\nfrom fusion.cli import main\n",
+                            "fusion": "import tactile\nfrom perception import loading\n"}.items():
+            (tmp_path / floor / "sub").mkdir(parents=True)
+            (tmp_path / floor / "sub" / "m.py").write_text(text)
+        assert upward_imports(tmp_path) == [
+            {"file": "perception/sub/m.py", "line": 6, "imports": "tactile.sampling"},
+            {"file": "tactile/sub/m.py", "line": 2, "imports": "fusion.cli"}]
+
+    def test_the_command_exits_1_and_prints_each_flag(self, monkeypatch, capsys, tmp_path):
+        """Any flag (two floors, an upward call or import) makes the exit code 1 and is printed as FLAG."""
+        clean = {"argv": ["visuotactile", "recognize"], "label": "mug", "modules": [], "cast_rays_after": None,
+                 "doors": {}, "two_floors": [], "shared": [], "upward": [], "upward_imports": []}
+        flags = {"two_floors": [{"module": "perception.geometry", "floors": ["tactile", "fusion"],
+                                 "callers": ["tactile.touching", "fusion.cli"]}],
+                 "upward": [{"caller": "perception.render", "callee": "tactile.contours"}],
+                 "upward_imports": [{"file": "tactile/x.py", "line": 3, "imports": "fusion.cli"}]}
+        monkeypatch.setattr(walk_module, "build_case", lambda folder: (tmp_path / "mug.ply", tmp_path / "m.vtm"))
+        for name, flagged in [(None, None), *flags.items()]:
+            result = clean if name is None else {**clean, name: flagged}
+            monkeypatch.setattr(walk_module, "walk", lambda mesh, model, result=result, **kw: result)
+            assert main([]) == (0 if name is None else 1)
+            out = capsys.readouterr().out
+            assert ("FLAG" in out) == (name is not None)
