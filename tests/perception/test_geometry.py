@@ -202,6 +202,19 @@ def test_the_former_name_is_the_same_function():
     assert geometry.load_dataset is list_collection and perception.load_dataset is perception.list_collection
 
 
+def test_the_geometry_module_names_only_the_loaders_that_moved():
+    """perception.geometry still names the loaders of perception.loading (the same functions), and nothing else
+    it lacks: an unknown name is an AttributeError (hasattr false, ``from ... import`` an ImportError)."""
+    from perception import geometry, loading
+
+    assert geometry.load_object is loading.load_object and geometry.list_collection is loading.list_collection
+    assert not hasattr(geometry, "load_everything")
+    with pytest.raises(AttributeError, match="load_everything"):
+        geometry.load_everything  # noqa: B018
+    with pytest.raises(ImportError):
+        from perception.geometry import load_everything  # noqa: F401
+
+
 # ------------------------------------------------------------------------------------- derived data
 def test_cached_properties_and_open3d_copy():
     model = sphere(30.0, 3)
