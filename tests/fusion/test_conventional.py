@@ -214,6 +214,21 @@ def test_search_falls_back_to_the_configured_pipeline_with_one_object_per_class(
     assert clf.search_ is None and "reduce" in clf.pipeline_.named_steps
 
 
+@pytest.mark.parametrize("search", [None, "objects"])
+def test_a_refit_learns_the_new_batch_only(search):
+    """Fitting a fitted classifier again on another batch gives the model a fresh classifier fits on that batch
+    (nothing of the first batch, e.g. its wavelet statistics, is reused)."""
+    from tests.fusion._synthetic import circle_batch
+
+    first = circle_batch([10, 11, 12, 20, 21, 22], labels=[0, 0, 0, 1, 1, 1], seed=1)
+    second = circle_batch([10, 11, 20, 21, 30, 31, 40, 41], labels=[0, 0, 1, 1, 0, 0, 1, 1], seed=2)
+    params = {"kind": "knn", "som_iterations": 100, "n_select": 10, "search": search}
+    again = ConventionalClassifier(**params).fit(first).fit(second)
+    fresh = ConventionalClassifier(**params).fit(second)
+    assert again.predict_proba(second).tobytes() == fresh.predict_proba(second).tobytes()
+    assert again.predict_proba(first).tobytes() == fresh.predict_proba(first).tobytes()
+
+
 def test_search_with_one_sequence_per_object_uses_folds_it_can_fill():
     from tests.fusion._synthetic import circle_batch
 
