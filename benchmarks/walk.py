@@ -209,6 +209,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="the recognize command's --strategy (default guided, the command's own)")
     parser.add_argument("--touches", type=int, default=2, help="the recognize command's --touches (default 2)")
     args = parser.parse_args(argv)
+    from perception.errors import VisuotactileError
+    from tactile.touching import check_strategy
+
+    if args.touches < 1:  # checked before the case is built: exit 1 means a flag, not a bad argument
+        parser.error(f"--touches must be a positive integer, got {args.touches}")
+    try:
+        check_strategy(args.strategy)
+    except VisuotactileError as exc:
+        parser.error(f"--strategy: {exc}")
     from perception.runtime import set_progress
 
     set_progress(False)

@@ -76,8 +76,6 @@ class TestTheWalkOfOneObject:
             out = capsys.readouterr().out
             assert ("FLAG" in out) == (name is not None)
 
-    @pytest.mark.xfail(strict=True, reason="benchmarks.walk passes --touches/--strategy to recognize unchecked: "
-                       "it trains the tiny model, then raises RuntimeError (traceback, exit 1: the 'flagged' code)")
     @pytest.mark.parametrize("argv", [["--touches", "0"], ["--touches", "-3"], ["--strategy", "psychic"]])
     def test_a_bad_touches_or_strategy_is_a_usage_error_before_anything_is_built(self, argv, monkeypatch):
         """A value recognize would refuse is exit 2 with one line, before the case is built (not exit 1, which

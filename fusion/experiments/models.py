@@ -14,6 +14,7 @@ import hashlib
 import json
 import logging
 import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -100,7 +101,7 @@ def read_cache(path: str | Path, field: str, key, read: Callable):
                 log.info("%s was made with other settings; making it again", path)
                 return None
             return read(meta, data)
-    except (OSError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # a file cut short is BadZipFile
         log.warning("%s is unreadable (%s); making it again", path, exc)
         return None
 
