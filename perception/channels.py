@@ -30,7 +30,8 @@ Each channel becomes a conspicuity map with :func:`itti_normalize`.
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage, signal
+from scipy import fft as sp_fft
+from scipy import ndimage
 
 from perception.errors import InvalidArgumentError
 
@@ -50,15 +51,37 @@ def _blur(x: np.ndarray, sigma: float) -> np.ndarray:
 
 def masked_blur(x: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur of ``x`` over the object pixels only (normalised convolution); 0 on the background."""
-    weight = _blur(mask.astype(np.float64), sigma)
-    value = _blur(x * mask, sigma)
-    return np.divide(value, weight, out=np.zeros_like(value), where=weight > 1e-3) * mask
+    return _MaskBlur(mask)(x, sigma)
 
 
-def fill_background(x: np.ndarray, mask: np.ndarray, sigma: float = 4.0) -> np.ndarray:
-    """Copy of ``x`` whose background pixels hold the nearby object value (else the view's object mean)."""
-    weight = _blur(mask.astype(np.float64), sigma)
-    near = np.divide(_blur(x * mask, sigma), weight, out=np.zeros_like(x), where=weight > 1e-3)
+class _MaskBlur:
+    """:func:`masked_blur` for one mask, blurring the mask once per sigma (the same values, fewer filter calls).
+    ``value`` passes ``_blur(x * mask, sigma)`` when the caller has it already."""
+
+    def __init__(self, mask: np.ndarray):
+        self.mask = mask
+        self._weights: dict[float, np.ndarray] = {}
+
+    def weight(self, sigma: float) -> np.ndarray:
+        if sigma not in self._weights:
+            self._weights[sigma] = _blur(self.mask.astype(np.float64), sigma)
+        return self._weights[sigma]
+
+    def __call__(self, x: np.ndarray, sigma: float, value: np.ndarray | None = None) -> np.ndarray:
+        weight = self.weight(sigma)
+        value = _blur(x * self.mask, sigma) if value is None else value
+        return np.divide(value, weight, out=np.zeros_like(value), where=weight > 1e-3) * self.mask
+
+
+def fill_background(
+    x: np.ndarray, mask: np.ndarray, sigma: float = 4.0, *, _blurs: _MaskBlur | None = None,
+    _value: np.ndarray | None = None,
+) -> np.ndarray:
+    """Copy of ``x`` whose background pixels hold the nearby object value (else the view's object mean).
+    (``_blurs`` and ``_value``, ``_blur(x * mask, sigma)``, let :func:`compute_channels` share filter calls.)"""
+    weight = (_blurs or _MaskBlur(mask)).weight(sigma)
+    value = _blur(x * mask, sigma) if _value is None else _value
+    near = np.divide(value, weight, out=np.zeros_like(x), where=weight > 1e-3)
     counts = mask.sum(axis=(1, 2), keepdims=True)
     mean = np.divide(
         (x * mask).sum(axis=(1, 2), keepdims=True), counts, out=np.zeros(counts.shape), where=counts > 0
@@ -87,9 +110,11 @@ def itti_normalize(maps: np.ndarray, mask: np.ndarray | None = None, window: int
 
 
 def _center_surround(
-    x: np.ndarray, mask: np.ndarray, center: float = 1.0, surround: float = 4.0
+    x: np.ndarray, mask: np.ndarray, center: float = 1.0, surround: float = 4.0,
+    blurs: _MaskBlur | None = None, surround_value: np.ndarray | None = None,
 ) -> np.ndarray:
-    return np.abs(masked_blur(x, mask, center) - masked_blur(x, mask, surround))
+    blurs = blurs or _MaskBlur(mask)
+    return np.abs(blurs(x, center) - blurs(x, surround, surround_value))
 
 
 def _gabor_kernel(theta: float, wavelength: float = 6.0, sigma: float = 3.0) -> np.ndarray:
@@ -103,25 +128,37 @@ def _gabor_kernel(theta: float, wavelength: float = 6.0, sigma: float = 3.0) -> 
 
 
 def _orientation(filled: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Sum of the normalised Gabor energies. Each response is ``signal.fftconvolve(filled, kernel, mode="same",
+    axes=(1, 2))`` done by hand with its transform sizes, so that the image's transform is taken once for the
+    four kernels (the same values)."""
+    kernels = [_gabor_kernel(theta)[None] for theta in np.deg2rad([0.0, 45.0, 90.0, 135.0])]
+    size = [filled.shape[a] + kernels[0].shape[a] - 1 for a in (1, 2)]
+    fshape = [sp_fft.next_fast_len(n, False) for n in size]
+    image = sp_fft.fftn(filled, fshape, axes=(1, 2))
+    start = [(n - s) // 2 for n, s in zip(size, filled.shape[1:], strict=True)]
+    window = (slice(None), *(slice(a, a + s) for a, s in zip(start, filled.shape[1:], strict=True)))
     total = np.zeros(filled.shape)
-    for theta in np.deg2rad([0.0, 45.0, 90.0, 135.0]):
-        kernel = _gabor_kernel(theta)[None]
-        response = np.abs(signal.fftconvolve(filled, kernel, mode="same", axes=(1, 2)))
-        total += itti_normalize(response, mask)
+    for kernel in kernels:
+        full = sp_fft.ifftn(image * sp_fft.fftn(kernel, fshape, axes=(1, 2)), fshape, axes=(1, 2))
+        total += itti_normalize(np.abs(full[:, : size[0], : size[1]][window]), mask)
     return total
 
 
-def _curvature(normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: float) -> np.ndarray:
+def _curvature(
+    normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: float, blurs: _MaskBlur | None = None
+) -> np.ndarray:
     sq = np.zeros(mask.shape)
     for axis in (1, 2):
         dn = (np.roll(normal, -1, axis=axis) - np.roll(normal, 1, axis=axis)) / (2 * pixel_mm)
         jump = np.abs(np.roll(depth, -1, axis=axis) - np.roll(depth, 1, axis=axis))
         ok = mask & np.roll(mask, -1, axis=axis) & np.roll(mask, 1, axis=axis) & (jump < 8 * pixel_mm)
         sq += np.where(ok, (dn * dn).sum(axis=-1), 0.0)
-    return masked_blur(np.sqrt(sq / 2), mask, 1.0)
+    return (blurs or _MaskBlur(mask))(np.sqrt(sq / 2), 1.0)
 
 
-def _edges(normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: float) -> np.ndarray:
+def _edges(
+    normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: float, blurs: _MaskBlur | None = None
+) -> np.ndarray:
     far = np.where(mask, depth, depth.max() + 10 * pixel_mm)  # silhouettes are depth discontinuities
     edge = np.zeros(mask.shape)
     for axis in (1, 2):
@@ -130,35 +167,47 @@ def _edges(normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: fl
             crease = 1.0 - (np.roll(normal, shift, axis=axis) * normal).sum(axis=-1)
             crease = np.where(np.roll(mask, shift, axis=axis), crease, 0.0)
             edge = np.maximum(edge, np.maximum(jump.astype(np.float64), np.clip(crease, 0.0, 1.0)))
-    return masked_blur(edge, mask, 1.0)
+    return (blurs or _MaskBlur(mask))(edge, 1.0)
 
 
 def _entropy(filled: np.ndarray, mask: np.ndarray, levels: int = 16, sigma: float = 2.0) -> np.ndarray:
+    """Windowed entropy on the object pixels (0 on the background). Levels no pixel takes add nothing and are
+    skipped; the logarithms are taken on object pixels only."""
     q = np.clip((filled * levels).astype(np.int64), 0, levels - 1)
-    entropy = np.zeros(filled.shape)
-    for level in range(levels):
-        p = _blur((q == level).astype(np.float64), sigma)
+    entropy = np.zeros(int(mask.sum()))
+    for level in np.unique(q):
+        p = _blur((q == level).astype(np.float64), sigma)[mask]
         entropy -= np.where(p > 1e-6, p * np.log2(np.maximum(p, 1e-6)), 0.0)
-    return np.clip(entropy / np.log2(levels), 0.0, 1.0) * mask
+    out = np.zeros(filled.shape)
+    out[mask] = np.clip(entropy / np.log2(levels), 0.0, 1.0)
+    return out
 
 
 def _symmetry(filled: np.ndarray, mask: np.ndarray) -> np.ndarray:
     gx = ndimage.sobel(filled, axis=2)
     gy = ndimage.sobel(filled, axis=1)
     strength = np.log1p(np.hypot(gx, gy))
-    phase = np.arctan2(gy, gx)
-    total = np.zeros(filled.shape)
+    phase = np.arctan2(gy, gx).ravel()
+    strength = strength.ravel()
+    # Votes are summed on the object pixels only (the map is 0 elsewhere); neighbours wrap round the image
+    # edges, as np.roll would.
+    n, row, col = np.nonzero(mask)
+    _, height, width = filled.shape
+    base = n * (height * width)
+    total = np.zeros(len(n))
     for radius in (2, 4, 6):
         for alpha in np.arange(8) * np.pi / 8:
             dy, dx = round(radius * np.sin(alpha)), round(radius * np.cos(alpha))
             a = np.arctan2(dy, dx)
-            t1 = np.roll(phase, (dy, dx), axis=(1, 2))  # value at x - d
-            t2 = np.roll(phase, (-dy, -dx), axis=(1, 2))  # value at x + d
-            r1 = np.roll(strength, (dy, dx), axis=(1, 2))
-            r2 = np.roll(strength, (-dy, -dx), axis=(1, 2))
+            before = base + ((row - dy) % height) * width + (col - dx) % width  # x - d
+            after = base + ((row + dy) % height) * width + (col + dx) % width  # x + d
+            t1, t2 = phase[before], phase[after]
+            r1, r2 = strength[before], strength[after]
             weight = (1 - np.cos(t1 + t2 - 2 * a)) * (1 - np.cos(t1 - t2)) / 4
             total += np.exp(-2 * np.hypot(dy, dx) / 8) * weight * r1 * r2
-    return total * mask
+    out = np.zeros(filled.shape)
+    out[mask] = total
+    return out
 
 
 def _color_opponency(color: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -204,22 +253,24 @@ def compute_channels(
     intensity = intensity.astype(np.float64)
     normal = normal.astype(np.float64)
     depth = depth.astype(np.float64)
-    filled = fill_background(intensity, mask)
+    blurs = _MaskBlur(mask)
+    shading_4 = _blur(intensity * mask, 4.0)  # shared by the background fill and the intensity surround
+    filled = fill_background(intensity, mask, 4.0, _blurs=blurs, _value=shading_4)
     raw = {}
     for name in channels:
         if name in COLOR_CHANNELS and color is None:
             raise InvalidArgumentError(f"channel {name!r} needs colours")
         if name == "intensity":
-            raw[name] = _center_surround(intensity, mask)
+            raw[name] = _center_surround(intensity, mask, blurs=blurs, surround_value=shading_4)
         elif name == "contrast":
-            mean = masked_blur(intensity, mask, 2.0)
-            raw[name] = np.sqrt(np.clip(masked_blur(intensity**2, mask, 2.0) - mean**2, 0.0, None))
+            mean = blurs(intensity, 2.0)
+            raw[name] = np.sqrt(np.clip(blurs(intensity**2, 2.0) - mean**2, 0.0, None))
         elif name == "orientation":
             raw[name] = _orientation(filled, mask)
         elif name == "curvature":
-            raw[name] = _curvature(normal, depth, mask, pixel_mm)
+            raw[name] = _curvature(normal, depth, mask, pixel_mm, blurs)
         elif name == "edges":
-            raw[name] = _edges(normal, depth, mask, pixel_mm)
+            raw[name] = _edges(normal, depth, mask, pixel_mm, blurs)
         elif name == "entropy":
             raw[name] = _entropy(filled, mask)
         elif name == "symmetry":

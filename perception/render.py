@@ -142,7 +142,64 @@ def make_camera(
     )
 
 
-def render_views(
+@dataclass(frozen=True)
+class ViewStack:
+    """Rendered views stacked along a first axis (N views), the arrays :class:`View` holds one slice of.
+
+    Attributes: as :class:`View`, each with a leading (N,) axis (``color`` None without colours), and
+    ``cameras``, the N :class:`Camera` objects.
+    """
+
+    depth: np.ndarray
+    mask: np.ndarray
+    normal: np.ndarray
+    intensity: np.ndarray
+    color: np.ndarray | None
+    triangle_ids: np.ndarray
+    barycentric: np.ndarray
+    cameras: list[Camera]
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def views(self) -> list[View]:
+        """The N :class:`View` objects; their arrays are views into the stack's (no copies)."""
+        return [
+            View(
+                depth=self.depth[k],
+                mask=self.mask[k],
+                normal=self.normal[k],
+                intensity=self.intensity[k],
+                color=None if self.color is None else self.color[k],
+                triangle_ids=self.triangle_ids[k],
+                barycentric=self.barycentric[k],
+                camera=cam,
+            )
+            for k, cam in enumerate(self.cameras)
+        ]
+
+
+def _stacked_rays(model: ObjectModel, cameras: list[Camera]) -> np.ndarray:
+    """(N * H * W, 6) float32 rays of N cameras of one image size, camera after camera: the rows of
+    ``np.concatenate([c.rays(model) for c in cameras])``, the same values, built without a per-camera loop."""
+    cam0 = cameras[0]
+    rows, cols = np.meshgrid(np.arange(cam0.height), np.arange(cam0.width), indexing="ij")
+    x = (cols.ravel() + 0.5 - cam0.width / 2) * cam0.pixel_mm
+    y = (cam0.height / 2 - rows.ravel() - 0.5) * cam0.pixel_mm
+    base = np.stack([c.center - c.distance_mm * c.forward for c in cameras])
+    right = np.stack([c.right for c in cameras])
+    up = np.stack([c.up for c in cameras])
+    origins = (base[:, None, :] + x[None, :, None] * right[:, None, :]) + y[None, :, None] * up[:, None, :]
+    forward = model.to_scene(np.stack([c.forward for c in cameras]), directions=True)
+    rays = np.empty((len(cameras), len(x), 6), dtype=np.float32)
+    for k in range(len(cameras)):  # one view at a time: one large (M, 3) @ (3, 3) product is far slower
+        rays[k, :, :3] = model.to_scene(origins[k])
+    rays[:, :, 3:] = forward[:, None, :]
+    return rays.reshape(-1, 6)
+
+
+def render_stack(
     model: ObjectModel,
     n_views: int = DEFAULT_N_VIEWS,
     width: int = DEFAULT_SIZE_PX,
@@ -150,8 +207,8 @@ def render_views(
     *,
     directions: np.ndarray | None = None,
     frame: np.ndarray | None = None,
-) -> list[View]:
-    """Render ``n_views`` orthographic views of ``model`` (one ``cast_rays`` call for all of them).
+) -> ViewStack:
+    """Render ``n_views`` orthographic views of ``model`` in one ``cast_rays`` call, stacked (:class:`ViewStack`).
 
     Args:
         model: the object.
@@ -173,46 +230,57 @@ def render_views(
         if dirs.size == 0 or dirs.size % 3 or not np.isfinite(dirs).all() or (np.abs(dirs.reshape(-1, 3)).max(axis=1) == 0).any():
             raise InvalidArgumentError(f"{model.name}: view directions must be finite non-zero 3-vectors, got shape {dirs.shape}")
     cameras = [make_camera(model, d, width, height, frame) for d in dirs.reshape(-1, 3)]
-    rays = np.concatenate([c.rays(model) for c in cameras])
-    hits = model.scene.cast_rays(o3d.core.Tensor(rays))
+    hits = model.scene.cast_rays(o3d.core.Tensor(_stacked_rays(model, cameras)))
+    shape = (len(cameras), height, width)
     t_hit = hits["t_hit"].numpy()
     mask = np.isfinite(t_hit)
-    ids = np.where(mask, hits["primitive_ids"].numpy().astype(np.int64), -1)
-    uv = hits["primitive_uvs"].numpy().astype(np.float64)
+    # Shading is computed on the hit pixels only; the background stays zero (ids -1).
+    hit = np.flatnonzero(mask)
+    ids = hits["primitive_ids"].numpy()[hit].astype(np.int64)
+    uv = hits["primitive_uvs"].numpy()[hit].astype(np.float64)
     # Open3D: point = (1 - u - v) * v0 + u * v1 + v * v2.
-    bary = np.where(mask[:, None], np.column_stack([1.0 - uv.sum(axis=1), uv]), 0.0)
-    corners = model.triangles[np.maximum(ids, 0)]
+    bary = np.column_stack([1.0 - uv.sum(axis=1), uv])
+    corners = model.triangles[ids]
     normal = np.einsum("nk,nkj->nj", bary, model.vertex_normals[corners])
     length = np.linalg.norm(normal, axis=1, keepdims=True)
     normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 1e-12)
-    forward = np.repeat(np.stack([c.forward for c in cameras]), width * height, axis=0)
+    forward = np.stack([c.forward for c in cameras])[hit // (width * height)]
     # Headlight: |cos| so that meshes with flipped normals still shade.
-    intensity = np.abs(np.einsum("nj,nj->n", normal, forward)) * mask
+    intensity = np.abs(np.einsum("nj,nj->n", normal, forward))
+
+    def scatter(values: np.ndarray, dtype: type, fill: float = 0) -> np.ndarray:
+        out = np.full((mask.size, *values.shape[1:]), fill, dtype=dtype)
+        out[hit] = values
+        return out.reshape(*shape, *values.shape[1:])
+
     color = None
     if model.has_colors:
-        color = np.einsum("nk,nkj->nj", bary, model.vertex_colors[corners]) * mask[:, None]
-    depth = np.where(mask, t_hit, 0.0)
+        color = scatter(np.clip(np.einsum("nk,nkj->nj", bary, model.vertex_colors[corners]), 0, 1), np.float32)
+    log.debug("%s: rendered %d views of %d x %d", model.name, len(cameras), width, height)
+    return ViewStack(
+        depth=scatter(t_hit[hit], np.float32),
+        mask=mask.reshape(shape),
+        normal=scatter(normal, np.float32),
+        intensity=scatter(intensity, np.float32),
+        color=color,
+        triangle_ids=scatter(ids, np.int32, -1),
+        barycentric=scatter(bary, np.float32),
+        cameras=cameras,
+    )
 
-    shape = (len(cameras), height, width)
-    views = []
-    for k, cam in enumerate(cameras):
-        sl = slice(k * width * height, (k + 1) * width * height)
-        views.append(
-            View(
-                depth=depth[sl].reshape(shape[1:]).astype(np.float32),
-                mask=mask[sl].reshape(shape[1:]),
-                normal=normal[sl].reshape(*shape[1:], 3).astype(np.float32),
-                intensity=intensity[sl].reshape(shape[1:]).astype(np.float32),
-                color=None
-                if color is None
-                else np.clip(color[sl], 0, 1).reshape(*shape[1:], 3).astype(np.float32),
-                triangle_ids=ids[sl].reshape(shape[1:]).astype(np.int32),
-                barycentric=bary[sl].reshape(*shape[1:], 3).astype(np.float32),
-                camera=cam,
-            )
-        )
-    log.debug("%s: rendered %d views of %d x %d", model.name, len(views), width, height)
-    return views
+
+def render_views(
+    model: ObjectModel,
+    n_views: int = DEFAULT_N_VIEWS,
+    width: int = DEFAULT_SIZE_PX,
+    height: int = DEFAULT_SIZE_PX,
+    *,
+    directions: np.ndarray | None = None,
+    frame: np.ndarray | None = None,
+) -> list[View]:
+    """Render ``n_views`` orthographic views of ``model`` (one ``cast_rays`` call for all of them): the views of
+    :func:`render_stack` (same arguments and errors)."""
+    return render_stack(model, n_views, width, height, directions=directions, frame=frame).views
 
 
 def surface_points(model: ObjectModel, view: View, where: np.ndarray | None = None) -> np.ndarray:

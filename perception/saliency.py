@@ -49,8 +49,9 @@ from perception.render import (
     DEFAULT_N_VIEWS,
     DEFAULT_SIZE_PX,
     View,
+    ViewStack,
+    render_stack,
     render_views,
-    surface_points,
     view_directions,
 )
 from perception.validate import check_count, check_seed
@@ -154,6 +155,7 @@ class ViewMaps:
     channels: dict[str, np.ndarray]
     combined: np.ndarray
     peaks: np.ndarray
+    stack: ViewStack | None = None
 
 
 def _check_weights(
@@ -206,32 +208,32 @@ def multiview_maps(
     w = _check_weights(weights, channels, model.name)
     rotation = Rotation.random(random_state=np.random.default_rng(seed)).as_matrix()
     frame = model.principal_frame
-    views = render_views(
+    stack = render_stack(
         model, width=size_px, height=size_px, directions=view_directions(n_views) @ (frame @ rotation).T,
         frame=frame,
     )
-    mask = np.stack([v.mask for v in views])
+    mask = stack.mask
     maps = compute_channels(
-        np.stack([v.intensity for v in views]),
-        np.stack([v.depth for v in views]),
-        np.stack([v.normal for v in views]),
+        stack.intensity,
+        stack.depth,
+        stack.normal,
         mask,
-        views[0].camera.pixel_mm,
+        stack.cameras[0].pixel_mm,
         channels,
-        color=np.stack([v.color for v in views]) if model.has_colors else None,
+        color=stack.color,
     )
     combined = sum(w[c] * maps[c] for c in channels) / sum(w.values())
     top = combined.max()
     peaks = (combined == ndimage.maximum_filter(combined, size=(1, 9, 9))) & mask & (combined >= 0.25 * top)
-    return ViewMaps(views, maps, combined, peaks & (top > 0))
+    return ViewMaps(stack.views, maps, combined, peaks & (top > 0), stack)
 
 
-def _pool(model: ObjectModel, views: list[View], values: np.ndarray) -> np.ndarray:
+def _pool(model: ObjectModel, stack: ViewStack, values: np.ndarray) -> np.ndarray:
     """Per-vertex weighted mean of per-pixel ``values`` (C, N, H, W) -> (C, V); see the module docstring."""
-    ids = np.concatenate([v.triangle_ids[v.mask] for v in views])
-    bary = np.concatenate([v.barycentric[v.mask] for v in views]).astype(np.float64)
-    cosine = np.concatenate([v.intensity[v.mask] for v in views]).astype(np.float64)
-    mask = np.stack([v.mask for v in views])
+    mask = stack.mask
+    ids = stack.triangle_ids[mask]
+    bary = stack.barycentric[mask].astype(np.float64)
+    cosine = stack.intensity[mask].astype(np.float64)
     weight = (bary * cosine[:, None]).ravel()
     rows = model.triangles[ids].ravel()
     cols = np.repeat(np.arange(len(ids)), 3)
@@ -246,6 +248,14 @@ def _pool(model: ObjectModel, views: list[View], values: np.ndarray) -> np.ndarr
         _, nearest = cKDTree(model.vertices[seen]).query(model.vertices[~seen])
         pooled[:, ~seen] = pooled[:, np.flatnonzero(seen)[nearest]]
     return pooled
+
+
+def _stack_points(model: ObjectModel, stack: ViewStack, where: np.ndarray) -> np.ndarray:
+    """(K, 3) exact surface points (mm) of the hit pixels of all views selected by the (N, H, W) bool ``where``,
+    view after view, row-major: :func:`perception.render.surface_points` of every view, concatenated."""
+    select = stack.mask & where
+    corners = model.vertices[model.triangles[stack.triangle_ids[select]]]  # (K, 3, 3)
+    return np.einsum("kc,kcj->kj", stack.barycentric[select].astype(np.float64), corners).reshape(-1, 3)
 
 
 def _unit_max(x: np.ndarray) -> np.ndarray:
@@ -300,10 +310,8 @@ def saliency(
         log.info("%s: colour channels skipped (mesh has no colours)", model.name)
     maps = multiview_maps(model, weights=weights, n_views=n_views, size_px=size_px, seed=seed)
     stack = np.stack([maps.channels[c] for c in channels] + [maps.combined])
-    pooled = _pool(model, maps.views, stack)
-    fixations = np.concatenate(
-        [surface_points(model, v, p) for v, p in zip(maps.views, maps.peaks, strict=True)]
-    ).reshape(-1, 3)
+    pooled = _pool(model, maps.stack, stack)
+    fixations = _stack_points(model, maps.stack, maps.peaks)
     return Saliency(
         model,
         _unit_max(pooled[-1]),

@@ -1,0 +1,123 @@
+"""The fast multiview paths equal their plain definitions: the stacked render equals one view at a time, and each
+rewritten channel equals the straightforward formula it replaces (same bytes where the arithmetic is the same)."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+from scipy import ndimage, signal
+
+from perception import channels, primitives
+from perception.geometry import ObjectModel
+from perception.render import _stacked_rays, make_camera, render_stack, render_views, view_directions
+
+
+def _box() -> ObjectModel:
+    box = o3d.geometry.TriangleMesh.create_box(60.0, 40.0, 30.0).translate((-30.0, -20.0, -15.0))
+    box = box.subdivide_midpoint(3)
+    return ObjectModel(np.asarray(box.vertices), np.asarray(box.triangles), name="box")
+
+
+@pytest.mark.parametrize("model", [primitives.sphere(40.0, 3), _box()], ids=["sphere", "box"])
+def test_stacked_render_equals_one_view_at_a_time(model):
+    directions = np.vstack([view_directions(7), [[0.0, 0.0, 1.0]]])
+    stack = render_stack(model, width=48, height=40, directions=directions)
+    assert stack.mask.shape == (8, 40, 48) and len(stack) == 8
+    assert stack.mask.any(axis=(1, 2)).all()
+    for k, d in enumerate(directions):
+        (alone,) = render_views(model, width=48, height=40, directions=d[None])
+        for name in ("depth", "mask", "normal", "intensity", "triangle_ids", "barycentric"):
+            got, want = getattr(stack, name)[k], getattr(alone, name)
+            assert got.dtype == want.dtype and got.shape == want.shape
+            np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
+            assert got.tobytes() == want.tobytes(), name
+        # Background conventions: ids -1 and zeros; barycentric coordinates sum to 1 on hits.
+        assert (stack.triangle_ids[k][~stack.mask[k]] == -1).all()
+        assert not stack.normal[k][~stack.mask[k]].any()
+        np.testing.assert_allclose(stack.barycentric[k][stack.mask[k]].sum(axis=1), 1.0, atol=1e-6)
+    # The views are slices of the stack, not copies.
+    view = stack.views[3]
+    assert np.shares_memory(view.depth, stack.depth) and view.camera is stack.cameras[3]
+
+
+def test_stacked_rays_equal_each_cameras_rays():
+    model = _box()
+    cameras = [make_camera(model, d, 20, 12, model.principal_frame) for d in view_directions(5)]
+    rays = _stacked_rays(model, cameras)
+    assert rays.dtype == np.float32 and rays.shape == (5 * 20 * 12, 6)
+    assert rays.tobytes() == np.concatenate([c.rays(model) for c in cameras]).tobytes()
+
+
+@pytest.fixture(scope="module")
+def images():
+    """Four 32 x 40 views: smooth shading with texture on a blob mask that touches the image edges (so the
+    symmetry votes wrap round), plus one empty view."""
+    rng = np.random.default_rng(7)
+    rows, cols = np.mgrid[0:32, 0:40]
+    mask = np.stack(
+        [((rows - cy) / ry) ** 2 + ((cols - cx) / rx) ** 2 < 1 for cy, cx, ry, rx in
+         [(16, 20, 12, 15), (3, 20, 10, 25), (16, 38, 14, 9), (0, 0, 0.1, 0.1)]]
+    )
+    intensity = np.clip(0.5 + 0.3 * np.sin(rows / 3.0 + cols / 5.0) + 0.1 * rng.random((4, 32, 40)), 0, 1) * mask
+    return intensity, mask
+
+
+def _plain_symmetry(filled, mask):
+    gx, gy = ndimage.sobel(filled, axis=2), ndimage.sobel(filled, axis=1)
+    strength, phase = np.log1p(np.hypot(gx, gy)), np.arctan2(gy, gx)
+    total = np.zeros(filled.shape)
+    for radius in (2, 4, 6):
+        for alpha in np.arange(8) * np.pi / 8:
+            dy, dx = round(radius * np.sin(alpha)), round(radius * np.cos(alpha))
+            a = np.arctan2(dy, dx)
+            t1, t2 = np.roll(phase, (dy, dx), axis=(1, 2)), np.roll(phase, (-dy, -dx), axis=(1, 2))
+            r1, r2 = np.roll(strength, (dy, dx), axis=(1, 2)), np.roll(strength, (-dy, -dx), axis=(1, 2))
+            weight = (1 - np.cos(t1 + t2 - 2 * a)) * (1 - np.cos(t1 - t2)) / 4
+            total += np.exp(-2 * np.hypot(dy, dx) / 8) * weight * r1 * r2
+    return total * mask
+
+
+def _plain_orientation(filled, mask):
+    total = np.zeros(filled.shape)
+    for theta in np.deg2rad([0.0, 45.0, 90.0, 135.0]):
+        response = np.abs(signal.fftconvolve(filled, channels._gabor_kernel(theta)[None], mode="same", axes=(1, 2)))
+        total += channels.itti_normalize(response, mask)
+    return total
+
+
+def _plain_entropy(filled, mask, levels=16, sigma=2.0):
+    q = np.clip((filled * levels).astype(np.int64), 0, levels - 1)
+    entropy = np.zeros(filled.shape)
+    for level in range(levels):
+        p = ndimage.gaussian_filter((q == level).astype(np.float64), sigma=(0, sigma, sigma), mode="constant")
+        entropy -= np.where(p > 1e-6, p * np.log2(np.maximum(p, 1e-6)), 0.0)
+    return np.clip(entropy / np.log2(levels), 0.0, 1.0) * mask
+
+
+@pytest.mark.parametrize(
+    "fast, plain",
+    [(channels._symmetry, _plain_symmetry), (channels._orientation, _plain_orientation),
+     (channels._entropy, _plain_entropy)],
+    ids=["symmetry", "orientation", "entropy"],
+)
+def test_rewritten_channels_equal_their_plain_formulas(images, fast, plain):
+    intensity, mask = images
+    filled = channels.fill_background(intensity, mask)
+    got, want = fast(filled, mask), plain(filled, mask)
+    assert got.shape == want.shape and np.abs(want).max() > 0
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    assert got.tobytes() == want.tobytes()
+
+
+def test_shared_blurs_equal_separate_masked_blurs(images):
+    intensity, mask = images
+    blurs = channels._MaskBlur(mask)
+    for sigma in (1.0, 2.0, 4.0, 2.0):
+        weight = ndimage.gaussian_filter(mask.astype(np.float64), sigma=(0, sigma, sigma), mode="constant")
+        value = ndimage.gaussian_filter(intensity * mask, sigma=(0, sigma, sigma), mode="constant")
+        want = np.divide(value, weight, out=np.zeros_like(value), where=weight > 1e-3) * mask
+        assert blurs(intensity, sigma).tobytes() == want.tobytes()
+        assert channels.masked_blur(intensity, mask, sigma).tobytes() == want.tobytes()
+    # A constant stays that constant on the object, whatever the mask.
+    np.testing.assert_allclose(blurs(np.full(mask.shape, 0.3), 2.0)[mask], 0.3, rtol=1e-12)
