@@ -17,15 +17,23 @@ on the same vertices (detection time inside the program, keypoint counts); they 
 the binary is absent. ``--methods ...,pcl_harris,pcl_iss`` scores PCL's keypoints as saliency methods
 (``perception.saliency.PCL_METHODS``, with the mesh normals; time includes starting the program).
 
+``--before REV`` times the multiview saliency of git revision REV beside today's, mesh after mesh in the same
+run (REV's ``perception`` package, from ``git archive``, in a worker process), and states how today's output
+agrees with REV's: byte-identical scores, and the share of the 10 interest points within 5 mm of REV's (per
+mesh; mean and min over meshes). 969b1cb is the revision before the multiview speed-up (issue 26).
+
     .venv/bin/python -m benchmarks.saliency [--limit N] [--json] [--methods multiview,mesh,iss] [--peers]
+        [--before REV]
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import statistics
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -107,9 +115,89 @@ def _run_peer(model: ObjectModel, reference: np.ndarray) -> dict:
     return out
 
 
-def measure(folder: Path, limit: int | None, methods: list[str], peers: bool) -> dict:
+# The worker that runs another revision's multiview saliency: one mesh path per stdin line, one JSON line back
+# (the faster of 2 times, the scores and the interest points, as the rows of today's code are measured).
+_BEFORE_WORKER = """
+import json, sys, time
+import numpy as np
+from perception.curvature import quiet_stdout
+from perception.geometry import ObjectModel, load_object
+from perception.saliency import saliency
+for line in sys.stdin:
+    path = line.strip()
+    with quiet_stdout():
+        model = load_object(path)
+    runs = []
+    for _ in range(2):
+        copy = ObjectModel(model.vertices.copy(), model.triangles.copy(), name=model.name)
+        start = time.perf_counter()
+        result = saliency(copy, "multiview")
+        runs.append((time.perf_counter() - start, result))
+    first = runs[0][1]
+    print(json.dumps({"seconds": min(t for t, _ in runs), "scores": first.scores.tobytes().hex(),
+                      "points": first.interest_points(%d).tolist()}), flush=True)
+"""
+
+
+class _Before:
+    """Revision ``rev``'s ``perception`` package in a temporary folder and a worker process running it."""
+
+    def __init__(self, rev: str):
+        root = Path(__file__).resolve().parents[1]
+        self._tmp = tempfile.TemporaryDirectory()
+        archive = subprocess.run(
+            ["git", "-C", str(root), "archive", rev, "perception"], capture_output=True, check=True
+        ).stdout
+        import tarfile
+
+        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+            tar.extractall(self._tmp.name, filter="data")
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", _BEFORE_WORKER % N_INTEREST],
+            cwd=self._tmp.name,
+            env={**__import__("os").environ, "PYTHONPATH": self._tmp.name},
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+
+    def run(self, path: Path) -> dict:
+        self._proc.stdin.write(f"{path}\n")
+        self._proc.stdin.flush()
+        line = self._proc.stdout.readline()
+        if not line:
+            raise RuntimeError("the --before worker stopped (see its error above)")
+        out = json.loads(line)
+        return {"seconds": out["seconds"], "scores": bytes.fromhex(out["scores"]), "points": np.array(out["points"])}
+
+    def close(self) -> None:
+        self._proc.stdin.close()
+        self._proc.wait(timeout=60)
+        self._tmp.cleanup()
+
+
+def _versus_before(model: ObjectModel, before: dict, method_row: dict) -> dict:
+    """Today's multiview output against the other revision's: same bytes, share of interest points near."""
+    copy = _fresh(model)
+    with quiet_stdout():
+        result = saliency(copy, "multiview")
+    points = result.interest_points(N_INTEREST)
+    near = np.linalg.norm(points[:, None] - before["points"][None], axis=2).min(axis=1) <= NEAR_MM
+    return {
+        "mesh": method_row["mesh"],
+        "before_s": before["seconds"],
+        "after_s": method_row["seconds"],
+        "identical_scores": result.scores.tobytes() == before["scores"],
+        "points_within_5mm": float(near.mean()),
+    }
+
+
+def measure(
+    folder: Path, limit: int | None, methods: list[str], peers: bool, before_rev: str | None = None
+) -> dict:
     items = list_collection(folder)[:limit]
-    rows, peer_rows = [], []
+    rows, peer_rows, versus = [], [], []
+    before = _Before(before_rev) if before_rev else None
     peer_note = None
     if peers and not PEER_BINARY.exists():
         peer_note = (
@@ -120,6 +208,8 @@ def measure(folder: Path, limit: int | None, methods: list[str], peers: bool) ->
             model = load_object(path, label=label)
         for method in methods:
             rows.append({"mesh": f"{label}/{path.stem}", "method": method, **_run_method(model, method)})
+            if before is not None and method == "multiview":
+                versus.append(_versus_before(model, before.run(path), rows[-1]))
         if peers and peer_note is None:
             from perception.mesh_saliency import iss_keypoints
 
@@ -152,12 +242,30 @@ def measure(folder: Path, limit: int | None, methods: list[str], peers: bool) ->
                     "keypoints_median": statistics.median(p[detector]["keypoints"] for p in peer_rows),
                 }
             )
+    if before is not None:
+        before.close()
+    compare = None
+    if versus:
+        compare = {
+            "before": before_rev,
+            "meshes": len(versus),
+            "before_median_s": statistics.median(v["before_s"] for v in versus),
+            "after_median_s": statistics.median(v["after_s"] for v in versus),
+            "ratio_of_medians": statistics.median(v["after_s"] for v in versus)
+            / statistics.median(v["before_s"] for v in versus),
+            "median_ratio": statistics.median(v["after_s"] / v["before_s"] for v in versus),
+            "identical_scores": sum(v["identical_scores"] for v in versus),
+            "points_within_5mm_mean": statistics.fmean(v["points_within_5mm"] for v in versus),
+            "points_within_5mm_min": min(v["points_within_5mm"] for v in versus),
+        }
     return {
         "meshes": len(items),
         "rows": rows,
         "peers": peer_rows,
         "peer_note": peer_note,
         "summary": summary,
+        "versus_before": versus,
+        "before": compare,
     }
 
 
@@ -185,6 +293,16 @@ def _print_table(result: dict) -> None:
         )
     if result["peer_note"]:
         print(result["peer_note"])
+    c = result.get("before")
+    if c:
+        print(
+            f"multiview against {c['before']} ({c['meshes']} meshes, the same run, mesh after mesh): median s / mesh "
+            f"{c['before_median_s']:.3f} before, {c['after_median_s']:.3f} now (ratio of medians "
+            f"{c['ratio_of_medians']:.2f}, median per-mesh ratio {c['median_ratio']:.2f}); scores byte-identical on "
+            f"{c['identical_scores']} of {c['meshes']}; share of the {N_INTEREST} interest points within "
+            f"{NEAR_MM:g} mm of {c['before']}'s: mean {c['points_within_5mm_mean']:.3f}, min "
+            f"{c['points_within_5mm_min']:.2f}"
+        )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -196,6 +314,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     parser.add_argument("--peers", action="store_true", help="also run the PCL peer (benchmarks/peers)")
+    parser.add_argument(
+        "--before", metavar="REV", default=None,
+        help="also time git revision REV's multiview saliency and measure agreement with it (e.g. 969b1cb)",
+    )
     args = parser.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
     unknown = sorted(set(methods) - set(METHODS + PCL_METHODS))
@@ -207,7 +329,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no data at {args.data}: pass --data FOLDER")
         return 1
     result = {"benchmark": "saliency", "machine": machine(), "methods": methods}
-    result |= measure(args.data, args.limit, methods, args.peers)
+    if args.before and "multiview" not in methods:
+        parser.error("--before compares the multiview method: include it in --methods")
+    result |= measure(args.data, args.limit, methods, args.peers, args.before)
     _print_table(result)
     if args.json:
         print(json.dumps(result, indent=1))
