@@ -3,6 +3,8 @@ rewritten channel equals the straightforward formula it replaces (same bytes whe
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -121,3 +123,33 @@ def test_shared_blurs_equal_separate_masked_blurs(images):
         assert channels.masked_blur(intensity, mask, sigma).tobytes() == want.tobytes()
     # A constant stays that constant on the object, whatever the mask.
     np.testing.assert_allclose(blurs(np.full(mask.shape, 0.3), 2.0)[mask], 0.3, rtol=1e-12)
+
+
+def test_benchmark_before_against_the_same_code_agrees_fully(tmp_path, capsys):
+    """benchmarks.saliency --before REV with REV's perception equal to the working tree's: every score byte
+    equal, every interest point within 5 mm (share 1.0), and both times measured."""
+    import json
+    import shutil
+    import subprocess
+
+    from benchmarks import saliency as bench
+
+    root = Path(bench.__file__).resolve().parents[1]
+    if shutil.which("git") is None or subprocess.run(
+        ["git", "-C", str(root), "diff", "--quiet", "HEAD", "--", "perception"], check=False, capture_output=True
+    ).returncode != 0:
+        pytest.skip("needs git and a perception package unchanged since HEAD")
+    model = primitives.sphere(40.0, 2)
+    (tmp_path / "Ball").mkdir()
+    lines = ["OFF", f"{model.n_vertices} {len(model.triangles)} 0"]
+    lines += [" ".join(f"{c:.6f}" for c in v) for v in model.vertices]
+    lines += ["3 " + " ".join(map(str, t)) for t in model.triangles]
+    (tmp_path / "Ball" / "ball.off").write_text("\n".join(lines) + "\n")
+    code = bench.main(["--data", str(tmp_path), "--methods", "multiview", "--before", "HEAD", "--json"])
+    assert code == 0
+    out = capsys.readouterr().out
+    result = json.loads(out[out.index("\n{") + 1 :])
+    compare = result["before"]
+    assert compare["meshes"] == 1 and compare["identical_scores"] == 1
+    assert compare["points_within_5mm_mean"] == 1.0 and compare["points_within_5mm_min"] == 1.0
+    assert compare["before_median_s"] > 0 and compare["after_median_s"] > 0
