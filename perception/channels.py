@@ -144,30 +144,62 @@ def _orientation(filled: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return total
 
 
+class _Wrapped:
+    """Reads (N, H, W, ...) maps at the object pixels of ``mask`` and at pixels (dy, dx) away from them, wrapping
+    round the image edges as ``np.roll`` does (|dy|, |dx| <= ``pad``): maps are padded by wrapping once, so
+    each neighbour is a constant offset from the object pixels' flat indices."""
+
+    def __init__(self, mask: np.ndarray, pad: int):
+        n, row, col = np.nonzero(mask)
+        _, height, width = mask.shape
+        self.pad, self._width = pad, width + 2 * pad
+        self.here = n * ((height + 2 * pad) * self._width) + (row + pad) * self._width + (col + pad)
+
+    def at(self, dy: int, dx: int) -> np.ndarray:
+        """Flat indices, into :meth:`flat` maps, of the pixels (dy, dx) away from the object pixels."""
+        return self.here + (dy * self._width + dx)
+
+    def flat(self, x: np.ndarray) -> np.ndarray:
+        """``x`` padded by wrapping, flattened over its first three axes."""
+        width = ((0, 0), (self.pad, self.pad), (self.pad, self.pad)) + ((0, 0),) * (x.ndim - 3)
+        return np.pad(x, width, mode="wrap").reshape(-1, *x.shape[3:])
+
+
 def _curvature(
     normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: float, blurs: _MaskBlur | None = None
 ) -> np.ndarray:
-    sq = np.zeros(mask.shape)
-    for axis in (1, 2):
-        dn = (np.roll(normal, -1, axis=axis) - np.roll(normal, 1, axis=axis)) / (2 * pixel_mm)
-        jump = np.abs(np.roll(depth, -1, axis=axis) - np.roll(depth, 1, axis=axis))
-        ok = mask & np.roll(mask, -1, axis=axis) & np.roll(mask, 1, axis=axis) & (jump < 8 * pixel_mm)
+    """RMS curvature from the normal map, evaluated on the object pixels only (the blur reads nothing else)."""
+    pixels = _Wrapped(mask, 1)
+    normal, depth, flat = pixels.flat(normal), pixels.flat(depth), pixels.flat(mask)
+    sq = np.zeros(len(pixels.here))
+    for step in ((1, 0), (0, 1)):
+        after, before = pixels.at(*step), pixels.at(-step[0], -step[1])
+        dn = (normal[after] - normal[before]) / (2 * pixel_mm)
+        jump = np.abs(depth[after] - depth[before])
+        ok = flat[after] & flat[before] & (jump < 8 * pixel_mm)
         sq += np.where(ok, (dn * dn).sum(axis=-1), 0.0)
-    return (blurs or _MaskBlur(mask))(np.sqrt(sq / 2), 1.0)
+    out = np.zeros(mask.shape)
+    out[mask] = np.sqrt(sq / 2)
+    return (blurs or _MaskBlur(mask))(out, 1.0)
 
 
 def _edges(
     normal: np.ndarray, depth: np.ndarray, mask: np.ndarray, pixel_mm: float, blurs: _MaskBlur | None = None
 ) -> np.ndarray:
+    """Depth jumps and normal creases towards the four neighbours, evaluated on the object pixels only."""
     far = np.where(mask, depth, depth.max() + 10 * pixel_mm)  # silhouettes are depth discontinuities
-    edge = np.zeros(mask.shape)
-    for axis in (1, 2):
-        for shift in (-1, 1):
-            jump = np.abs(np.roll(far, shift, axis=axis) - far) > 4 * pixel_mm
-            crease = 1.0 - (np.roll(normal, shift, axis=axis) * normal).sum(axis=-1)
-            crease = np.where(np.roll(mask, shift, axis=axis), crease, 0.0)
-            edge = np.maximum(edge, np.maximum(jump.astype(np.float64), np.clip(crease, 0.0, 1.0)))
-    return (blurs or _MaskBlur(mask))(edge, 1.0)
+    pixels = _Wrapped(mask, 1)
+    far, normal, flat, here = pixels.flat(far), pixels.flat(normal), pixels.flat(mask), pixels.here
+    edge = np.zeros(len(here))
+    for step in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        other = pixels.at(*step)
+        jump = np.abs(far[other] - far[here]) > 4 * pixel_mm
+        crease = 1.0 - (normal[other] * normal[here]).sum(axis=-1)
+        crease = np.where(flat[other], crease, 0.0)
+        edge = np.maximum(edge, np.maximum(jump.astype(np.float64), np.clip(crease, 0.0, 1.0)))
+    out = np.zeros(mask.shape)
+    out[mask] = edge
+    return (blurs or _MaskBlur(mask))(out, 1.0)
 
 
 def _entropy(filled: np.ndarray, mask: np.ndarray, levels: int = 16, sigma: float = 2.0) -> np.ndarray:
@@ -187,20 +219,16 @@ def _symmetry(filled: np.ndarray, mask: np.ndarray) -> np.ndarray:
     gx = ndimage.sobel(filled, axis=2)
     gy = ndimage.sobel(filled, axis=1)
     strength = np.log1p(np.hypot(gx, gy))
-    phase = np.arctan2(gy, gx).ravel()
-    strength = strength.ravel()
+    pixels = _Wrapped(mask, 6)
+    phase, strength = pixels.flat(np.arctan2(gy, gx)), pixels.flat(strength)
     # Votes are summed on the object pixels only (the map is 0 elsewhere); neighbours wrap round the image
     # edges, as np.roll would.
-    n, row, col = np.nonzero(mask)
-    _, height, width = filled.shape
-    base = n * (height * width)
-    total = np.zeros(len(n))
+    total = np.zeros(len(pixels.here))
     for radius in (2, 4, 6):
         for alpha in np.arange(8) * np.pi / 8:
             dy, dx = round(radius * np.sin(alpha)), round(radius * np.cos(alpha))
             a = np.arctan2(dy, dx)
-            before = base + ((row - dy) % height) * width + (col - dx) % width  # x - d
-            after = base + ((row + dy) % height) * width + (col + dx) % width  # x + d
+            before, after = pixels.at(-dy, -dx), pixels.at(dy, dx)  # x - d, x + d
             t1, t2 = phase[before], phase[after]
             r1, r2 = strength[before], strength[after]
             weight = (1 - np.cos(t1 + t2 - 2 * a)) * (1 - np.cos(t1 - t2)) / 4

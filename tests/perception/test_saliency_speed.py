@@ -112,6 +112,56 @@ def test_rewritten_channels_equal_their_plain_formulas(images, fast, plain):
     assert got.tobytes() == want.tobytes()
 
 
+def _plain_curvature(normal, depth, mask, pixel_mm):
+    sq = np.zeros(mask.shape)
+    for axis in (1, 2):
+        dn = (np.roll(normal, -1, axis=axis) - np.roll(normal, 1, axis=axis)) / (2 * pixel_mm)
+        jump = np.abs(np.roll(depth, -1, axis=axis) - np.roll(depth, 1, axis=axis))
+        ok = mask & np.roll(mask, -1, axis=axis) & np.roll(mask, 1, axis=axis) & (jump < 8 * pixel_mm)
+        sq += np.where(ok, (dn * dn).sum(axis=-1), 0.0)
+    return channels.masked_blur(np.sqrt(sq / 2), mask, 1.0)
+
+
+def _plain_edges(normal, depth, mask, pixel_mm):
+    far = np.where(mask, depth, depth.max() + 10 * pixel_mm)
+    edge = np.zeros(mask.shape)
+    for axis in (1, 2):
+        for shift in (-1, 1):
+            jump = np.abs(np.roll(far, shift, axis=axis) - far) > 4 * pixel_mm
+            crease = 1.0 - (np.roll(normal, shift, axis=axis) * normal).sum(axis=-1)
+            crease = np.where(np.roll(mask, shift, axis=axis), crease, 0.0)
+            edge = np.maximum(edge, np.maximum(jump.astype(np.float64), np.clip(crease, 0.0, 1.0)))
+    return channels.masked_blur(edge, mask, 1.0)
+
+
+@pytest.mark.parametrize(
+    "fast, plain", [(channels._curvature, _plain_curvature), (channels._edges, _plain_edges)],
+    ids=["curvature", "edges"],
+)
+def test_geometry_channels_on_object_pixels_equal_their_plain_formulas(images, fast, plain):
+    _, mask = images
+    rng = np.random.default_rng(3)
+    normal = rng.normal(size=(*mask.shape, 3))
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    depth = np.where(mask, 50 + 20 * rng.random(mask.shape), 0.0)
+    got, want = fast(normal, depth, mask, 1.2), plain(normal, depth, mask, 1.2)
+    assert np.abs(want).max() > 0
+    assert got.tobytes() == want.tobytes()
+
+
+def test_wrapped_neighbours_read_as_np_roll():
+    mask = np.zeros((2, 5, 7), dtype=bool)
+    mask[0, 0, 0] = mask[1, 4, 6] = mask[1, 2, 3] = True
+    x = np.arange(2 * 5 * 7, dtype=np.float64).reshape(2, 5, 7)
+    pixels = channels._Wrapped(mask, 3)
+    flat = pixels.flat(x)
+    assert (flat[pixels.here] == x[mask]).all()
+    for dy, dx in [(1, 0), (-3, 2), (3, -3), (0, 0)]:
+        assert (flat[pixels.at(dy, dx)] == np.roll(x, (-dy, -dx), axis=(1, 2))[mask]).all()
+    # (0, 0) of view 0 reads one pixel up as the last row of the same view: [0, 4, 0] = 28.
+    assert flat[pixels.at(-1, 0)][0] == 28.0
+
+
 def test_shared_blurs_equal_separate_masked_blurs(images):
     intensity, mask = images
     blurs = channels._MaskBlur(mask)
