@@ -49,6 +49,33 @@ def _blur(x: np.ndarray, sigma: float) -> np.ndarray:
     return ndimage.gaussian_filter(x, sigma=(0, sigma, sigma), mode="constant")
 
 
+def _radius(sigma: float) -> int:
+    """Half-width (pixels) of :func:`_blur`'s kernel (scipy's default ``truncate=4``)."""
+    return int(4.0 * sigma + 0.5)
+
+
+def _window(mask: np.ndarray, margin: int) -> tuple[slice, slice, slice]:
+    """The rows and columns, over all views, that hold object pixels, widened by ``margin`` (within the image)."""
+    rows, cols = np.flatnonzero(mask.any(axis=(0, 2))), np.flatnonzero(mask.any(axis=(0, 1)))
+    if not len(rows):
+        return slice(None), slice(0, 0), slice(0, 0)
+    height, width = mask.shape[1:]
+    return (
+        slice(None),
+        slice(max(rows[0] - margin, 0), min(rows[-1] + margin + 1, height)),
+        slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, width)),
+    )
+
+
+def _blur_object(x: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
+    """``_blur(x, sigma)`` of an ``x`` that is zero off the object, filtering only the object's rows and columns
+    widened by the kernel's reach: outside them the blur is zero, inside them the same values."""
+    out = np.zeros(x.shape)
+    window = _window(mask, _radius(sigma))
+    out[window] = _blur(x[window], sigma)
+    return out
+
+
 def masked_blur(x: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur of ``x`` over the object pixels only (normalised convolution); 0 on the background."""
     return _MaskBlur(mask)(x, sigma)
@@ -64,12 +91,16 @@ class _MaskBlur:
 
     def weight(self, sigma: float) -> np.ndarray:
         if sigma not in self._weights:
-            self._weights[sigma] = _blur(self.mask.astype(np.float64), sigma)
+            self._weights[sigma] = _blur_object(self.mask.astype(np.float64), self.mask, sigma)
         return self._weights[sigma]
+
+    def value(self, x: np.ndarray, sigma: float) -> np.ndarray:
+        """``_blur(x * mask, sigma)``."""
+        return _blur_object(x * self.mask, self.mask, sigma)
 
     def __call__(self, x: np.ndarray, sigma: float, value: np.ndarray | None = None) -> np.ndarray:
         weight = self.weight(sigma)
-        value = _blur(x * self.mask, sigma) if value is None else value
+        value = self.value(x, sigma) if value is None else value
         return np.divide(value, weight, out=np.zeros_like(value), where=weight > 1e-3) * self.mask
 
 
@@ -79,8 +110,9 @@ def fill_background(
 ) -> np.ndarray:
     """Copy of ``x`` whose background pixels hold the nearby object value (else the view's object mean).
     (``_blurs`` and ``_value``, ``_blur(x * mask, sigma)``, let :func:`compute_channels` share filter calls.)"""
-    weight = (_blurs or _MaskBlur(mask)).weight(sigma)
-    value = _blur(x * mask, sigma) if _value is None else _value
+    blurs = _blurs or _MaskBlur(mask)
+    weight = blurs.weight(sigma)
+    value = blurs.value(x, sigma) if _value is None else _value
     near = np.divide(value, weight, out=np.zeros_like(x), where=weight > 1e-3)
     counts = mask.sum(axis=(1, 2), keepdims=True)
     mean = np.divide(
@@ -98,7 +130,14 @@ def itti_normalize(maps: np.ndarray, mask: np.ndarray | None = None, window: int
     global maximum (so that flat zero regions are not counted). Returns float64 in [0, 1]; all zero when the
     input is.
     """
-    maps = np.where(mask, maps, 0.0) if mask is not None else np.asarray(maps, dtype=np.float64)
+    if mask is not None:
+        # Zero off the object: work within the object's rows and columns widened by the neighbourhood (the
+        # same maximum, the same peaks, zero elsewhere).
+        out = np.zeros(np.broadcast_shapes(np.shape(maps), mask.shape))
+        region = _window(mask, window // 2) if mask.ndim == 3 and np.ndim(maps) == 3 else (Ellipsis,)
+        out[region] = itti_normalize(np.where(mask[region], maps[region], 0.0), None, window)
+        return out
+    maps = np.asarray(maps, dtype=np.float64)
     top = float(maps.max()) if maps.size else 0.0
     if not np.isfinite(top) or top <= _EPS:
         return np.zeros(maps.shape)
@@ -205,10 +244,13 @@ def _edges(
 def _entropy(filled: np.ndarray, mask: np.ndarray, levels: int = 16, sigma: float = 2.0) -> np.ndarray:
     """Windowed entropy on the object pixels (0 on the background). Levels no pixel takes add nothing and are
     skipped; the logarithms are taken on object pixels only."""
-    q = np.clip((filled * levels).astype(np.int64), 0, levels - 1)
-    entropy = np.zeros(int(mask.sum()))
+    # Only the object pixels are read: the filter covers the object's rows and columns widened by its reach.
+    window = _window(mask, _radius(sigma))
+    q = np.clip((filled[window] * levels).astype(np.int64), 0, levels - 1)
+    inside = mask[window]
+    entropy = np.zeros(int(inside.sum()))
     for level in np.unique(q):
-        p = _blur((q == level).astype(np.float64), sigma)[mask]
+        p = _blur((q == level).astype(np.float64), sigma)[inside]
         entropy -= np.where(p > 1e-6, p * np.log2(np.maximum(p, 1e-6)), 0.0)
     out = np.zeros(filled.shape)
     out[mask] = np.clip(entropy / np.log2(levels), 0.0, 1.0)
@@ -282,7 +324,7 @@ def compute_channels(
     normal = normal.astype(np.float64)
     depth = depth.astype(np.float64)
     blurs = _MaskBlur(mask)
-    shading_4 = _blur(intensity * mask, 4.0)  # shared by the background fill and the intensity surround
+    shading_4 = blurs.value(intensity, 4.0)  # shared by the background fill and the intensity surround
     filled = fill_background(intensity, mask, 4.0, _blurs=blurs, _value=shading_4)
     raw = {}
     for name in channels:

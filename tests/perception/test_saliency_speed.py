@@ -203,3 +203,29 @@ def test_benchmark_before_against_the_same_code_agrees_fully(tmp_path, capsys):
     assert compare["meshes"] == 1 and compare["identical_scores"] == 1
     assert compare["points_within_5mm_mean"] == 1.0 and compare["points_within_5mm_min"] == 1.0
     assert compare["before_median_s"] > 0 and compare["after_median_s"] > 0
+
+
+def test_blur_within_the_objects_window_equals_the_full_blur(images):
+    intensity, mask = images
+    for sigma in (1.0, 2.0, 4.0):
+        full = ndimage.gaussian_filter(intensity * mask, sigma=(0, sigma, sigma), mode="constant")
+        assert channels._blur_object(intensity * mask, mask, sigma).tobytes() == full.tobytes()
+    # A small object far from the edges: only its rows and columns widened by the kernel's reach are filtered.
+    small = np.zeros((2, 40, 40), dtype=bool)
+    small[0, 10:14, 20:23] = small[1, 12:15, 18:20] = True
+    assert channels._window(small, 4)[1:] == (slice(6, 19), slice(14, 27))
+    assert channels._window(small, 30)[1:] == (slice(0, 40), slice(0, 40))
+    assert channels._window(np.zeros((1, 5, 5), dtype=bool), 2)[1:] == (slice(0, 0), slice(0, 0))
+    x = small * 2.0
+    full = ndimage.gaussian_filter(x, sigma=(0, 1.0, 1.0), mode="constant")
+    assert channels._blur_object(x, small, 1.0).tobytes() == full.tobytes()
+
+
+def test_itti_with_a_mask_equals_itti_of_the_masked_maps(images):
+    _, mask = images
+    rng = np.random.default_rng(5)
+    maps = rng.random(mask.shape) + 3.0 * ~mask  # large values off the object must not count
+    got = channels.itti_normalize(maps, mask)
+    want = channels.itti_normalize(np.where(mask, maps, 0.0))
+    assert got.tobytes() == want.tobytes() and got.max() > 0
+    assert not channels.itti_normalize(maps, np.zeros_like(mask)).any()
