@@ -229,3 +229,10 @@ def test_itti_with_a_mask_equals_itti_of_the_masked_maps(images):
     want = channels.itti_normalize(np.where(mask, maps, 0.0))
     assert got.tobytes() == want.tobytes() and got.max() > 0
     assert not channels.itti_normalize(maps, np.zeros_like(mask)).any()
+    # A small object: the normalisation looks within its widened rows and columns only, with the same result.
+    small = np.zeros((2, 40, 40), dtype=bool)
+    small[0, 10:18, 20:26] = small[1, 12:15, 18:30] = True
+    maps = rng.random(small.shape) + 3.0 * ~small
+    assert channels._window(small, 3)[1:] == (slice(7, 21), slice(15, 33))
+    got = channels.itti_normalize(maps, small)
+    assert got.tobytes() == channels.itti_normalize(np.where(small, maps, 0.0)).tobytes() and got.max() > 0
