@@ -17,12 +17,20 @@ from tactile.contours import interpolate_normals, make_contour, plane_through
 from tactile.sensor import FSRSensor
 
 
-def pose_along(model, direction):
-    """Probe where the ray from the origin along ``direction`` meets the surface, interpolated normal."""
+def scene_ray(model, direction):
+    """A ray from the origin along ``direction`` as an Open3D tensor in ``model.scene``'s frame (the scene is built
+    along the principal axes, which for a sphere are any orthonormal triple the eigen-solver returns)."""
     import open3d as o3d
 
+    origin = model.to_scene(np.zeros(3))
+    return o3d.core.Tensor(np.r_[origin, model.to_scene(direction, directions=True)].astype(np.float32)[None])
+
+
+def pose_along(model, direction):
+    """Probe where the ray from the origin along ``direction`` meets the surface, interpolated normal."""
+
     d = np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction)
-    hit = model.scene.cast_rays(o3d.core.Tensor(np.r_[0, 0, 0, d].astype(np.float32)[None]))
+    hit = model.scene.cast_rays(scene_ray(model, d))
     point = d * float(hit["t_hit"].numpy()[0])
     normal = interpolate_normals(model, point[None], hit["primitive_ids"].numpy().astype(np.int64))
     return point[None], normal
@@ -54,12 +62,9 @@ def test_sphere_imprint_matches_the_analytic_cap(fine_sphere):
 def test_flat_normal_is_worse_than_interpolated_normal(fine_sphere):
     sensor = FSRSensor()
     position, normal = pose_along(fine_sphere, [0.2, -0.3, 0.9])
-    import open3d as o3d
 
-    ray = np.r_[0, 0, 0, position[0] / np.linalg.norm(position)].astype(np.float32)[None]
-    face = fine_sphere.triangle_normals[
-        fine_sphere.scene.cast_rays(o3d.core.Tensor(ray))["primitive_ids"].numpy()
-    ]
+    ray = scene_ray(fine_sphere, position[0] / np.linalg.norm(position))
+    face = fine_sphere.triangle_normals[fine_sphere.scene.cast_rays(ray)["primitive_ids"].numpy()]
     analytic = 50.0 - np.sqrt(50.0**2 - (sensor.taxel_coordinates() ** 2).sum(axis=-1))
     errors = []
     for n in (normal, face):
