@@ -39,6 +39,12 @@ alone not (95.3 -> 95.0 %) but it needs about twice the epochs (``augment="kines
 choice).
 Reversing the direction flips the pad's x axis (tangent) and hence y = normal x tangent, i.e. rotates each
 frame by 180 degrees; for the pose-invariant cue it negates the two direction-dependent channels.
+
+``test_views`` averages the probabilities of each sequence read from several starts, both ways (the same
+transform as the augmentation). Off by default: chosen by nested cross-validation (inner grouped 3-fold inside
+each of the three unseen-SHREC training folds, nets trained on guided + blind contours, 9 inner models), 16 views
+raised single touches by under a point (guided / blind 85.9 / 84.9 -> 86.7 / 85.6 %) and left K = 8 decisions
+where they were (92.1 / 91.9 -> 92.0 / 92.2 %), at 16 times the inference.
 """
 
 from __future__ import annotations
@@ -188,6 +194,9 @@ class CNNClassifier(TactileClassifier):
         frame_size: frames are average-pooled to at most this many taxels per side.
         augment: which nets see random cyclic shifts and reversals of the training sequences:
             ``"kinesthetic"``, ``"cutaneous"``, ``"both"`` (or True) or ``"none"`` (or False).
+        test_views: probabilities at prediction are averaged over this many readings of each sequence: 1 (as
+            touched), or an even number: ``test_views`` / 2 evenly spaced start probes, each read both ways (a
+            closed contour has no natural start or direction; the nets trained on random ones).
 
     Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
@@ -207,7 +216,7 @@ class CNNClassifier(TactileClassifier):
                  schedule: str = "onecycle", weight_decay: float = 0.01, label_smoothing: float = 0.1,
                  patience: int = 6, val_fraction: float = 0.0, random_state: int = 0, device: str = "auto",
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
-                 frame_size: int = 16, augment: bool | str = "both", **renamed):
+                 frame_size: int = 16, augment: bool | str = "both", test_views: int = 1, **renamed):
         random_state = renamed_seed(renamed, random_state, type(self).__name__)
         self.cue = cue
         self.epochs = epochs
@@ -225,6 +234,7 @@ class CNNClassifier(TactileClassifier):
         self.modality = modality
         self.frame_size = frame_size
         self.augment = augment
+        self.test_views = test_views
 
     # ------------------------------------------------------------------------------------ checks
     def _check_params(self) -> None:
@@ -237,6 +247,7 @@ class CNNClassifier(TactileClassifier):
                 raise InvalidArgumentError(f"CNNClassifier: {name} must be a positive integer, got {value!r}")
         if self.augment not in (True, False, *AUGMENT):
             raise InvalidArgumentError(f"CNNClassifier: augment must be a bool or one of {AUGMENT}, got {self.augment!r}")
+        self._check_test_views()
         if not 0 <= self.val_fraction < 1:
             raise InvalidArgumentError(f"CNNClassifier: val_fraction must be in [0, 1), got {self.val_fraction!r}")
         if not (self.lr > 0 and np.isfinite(self.lr)):
@@ -251,6 +262,12 @@ class CNNClassifier(TactileClassifier):
             raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
             raise DatasetError("CNNClassifier: device='cuda' but PyTorch sees no CUDA device")
+
+    def _check_test_views(self) -> None:
+        views = self.test_views
+        if isinstance(views, bool) or not isinstance(views, (int, np.integer)) or not (
+                views == 1 or (views >= 2 and views % 2 == 0)):
+            raise InvalidArgumentError(f"CNNClassifier: test_views must be 1 or an even number >= 2, got {views!r}")
 
     def _augmented(self, kind: str) -> bool:
         choice = {True: "both", False: "none"}.get(self.augment, self.augment)
@@ -326,6 +343,12 @@ class CNNClassifier(TactileClassifier):
         n, p = x.shape[0], x.shape[2]
         shift = torch.randint(0, p, (n,), generator=gen)
         flip = torch.rand(n, generator=gen) < 0.5
+        return self._view(x, kind, shift, flip)
+
+    def _view(self, x: torch.Tensor, kind: str, shift: torch.Tensor, flip: torch.Tensor) -> torch.Tensor:
+        """The same contours read from another start probe (``shift``, (n,) probes) and, where ``flip``, in the
+        other direction: what the sequence would have been had the touch started there."""
+        n, p = x.shape[0], x.shape[2]
         order = (torch.arange(p)[None, :] + shift[:, None]) % p  # (n, P)
         order = torch.where(flip[:, None], order.flip(1), order)
         index = order.view(n, 1, p, *([1] * (x.dim() - 3))).expand(-1, x.shape[1], -1, *x.shape[3:])
@@ -342,6 +365,26 @@ class CNNClassifier(TactileClassifier):
             flipped[..., step] = torch.roll(x[..., step], -1, dims=2)
             return torch.where(flip.view(n, 1, 1, 1).to(x.device), flipped, x)
         return x
+
+    def _test_views(self, n_probes: int) -> list[tuple[int, bool]]:
+        """(start shift, reversed) of each view averaged at prediction: ``test_views`` / 2 evenly spaced starts,
+        each read both ways; one view (the sequence as touched) when ``test_views`` is 1."""
+        self._check_test_views()  # it may be set on a fitted model
+        if self.test_views == 1:
+            return [(0, False)]
+        starts = self.test_views // 2
+        return [(round(j * n_probes / starts) % n_probes, flip) for j in range(starts) for flip in (False, True)]
+
+    def _proba(self, net: nn.Module, x: torch.Tensor, kind: str, device: torch.device) -> np.ndarray:
+        """(S, C) softmax probabilities of ``net``, averaged over the test views (:meth:`_test_views`)."""
+        views = self._test_views(x.shape[2])
+        total = None
+        for shift, flip in views:
+            xv = x if (shift, flip) == (0, False) else self._view(
+                x, kind, torch.full((len(x),), shift), torch.full((len(x),), flip))
+            proba = torch.softmax(self._logits(net, xv, device), 1)
+            total = proba if total is None else total + proba
+        return (total / len(views)).numpy()
 
     def _train_net(self, net: nn.Module, x: torch.Tensor, y: np.ndarray, kind: str,
                    split: tuple[np.ndarray, np.ndarray], device: torch.device) -> dict:
@@ -459,11 +502,11 @@ class CNNClassifier(TactileClassifier):
         with _torch_settings(self.threads or default_threads(), deterministic=False):
             if self.cutaneous_net_ is not None:
                 net = self.cutaneous_net_.to(device)
-                out["cutaneous"] = torch.softmax(self._logits(net, self._frames(batch), device), 1).numpy()
+                out["cutaneous"] = self._proba(net, self._frames(batch), "cutaneous", device)
                 net.to("cpu")
             if self.kinesthetic_net_ is not None:
                 net = self.kinesthetic_net_.to(device)
-                out["kinesthetic"] = torch.softmax(self._logits(net, self._cues(batch), device), 1).numpy()
+                out["kinesthetic"] = self._proba(net, self._cues(batch), "kinesthetic", device)
                 net.to("cpu")
         if len(out) == 2:  # the paper's rule: sum the probability vectors (halved: still a distribution)
             out["fusion"] = (out["cutaneous"] + out["kinesthetic"]) / 2.0

@@ -66,8 +66,8 @@ def attention_rows(ctx: Context, objects) -> list[dict]:
         seconds = saliency_seconds(timing_models, ctx.seed, strategies)
         for pose in POSES:
             stores = pose_stores(ctx, objects, pose, strategies, sizes.attention_contours)
-            preds = {strategy: grouped_kfold(ctx, "attention", stores, strategy, {name: factory},
-                                             sizes.attention_folds)[name] for strategy in strategies}
+            preds = {strategy: by_name[name] for strategy, by_name in grouped_kfold(
+                ctx, "attention", stores, strategies, {name: factory}, sizes.attention_folds).items()}
             blind = preds.get("blind")
             for strategy, pred in preds.items():
                 versus = (paired_difference(pred, blind, k, seed=ctx.seed)

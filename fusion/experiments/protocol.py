@@ -84,9 +84,11 @@ POSES = ("upright", "any pose")
 def unseen_objects(ctx: Context, objects, pose: str = "upright") -> dict[str, dict[str, Predictions]]:
     """Grouped k-fold by object (each fold's test objects never seen in training), both strategies.
 
-    Models train on the objects as stored; ``pose="any pose"`` tests each fold's models on the same test
-    objects turned by their random rotations (a robot never sees a data set's pose), so the two poses are
-    paired object by object.
+    One model per fold and classifier, trained on the training objects' contours of every strategy together
+    (the robot's model learns from all it simulated); guided and blind then differ only in which contours
+    touch the test objects, so their paired difference measures the choice of touch alone. Models train on the
+    objects as stored; ``pose="any pose"`` tests each fold's models on the same test objects turned by their
+    random rotations (a robot never sees a data set's pose), so the two poses are paired object by object.
 
     Returns out-of-fold predictions[strategy][classifier name] covering every test object once.
 
@@ -96,8 +98,7 @@ def unseen_objects(ctx: Context, objects, pose: str = "upright") -> dict[str, di
     sizes = ctx.sizes
     stores = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours)
     classifiers = pick(ctx.classifiers, sizes.unseen_classifiers)
-    return {strategy: grouped_kfold(ctx, "unseen", stores, strategy, classifiers, sizes.unseen_folds)
-            for strategy in sizes.strategies}
+    return grouped_kfold(ctx, "unseen", stores, sizes.strategies, classifiers, sizes.unseen_folds, pooled=True)
 
 
 def pose_stores(ctx: Context, objects, pose: str, strategies, contours: int) -> tuple:
@@ -115,26 +116,58 @@ def pose_stores(ctx: Context, objects, pose: str, strategies, contours: int) -> 
     return (ds, record, *ctx.store(any_pose(objects, ctx.seed), strategies=strategies, contours=contours))
 
 
-def grouped_kfold(ctx: Context, part: str, stores: tuple, strategy: str, classifiers: dict, n_folds: int
-                  ) -> dict[str, Predictions]:
-    """Out-of-fold predictions {classifier name: Predictions} of one strategy: ``n_folds`` seeded folds by
-    object of the training store; each fold's models (cached under ``models/<part>/<strategy>/fold<i>/``)
-    predict that fold's test objects read from the test store (the same objects, maybe in another pose)."""
+def grouped_kfold(ctx: Context, part: str, stores: tuple, strategies, classifiers: dict, n_folds: int, *,
+                  pooled: bool = False) -> dict[str, dict[str, Predictions]]:
+    """Out-of-fold predictions {strategy: {classifier name: Predictions}}: ``n_folds`` seeded folds by object of
+    the training store; each fold's models predict that fold's test objects read from the test store (the same
+    objects, maybe in another pose).
+
+    ``pooled=False``: a model per strategy, trained on that strategy's contours (cached under
+    ``models/<part>/<strategy>/fold<i>/``); ``pooled=True``: one model per fold, trained on the contours of every
+    strategy in ``strategies`` (cached under ``models/<part>/<strategy>+<strategy>.../fold<i>/``), predicting each
+    strategy's test contours. The folds are the same either way (the same objects, dealt by class)."""
+    if not pooled:
+        return {s: _kfold(ctx, part, stores, (s,), classifiers, n_folds)[s] for s in strategies}
+    return _kfold(ctx, part, stores, tuple(strategies), classifiers, n_folds)
+
+
+def fold_folder(ctx: Context, part: str, strategies, fold: int):
+    """Where fold ``fold`` (0-based) of ``part`` caches the models trained on the contours of ``strategies``."""
+    return ctx.path("models", part, "+".join(strategies), f"fold{fold + 1}")
+
+
+def _kfold(ctx: Context, part: str, stores: tuple, strategies: tuple, classifiers: dict, n_folds: int
+           ) -> dict[str, dict[str, Predictions]]:
+    """:func:`grouped_kfold` with models trained on the contours of all of ``strategies`` together."""
     ds, record, test_ds, test_store = stores
-    folds = ds.kfold_by_object(n_folds, seed=ctx.seed, index=ds.indices(strategy))
-    parts: dict[str, list[Predictions]] = {}
-    for i, (train, test) in enumerate(folds):
-        test = test if test_ds is ds else same_objects(ds, test, test_ds, strategy)
-        batch = split_loader(ds, train, test, test_ds)
-        train_record = {"part": part, "store": digest(record), "strategy": strategy, "train": digest(train)}
-        test_record = {"tag": "test"} if test_ds is ds else {"tag": "anypose", "store": digest(test_store)}
-        for name, factory in classifiers.items():
-            log.info("%s (%s), %s, fold %d: %s", part, "upright" if test_ds is ds else "any pose", strategy, i + 1,
-                     name)
-            parts.setdefault(name, []).append(train_and_predict(
-                name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
-                ctx.path("models", part, strategy, f"fold{i + 1}"), train_record, {**test_record, "test": digest(test)}))
-    return {name: Predictions.concatenate(p) for name, p in parts.items()}
+    index = np.sort(np.concatenate([ds.indices(s) for s in strategies]))
+    folds = ds.kfold_by_object(n_folds, seed=ctx.seed, index=index)
+    pooled = len(strategies) > 1
+    parts: dict[tuple[str, str], list[Predictions]] = {}
+    for i, (train, test_all) in enumerate(folds):
+        loaded: dict = {}
+
+        def training(train=train, loaded=loaded):  # read once per fold, and only when a model must be fitted
+            if "train" not in loaded:
+                loaded["train"] = ds.load(train)
+            return loaded["train"]
+
+        train_record = {"part": part, "store": digest(record), "strategy": "+".join(strategies), "train": digest(train)}
+        folder = fold_folder(ctx, part, strategies, i)
+        for strategy in strategies:
+            test = test_all[ds.sequence_strategies[test_all] == strategy]
+            test = test if test_ds is ds else same_objects(ds, test, test_ds, strategy)
+            tag = "test" if test_ds is ds else "anypose"
+            test_record = {"tag": f"{strategy}-{tag}" if pooled else tag, "test": digest(test)}
+            if test_ds is not ds:
+                test_record["store"] = digest(test_store)
+            for name, factory in classifiers.items():
+                log.info("%s (%s), %s, fold %d: %s", part, "upright" if test_ds is ds else "any pose", strategy,
+                         i + 1, name)
+                parts.setdefault((strategy, name), []).append(train_and_predict(
+                    name, factory, training, lambda t=test: test_ds.load(t), folder, train_record,
+                    test_record))
+    return {s: {name: Predictions.concatenate(parts[(s, name)]) for name in classifiers} for s in strategies}
 
 
 def same_objects(ds, index: np.ndarray, other, strategy: str) -> np.ndarray:
@@ -196,6 +229,7 @@ __all__ = [
     "POSES",
     "accuracy_rows",
     "confusion_figures",
+    "fold_folder",
     "grouped_kfold",
     "paper_dataset",
     "paper_protocol",

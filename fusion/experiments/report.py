@@ -105,7 +105,9 @@ def render(results: dict) -> str:
                   (f"{unseen['n_objects']} objects of {len(unseen['classes'])} classes, {unseen['contours']} "
                   f"contours per object and strategy; grouped {unseen['folds']}-fold by object (a test object is "
                   "never in training), out-of-fold predictions of every sequence. One touch per decision; "
-                  "interval: bootstrap over objects. Models train on the objects as stored."), "",
+                  "interval: bootstrap over objects. One model per fold and classifier, trained on the training "
+                  "objects as stored, on their contours of every strategy together: the strategies differ only in "
+                  "the contours that touch the test objects."), "",
                   "### Upright (as stored)", "", markdown_table(table1(unseen["rows"])), ""]
         if unseen.get("any_pose_rows"):
             lines += ["### Any pose", "",

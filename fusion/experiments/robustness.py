@@ -22,7 +22,7 @@ from fusion.experiments.analysis import score
 from fusion.experiments.context import Context
 from fusion.experiments.data import any_pose, load_models
 from fusion.experiments.models import DISPLAY, Predictions, digest, predict
-from fusion.experiments.protocol import POSES, pose_stores
+from fusion.experiments.protocol import POSES, fold_folder, pose_stores
 from fusion.experiments.touch import load_batch, save_batch, touch_objects
 from fusion.modelfile import SUFFIX
 from perception.errors import SaliencyError
@@ -100,7 +100,7 @@ def noise_rows(ctx: Context, objects) -> list[dict]:
         for strategy in sizes.strategies:
             folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
             fold_objects = [[models[ds.object_names[o]] for o in np.unique(ds.object_ids[test])] for _, test in folds]
-            estimators = [{name: load_model(ctx.path("models", "unseen", strategy, f"fold{i + 1}", f"{name}{SUFFIX}"))
+            estimators = [{name: load_model(fold_folder(ctx, "unseen", sizes.strategies, i) / f"{name}{SUFFIX}")
                            for name in sizes.unseen_classifiers} for i in range(len(folds))]
             attention = _attention(test_ds, list(models.values()), strategy, ctx.seed)
             for kind, level in levels:

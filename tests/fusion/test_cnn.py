@@ -128,6 +128,42 @@ def test_reversal_of_the_invariant_cue_matches_the_cue_of_the_reversed_contour()
         np.testing.assert_allclose(out[i, 0].numpy(), kinesthetic_cues(moved, "invariant")[0], atol=1e-4)
 
 
+def _reread(batch: SequenceBatch, shift: int = 0, reverse: bool = False) -> SequenceBatch:
+    """The same contours as if touched from probe ``shift`` on (and in the other direction): every per-probe
+    array reordered, tangents and plane normal negated and frames turned by 180 degrees when reversed (what the
+    sensor gives, test above)."""
+    p = batch.n_probes
+    order = (np.arange(p) + shift) % p
+    if reverse:
+        order = order[::-1]
+    out = batch.subset(np.arange(len(batch)))
+    out.frames = batch.frames[:, order][:, :, ::-1, ::-1].copy() if reverse else batch.frames[:, order].copy()
+    out.positions, out.normals = batch.positions[:, order].copy(), batch.normals[:, order].copy()
+    out.tangents = batch.tangents[:, order] * (-1 if reverse else 1)
+    out.pad_sides_mm = batch.pad_sides_mm[:, order].copy()
+    out.plane_normals = batch.plane_normals * (-1 if reverse else 1)
+    return out
+
+
+def test_test_views_average_the_sequence_read_from_other_starts_and_directions():
+    train, test = make_batch(probes=6, seed=0), make_batch(n_per_class=3, probes=6, seed=1)
+    rng = np.random.default_rng(3)
+    test.positions = (test.positions + rng.normal(size=test.positions.shape)).astype(np.float32)
+    model = CNNClassifier(cue="invariant", **{**FAST, "epochs": 3}).fit(train)
+    plain = model.predict_proba_modalities(test)
+    backwards = model.predict_proba_modalities(_reread(test, reverse=True))
+    model.test_views = 2  # as touched, and reversed
+    both = model.predict_proba_modalities(test)
+    for modality in ("cutaneous", "kinesthetic", "fusion"):
+        np.testing.assert_allclose(both[modality], (plain[modality] + backwards[modality]) / 2, atol=1e-5)
+    model.test_views = 12  # every start of the 6 probes, both ways: the answer no longer depends on where or
+    full = model.predict_proba(test)  # which way the touch went
+    for shift, reverse in ((1, False), (4, True)):
+        np.testing.assert_allclose(model.predict_proba(_reread(test, shift, reverse)), full, atol=1e-5)
+    model.test_views = 1
+    assert np.abs(model.predict_proba(_reread(test, 1)) - plain["fusion"]).max() > 1e-4  # the nets alone do
+
+
 # ---------------------------------------------------------------------------------------- training
 def test_learns_a_separable_problem_and_generalises():
     train, test = make_batch(seed=0), make_batch(n_per_class=10, seed=1)
@@ -276,12 +312,16 @@ def test_bad_input_is_refused():
     with pytest.raises(InvalidArgumentError, match="val_fraction"):
         CNNClassifier(**{**FAST, "val_fraction": 1.0}).fit(train)
     for name, value in (("schedule", "cyclic"), ("weight_decay", -0.1), ("weight_decay", np.nan),
-                        ("label_smoothing", 1.0), ("label_smoothing", -0.2)):
+                        ("label_smoothing", 1.0), ("label_smoothing", -0.2), ("test_views", 3), ("test_views", 0),
+                        ("test_views", True)):
         with pytest.raises(InvalidArgumentError, match=name):
             CNNClassifier(**{**FAST, name: value}).fit(train)
     model = CNNClassifier(**{**FAST, "epochs": 1}).fit(train)
     with pytest.raises(DatasetError, match="NaN"):
         model.predict(nan)
+    model.test_views = 5  # set on a fitted model: refused at prediction
+    with pytest.raises(InvalidArgumentError, match="test_views"):
+        model.predict(train)
 
 
 # ------------------------------------------------------------------------------------ catalogue data

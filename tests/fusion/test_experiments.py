@@ -116,6 +116,18 @@ def test_touch_scores_by_hand():
         touches_score(pred, 5)
 
 
+def test_touch_scores_average_over_cuts():
+    """One object, three sequences, one of them wrong enough to veto under the log rule: a K = 2 decision is
+    right only when the cut leaves the bad one out (the remainder is dropped), i.e. with probability 1/3. One cut
+    scores 0 or 1; many cuts average towards 1/3."""
+    proba = np.array([[0.9, 0.1], [0.9, 0.1], [1e-6, 1 - 1e-6]])
+    pred = Predictions(proba, np.array(["a"] * 3, dtype=object), np.zeros(3, dtype=np.int64), ["a", "b"], ["a/0"])
+    assert touches_score(pred, 2, repeats=1).value in (0.0, 1.0)
+    many = touches_score(pred, 2, repeats=600)
+    assert many.n == 600 and abs(many.value - 1 / 3) < 0.06
+    assert touches_score(pred, 1).n == 3  # K = 1: each sequence once, whatever the repeats
+
+
 def test_table1_puts_paper_numbers_only_next_to_the_papers_classifiers():
     """The paper's numbers sit beside the classifiers with the paper's (normals) cue, not the pose-free ones."""
     acc = {"value": 0.9, "low": 0.8, "high": 0.95, "n": 10}
@@ -364,6 +376,31 @@ def test_reproduce_resumes_from_its_cache_with_the_same_numbers(tiny_run):
     assert [p.stat().st_mtime_ns for p in models] == stamps  # nothing retrained
     for part in ("paper", "unseen", "touches", "noise"):
         assert list(_accuracies(again[part])) == list(_accuracies(results[part]))
+
+
+def test_unseen_folds_train_one_model_on_every_strategys_contours(tmp_path):
+    """Per fold one model, fitted on the guided and the blind contours of the fold's training objects (4 of the
+    6), never on a test object; it predicts each strategy's contours of the 2 test objects, upright and turned."""
+    fits = []
+
+    class Recorder(NearestMean):
+        def _fit(self, batch, y):
+            fits.append((len(batch), {batch.object_names[o] for o in batch.object_ids}))
+            super()._fit(batch, y)
+
+    data = mesh_folder(tmp_path / "meshes")
+    sizes = TINY.with_(strategies=("guided", "blind"), unseen_classifiers=("rec",))
+    results = reproduce(data, tmp_path / "report", sizes=sizes, classifiers={"rec": Recorder}, parts=("unseen",),
+                        workers=2, progress=False)
+    assert [n for n, _ in fits] == [2 * 10 * 4] * 3  # 3 folds, both strategies' 10 contours of 4 objects each
+    trained = [names for _, names in fits]
+    assert set.union(*trained) == {f"{c}/{c}{i}" for c in ("box", "can") for i in range(3)}
+    assert all(len(names) == 4 for names in trained)  # each object held out by exactly one fold
+    assert sorted(len(set.intersection(*trained[:i], *trained[i + 1:])) for i in range(3)) == [2, 2, 2]
+    for rows in (results["unseen"]["rows"], results["unseen"]["any_pose_rows"]):
+        assert {r["strategy"]: r["accuracy"]["n"] for r in rows} == {"guided": 6 * 10, "blind": 6 * 10}
+    assert sorted(p.name for p in (tmp_path / "report" / "models" / "unseen" / "guided+blind").iterdir()) == [
+        "fold1", "fold2", "fold3"]
 
 
 @pytest.mark.slow
