@@ -81,8 +81,9 @@ def reproduce(
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
         raise InvalidArgumentError(f"unknown parts {unknown}; choose from {', '.join(PARTS)}")
-    if "touches" in parts and "paper" not in parts:
-        raise InvalidArgumentError("the touches part reuses the paper part: add 'paper' to parts")
+    if "touches" in parts and not {"paper", "unseen"} & set(parts):
+        raise InvalidArgumentError("the touches part reuses the paper and unseen-objects predictions: add 'paper' "
+                                   "or 'unseen' to parts")
     if "noise" in parts and "unseen" not in parts:
         raise InvalidArgumentError("the noise part reuses the unseen-objects models: add 'unseen' to parts")
     sizes = sizes or (QUICK if quick else FULL)
@@ -133,7 +134,7 @@ def reproduce(
         }
         _write(out, results)  # a partial report after every part
     if "touches" in parts:
-        rows = touches_rows(paper_preds, "paper_protocol", sizes.touches, ctx.seed)
+        rows = touches_rows(paper_preds, "paper_protocol", sizes.touches, ctx.seed) if paper_preds else []
         if unseen_preds:
             rows += touches_rows(unseen_preds, "unseen_objects", sizes.touches, ctx.seed)
             rows += touches_rows(anypose_preds, "unseen_objects_any_pose", sizes.touches, ctx.seed)

@@ -298,7 +298,7 @@ def test_folder_objects_choose_and_refuse(tmp_path):
 def test_reproduce_refuses_bad_parts(tmp_path):
     with pytest.raises(InvalidArgumentError, match="unknown parts"):
         reproduce(tmp_path, tmp_path / "r", parts=("paper", "tea"), classifiers=STANDINS)
-    with pytest.raises(InvalidArgumentError, match="add 'paper'"):
+    with pytest.raises(InvalidArgumentError, match="add 'paper' or 'unseen'"):
         reproduce(tmp_path, tmp_path / "r", parts=("touches",), classifiers=STANDINS)
 
 
@@ -390,8 +390,8 @@ def test_unseen_folds_train_one_model_on_every_strategys_contours(tmp_path):
 
     data = mesh_folder(tmp_path / "meshes")
     sizes = TINY.with_(strategies=("guided", "blind"), unseen_classifiers=("rec",))
-    results = reproduce(data, tmp_path / "report", sizes=sizes, classifiers={"rec": Recorder}, parts=("unseen",),
-                        workers=2, progress=False)
+    results = reproduce(data, tmp_path / "report", sizes=sizes, classifiers={"rec": Recorder},
+                        parts=("unseen", "touches"), workers=2, progress=False)
     assert [n for n, _ in fits] == [2 * 10 * 4] * 3  # 3 folds, both strategies' 10 contours of 4 objects each
     trained = [names for _, names in fits]
     assert set.union(*trained) == {f"{c}/{c}{i}" for c in ("box", "can") for i in range(3)}
@@ -401,6 +401,8 @@ def test_unseen_folds_train_one_model_on_every_strategys_contours(tmp_path):
         assert {r["strategy"]: r["accuracy"]["n"] for r in rows} == {"guided": 6 * 10, "blind": 6 * 10}
     assert sorted(p.name for p in (tmp_path / "report" / "models" / "unseen" / "guided+blind").iterdir()) == [
         "fold1", "fold2", "fold3"]
+    # K touches without the paper part: the unseen objects' curves only
+    assert {r["setting"] for r in results["touches"]["rows"]} == {"unseen_objects", "unseen_objects_any_pose"}
 
 
 @pytest.mark.slow
