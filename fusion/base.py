@@ -126,6 +126,10 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
     :func:`fusion.training.evaluate_on_store` to test on the held-out part).
     """
 
+    #: Parameters added after model files of this class were first written, with the value those older files
+    #: were made with (a file without the parameter loads with it, so it predicts as it did).
+    OLDER_FILE_PARAMS: dict = {}
+
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         _REGISTRY[class_name(cls)] = cls
@@ -420,6 +424,7 @@ def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int |
     params = decode(_field(description, "params", dict, path), arrays, str(path))
     names = set(cls._get_param_names())
     params = {RENAMED_PARAMS.get(k, k) if k not in names else k: v for k, v in params.items()}
+    params = {**cls.OLDER_FILE_PARAMS, **params}
     unknown = sorted(set(params) - names)
     if unknown:
         raise ModelFileError(f"{path}: {cls.__name__} has no parameters {unknown[:5]}")

@@ -47,8 +47,9 @@ def default_classifiers(seed: int = 0, epochs: int | None = None, progress: bool
     cnn = {"epochs": epochs} if epochs else {}
     factories = {}
     for cue, suffix in (("invariant", ""), ("normals", "-normals")):
+        rule = {"modality_rule": "sum"} if cue == "normals" else {}  # the paper's models sum the two nets
         factories[f"cnn{suffix}"] = functools.partial(make_classifier, "cnn", cue=cue, random_state=seed, progress=progress,
-                                                      **cnn)
+                                                      **cnn, **rule)
         # the paper's models keep the paper's pipeline; the pose-free ones choose theirs on the training objects
         search = {"search": None} if cue == "normals" else {}
         for kind in ("svm", "knn"):

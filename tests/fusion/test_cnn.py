@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from fusion.base import load_model
-from fusion.cnn import CNNClassifier, CutaneousNet, KinestheticNet, _circular_probes, pool_frames
+from fusion.cnn import CNNClassifier, CutaneousNet, KinestheticNet, _circular_probes, fuse_modalities, pool_frames
 from fusion.cues import kinesthetic_cues
 from perception.errors import DatasetError, InvalidArgumentError, ModelMismatchError
 from tactile.explore import SequenceBatch
@@ -154,14 +154,42 @@ def test_test_views_average_the_sequence_read_from_other_starts_and_directions()
     backwards = model.predict_proba_modalities(_reread(test, reverse=True))
     model.test_views = 2  # as touched, and reversed
     both = model.predict_proba_modalities(test)
-    for modality in ("cutaneous", "kinesthetic", "fusion"):
+    for modality in ("cutaneous", "kinesthetic"):  # each net's views averaged, then the nets combined
         np.testing.assert_allclose(both[modality], (plain[modality] + backwards[modality]) / 2, atol=1e-5)
+    np.testing.assert_allclose(both["fusion"], fuse_modalities(both["cutaneous"], both["kinesthetic"]), atol=1e-9)
     model.test_views = 12  # every start of the 6 probes, both ways: the answer no longer depends on where or
     full = model.predict_proba(test)  # which way the touch went
     for shift, reverse in ((1, False), (4, True)):
         np.testing.assert_allclose(model.predict_proba(_reread(test, shift, reverse)), full, atol=1e-5)
     model.test_views = 1
     assert np.abs(model.predict_proba(_reread(test, 1)) - plain["fusion"]).max() > 1e-4  # the nets alone do
+
+
+def test_modality_rules_by_hand():
+    cutaneous, kinesthetic = np.array([[0.8, 0.2], [1.0, 0.0]]), np.array([[0.5, 0.5], [0.0, 1.0]])
+    # product: sqrt(.8 * .5) : sqrt(.2 * .5) = 2 : 1; two nets that rule each other's class out: a tie
+    np.testing.assert_allclose(fuse_modalities(cutaneous, kinesthetic), [[2 / 3, 1 / 3], [0.5, 0.5]], atol=1e-9)
+    np.testing.assert_allclose(fuse_modalities(cutaneous, kinesthetic, "sum"), [[0.65, 0.35], [0.5, 0.5]])
+    with pytest.raises(InvalidArgumentError, match="rule"):
+        fuse_modalities(cutaneous, kinesthetic, "max")
+
+
+def test_model_fuses_by_its_modality_rule_and_older_files_keep_the_sum(tmp_path):
+    train = make_batch(n_per_class=6)
+    model = CNNClassifier(**{**FAST, "epochs": 2}).fit(train)
+    out = model.predict_proba_modalities(train)
+    geometric = np.sqrt(out["cutaneous"] * out["kinesthetic"])
+    np.testing.assert_allclose(out["fusion"], geometric / geometric.sum(1, keepdims=True), atol=1e-9)
+    np.testing.assert_allclose(model.predict_proba(train), out["fusion"], atol=1e-9)
+    # a file written before the rule was a parameter: it loads summing, as it predicted then
+    from fusion.modelfile import read_model_file, write_model_file
+
+    description, arrays = read_model_file(model.save(tmp_path / "new.vtm"))
+    del description["params"]["dict"]["modality_rule"]  # the encoded dict of the constructor parameters
+    old = load_model(write_model_file(tmp_path / "old.vtm", description, arrays))
+    assert old.modality_rule == "sum"
+    np.testing.assert_allclose(old.predict_proba(train), (out["cutaneous"] + out["kinesthetic"]) / 2, atol=1e-6)
+    assert load_model(tmp_path / "new.vtm").modality_rule == "product"
 
 
 # ---------------------------------------------------------------------------------------- training
@@ -313,7 +341,7 @@ def test_bad_input_is_refused():
         CNNClassifier(**{**FAST, "val_fraction": 1.0}).fit(train)
     for name, value in (("schedule", "cyclic"), ("weight_decay", -0.1), ("weight_decay", np.nan),
                         ("label_smoothing", 1.0), ("label_smoothing", -0.2), ("test_views", 3), ("test_views", 0),
-                        ("test_views", True)):
+                        ("test_views", True), ("modality_rule", "max")):
         with pytest.raises(InvalidArgumentError, match=name):
             CNNClassifier(**{**FAST, name: value}).fit(train)
     model = CNNClassifier(**{**FAST, "epochs": 1}).fit(train)
