@@ -22,6 +22,7 @@ from __future__ import annotations
 import logging
 import re
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
@@ -128,7 +129,7 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
 
     #: Parameters added after model files of this class were first written, with the value those older files
     #: were made with (a file without the parameter loads with it, so it predicts as it did).
-    OLDER_FILE_PARAMS: dict = {}
+    OLDER_FILE_PARAMS: ClassVar[dict] = {}
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

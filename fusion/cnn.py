@@ -60,6 +60,7 @@ import logging
 import os
 import time
 from collections.abc import Iterator
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -564,7 +565,7 @@ class CNNClassifier(TactileClassifier):
 
     # ------------------------------------------------------------------------------- persistence
     _NETS = ("cutaneous", "kinesthetic")
-    OLDER_FILE_PARAMS = {"modality_rule": "sum"}  # files written before the rule was a parameter summed
+    OLDER_FILE_PARAMS: ClassVar[dict] = {"modality_rule": "sum"}  # files written before the rule was a parameter summed
 
     def _model_state(self, arrays: dict[str, np.ndarray]) -> dict:
         """Plain fitted attributes, and each trained net's state dict as tensors ``<net>.<parameter>``."""
@@ -632,4 +633,4 @@ class CNNClassifier(TactileClassifier):
             setattr(self, f"{kind}_net_", net)
 
 
-__all__ = ["MODALITIES", "MODALITY_RULES", "SCHEDULES", "fuse_modalities", "CNNClassifier", "CutaneousNet", "KinestheticNet", "pool_frames"]
+__all__ = ["MODALITIES", "MODALITY_RULES", "SCHEDULES", "CNNClassifier", "CutaneousNet", "KinestheticNet", "fuse_modalities", "pool_frames"]

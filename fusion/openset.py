@@ -510,12 +510,12 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
             raise bad(f"no {state['max_touches']} finite thresholds")
         needs_reference = state["score"] != "probability"
         ref, labels = state.get("reference"), state.get("reference_labels")
-        if needs_reference or ref is not None:
-            if not (isinstance(ref, np.ndarray) and ref.dtype == np.float64 and ref.ndim == 2
-                    and 1 <= len(ref) <= MAX_REFERENCE and 1 <= ref.shape[1] <= 4096 and np.isfinite(ref).all()
-                    and isinstance(labels, np.ndarray) and labels.dtype.kind == "i" and labels.shape == (len(ref),)
-                    and labels.min() >= 0 and labels.max() < n_classes):
-                raise bad("inconsistent reference features or labels")
+        if (needs_reference or ref is not None) and not (
+                isinstance(ref, np.ndarray) and ref.dtype == np.float64 and ref.ndim == 2
+                and 1 <= len(ref) <= MAX_REFERENCE and 1 <= ref.shape[1] <= 4096 and np.isfinite(ref).all()
+                and isinstance(labels, np.ndarray) and labels.dtype.kind == "i" and labels.shape == (len(ref),)
+                and labels.min() >= 0 and labels.max() < n_classes):
+            raise bad("inconsistent reference features or labels")
     return state
 
 

@@ -180,7 +180,10 @@ def reproduce(
         record = {"objects": [str(p) for p, _ in unseen_list], "sizes": sizes.to_dict(), "seed": ctx.seed,
                   "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers]}
         compute = getattr(experiment, f"{part}_part")
-        results[part] = timed(part, lambda: ctx.cached_part(part, record, lambda: compute(ctx, unseen_list)))
+        def run_part(part=part, record=record, compute=compute, objects=unseen_list):
+            return ctx.cached_part(part, record, lambda: compute(ctx, objects))
+
+        results[part] = timed(part, run_part)
         results[part] |= {"n_objects": len(unseen_list), "contours": sizes.unseen_contours}
         _write(out, results)
     if "active" in parts:

@@ -7,7 +7,14 @@ import pytest
 import torch
 
 from fusion.base import load_model
-from fusion.cnn import CNNClassifier, CutaneousNet, KinestheticNet, _circular_probes, fuse_modalities, pool_frames
+from fusion.cnn import (
+    CNNClassifier,
+    CutaneousNet,
+    KinestheticNet,
+    _circular_probes,
+    fuse_modalities,
+    pool_frames,
+)
 from fusion.cues import kinesthetic_cues
 from perception.errors import DatasetError, InvalidArgumentError, ModelMismatchError
 from tactile.explore import SequenceBatch
