@@ -221,8 +221,9 @@ class CNNClassifier(TactileClassifier):
         augment: which nets see random cyclic shifts and reversals of the training sequences:
             ``"kinesthetic"``, ``"cutaneous"``, ``"both"`` (or True) or ``"none"`` (or False).
         test_views: probabilities at prediction are averaged over this many readings of each sequence: 1 (as
-            touched), or an even number: ``test_views`` / 2 evenly spaced start probes, each read both ways (a
-            closed contour has no natural start or direction; the nets trained on random ones).
+            touched), or an even number up to twice the probes: ``test_views`` / 2 evenly spaced start probes,
+            each read both ways (a closed contour has no natural start or direction; the nets trained on random
+            ones).
         modality_rule: how the two nets' probabilities combine (:func:`fuse_modalities`): ``"product"`` (the
             default) or ``"sum"`` (the paper's).
 
@@ -296,11 +297,16 @@ class CNNClassifier(TactileClassifier):
         if self.device == "cuda" and not torch.cuda.is_available():
             raise DatasetError("CNNClassifier: device='cuda' but PyTorch sees no CUDA device")
 
-    def _check_test_views(self) -> None:
+    def _check_test_views(self, n_probes: int | None = None) -> None:
+        """``test_views`` is 1 or even, and (given the probe count) at most two per probe: every start both
+        ways, the most views that differ (also what bounds the work a model file can ask for)."""
         views = self.test_views
         if isinstance(views, bool) or not isinstance(views, (int, np.integer)) or not (
                 views == 1 or (views >= 2 and views % 2 == 0)):
             raise InvalidArgumentError(f"CNNClassifier: test_views must be 1 or an even number >= 2, got {views!r}")
+        if n_probes is not None and views > 2 * n_probes:
+            raise InvalidArgumentError(f"CNNClassifier: test_views {views} is more than two per probe "
+                                       f"({n_probes} probes: at most {2 * n_probes})")
 
     def _augmented(self, kind: str) -> bool:
         choice = {True: "both", False: "none"}.get(self.augment, self.augment)
@@ -402,7 +408,7 @@ class CNNClassifier(TactileClassifier):
     def _test_views(self, n_probes: int) -> list[tuple[int, bool]]:
         """(start shift, reversed) of each view averaged at prediction: ``test_views`` / 2 evenly spaced starts,
         each read both ways; one view (the sequence as touched) when ``test_views`` is 1."""
-        self._check_test_views()  # it may be set on a fitted model
+        self._check_test_views(n_probes)  # it may be set on a fitted model
         if self.test_views == 1:
             return [(0, False)]
         starts = self.test_views // 2
@@ -504,6 +510,7 @@ class CNNClassifier(TactileClassifier):
 
     def _fit(self, batch: SequenceBatch, y_index: np.ndarray) -> None:
         self._check_params()
+        self._check_test_views(batch.n_probes)
         device = self._device()
         pooled = pool_frames(batch.frames, self.frame_size)
         self._fit_statistics(batch, pooled)
@@ -603,6 +610,7 @@ class CNNClassifier(TactileClassifier):
         if not isinstance(nets, dict) or set(nets) != set(self._NETS):
             raise ModelFileError(f"{where}: the CNN's description does not say which nets it holds")
         n_classes, probes = len(self.classes_), int(self.n_probes_)
+        self._check_test_views(probes)
         pooled = (min(self.grid_[0], self.frame_size), min(self.grid_[1], self.frame_size))
         for kind in self._NETS:
             if nets[kind] is not self._uses(kind):

@@ -75,7 +75,8 @@ def reproduce(
 
     Raises:
         DatasetError: a bad data folder, unknown class, or too few instances.
-        InvalidArgumentError: an unknown part, ``touches`` without ``paper`` or ``noise`` without ``unseen``.
+        InvalidArgumentError: an unknown part, ``touches`` without ``paper`` or ``unseen``, or ``noise`` without
+            ``unseen``.
     """
     parts = tuple(parts)
     unknown = [p for p in parts if p not in PARTS]
@@ -93,7 +94,9 @@ def reproduce(
     ctx = Context(out, int(seed), sizes,
                   classifiers or default_classifiers(seed, sizes.epochs, progress=progress),
                   progress=progress, workers=workers)
-    paper_objects = folder_objects(data, classes, sizes.objects_per_class, max_classes=sizes.paper_classes)
+    # the paper's objects, for the parts that use them (a folder with fewer instances can still run the others)
+    paper_objects = (folder_objects(data, classes, sizes.objects_per_class, max_classes=sizes.paper_classes)
+                     if {"paper", "attention", "runtime"} & set(parts) else [])
     results: dict = {
         "title": "visuotactile reproduce", "command": command or " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         "data": str(data), "seed": ctx.seed, "quick": quick, "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),

@@ -357,6 +357,23 @@ def test_bad_input_is_refused():
     model.test_views = 5  # set on a fitted model: refused at prediction
     with pytest.raises(InvalidArgumentError, match="test_views"):
         model.predict(train)
+    model.test_views = 12  # more than every start both ways (5 probes): nothing new to average, refused
+    with pytest.raises(InvalidArgumentError, match="at most 10"):
+        model.predict(train)
+    with pytest.raises(InvalidArgumentError, match="at most 10"):
+        CNNClassifier(**{**FAST, "test_views": 12}).fit(train)
+
+
+def test_a_model_file_asking_for_millions_of_views_is_refused(tmp_path):
+    """A hostile file must not make prediction hang or exhaust memory: views are bounded by the probe count."""
+    from fusion.modelfile import read_model_file, write_model_file
+    from perception.errors import ModelFileError
+
+    model = CNNClassifier(**{**FAST, "epochs": 1}).fit(make_batch(n_per_class=3))
+    description, arrays = read_model_file(model.save(tmp_path / "m.vtm"))
+    description["params"]["dict"]["test_views"] = 2_000_000
+    with pytest.raises(ModelFileError, match="big.vtm.*test_views"):
+        load_model(write_model_file(tmp_path / "big.vtm", description, arrays))
 
 
 # ------------------------------------------------------------------------------------ catalogue data
@@ -380,3 +397,34 @@ def test_label_smoothing_bounds_the_confidence_it_trains_towards():
     sharp = CNNClassifier(**common, label_smoothing=0.0).fit(batch).predict_proba(batch).max(1).mean()
     smooth = CNNClassifier(**common, label_smoothing=0.5).fit(batch).predict_proba(batch).max(1).mean()
     assert sharp > 0.9 and abs(smooth - 2 / 3) < 0.08
+
+
+def test_test_views_spread_their_starts_evenly_over_the_probes():
+    """4 views of 6-probe contours: starts 0 and 3 (6 / 2 apart), each read both ways: the mean of the four
+    re-read sequences predicted one view at a time."""
+    train, test = make_batch(probes=6, seed=0), make_batch(n_per_class=3, probes=6, seed=1)
+    model = CNNClassifier(cue="invariant", **{**FAST, "epochs": 3}).fit(train)
+    reads = [model.predict_proba_modalities(_reread(test, shift, reverse))
+             for shift in (0, 3) for reverse in (False, True)]
+    model.test_views = 4
+    out = model.predict_proba_modalities(test)
+    for modality in ("cutaneous", "kinesthetic"):
+        np.testing.assert_allclose(out[modality], np.mean([r[modality] for r in reads], axis=0), atol=1e-5)
+
+
+def test_paper_cnn_sums_the_two_nets_and_the_pose_free_cnn_multiplies():
+    """default_classifiers: "cnn-normals" (the paper's) fuses by the mean of the nets' probabilities, "cnn" by
+    their normalised geometric mean."""
+    from fusion.experiments.models import default_classifiers
+
+    batch = make_batch(n_per_class=4)
+    factories = default_classifiers(seed=0, epochs=1)
+    for name, rule in (("cnn-normals", "sum"), ("cnn", "product")):
+        model = factories[name]()
+        model.set_params(threads=1)
+        out = model.fit(batch).predict_proba_modalities(batch)
+        c, k = out["cutaneous"], out["kinesthetic"]
+        geometric = np.sqrt(c * k) / np.sqrt(c * k).sum(1, keepdims=True)
+        np.testing.assert_allclose(out["fusion"], (c + k) / 2 if rule == "sum" else geometric, atol=1e-9,
+                                   err_msg=name)
+        assert not np.allclose((c + k) / 2, geometric, atol=1e-6)  # the two rules differ on these outputs

@@ -18,7 +18,9 @@ from fusion.base import TactileClassifier
 from fusion.cues import kinesthetic_cues
 from fusion.experiments import Sizes, reproduce
 from fusion.experiments.analysis import (
+    TOUCH_REPEATS,
     name_operating_points,
+    object_accuracy,
     paired_difference,
     pareto_front,
     score,
@@ -126,6 +128,21 @@ def test_touch_scores_average_over_cuts():
     many = touches_score(pred, 2, repeats=600)
     assert many.n == 600 and abs(many.value - 1 / 3) < 0.06
     assert touches_score(pred, 1).n == 3  # K = 1: each sequence once, whatever the repeats
+
+
+def test_touch_scores_default_to_several_cuts_and_object_accuracy_takes_repeats():
+    """The 3-sequence object above (a K = 2 decision is right with probability 1/3): by default every score
+    averages TOUCH_REPEATS > 1 cuts (one group each), so an object's share is a multiple of 1 / TOUCH_REPEATS,
+    not the 0 or 1 of a single cut; object_accuracy honours ``repeats``."""
+    proba = np.array([[0.9, 0.1], [0.9, 0.1], [1e-6, 1 - 1e-6]])
+    pred = Predictions(proba, np.array(["a"] * 3, dtype=object), np.zeros(3, dtype=np.int64), ["a", "b"], ["a/0"])
+    assert TOUCH_REPEATS > 1
+    assert touches_score(pred, 2).n == TOUCH_REPEATS  # one group of 2 per cut, the third sequence left over
+    share = object_accuracy(pred, 2, seed=1)["a/0"]  # (seed 0 happens to leave the bad one in all 10 cuts)
+    assert 0 < share < 1 and share * TOUCH_REPEATS == pytest.approx(round(share * TOUCH_REPEATS))
+    assert object_accuracy(pred, 2, repeats=1)["a/0"] in (0.0, 1.0)
+    assert abs(object_accuracy(pred, 2, repeats=600)["a/0"] - 1 / 3) < 0.06
+    assert object_accuracy(pred, 1, repeats=600)["a/0"] == pytest.approx(2 / 3)  # K = 1: each sequence once
 
 
 def test_table1_puts_paper_numbers_only_next_to_the_papers_classifiers():
@@ -562,3 +579,40 @@ def test_reproduce_command_offers_exactly_the_parts():
     from fusion.experiments import PARTS
 
     assert COMMAND_PARTS == PARTS
+
+
+CALLS = {"fit": 0, "predict": 0}
+
+
+class CountingMean(NearestMean):
+    """NearestMean that counts its fits and predictions (module level: model files name the class)."""
+
+    def _fit(self, batch, y):
+        CALLS["fit"] += 1
+        super()._fit(batch, y)
+
+    def _predict_proba(self, batch):
+        CALLS["predict"] += 1
+        return super()._predict_proba(batch)
+
+
+def test_noise_reads_the_pooled_fold_models_and_a_rerun_reuses_every_prediction(tmp_path):
+    """Both strategies: the noise part loads the 2 pooled fold models the unseen part trained (no fit of its
+    own, rows for both strategies and poses); run again, nothing is fitted or predicted (each strategy's test
+    predictions are cached in a file of their own beside the shared fold model)."""
+    CALLS.update(fit=0, predict=0)
+    data = mesh_folder(tmp_path / "meshes", per_class=2)
+    sizes = TINY.with_(strategies=("guided", "blind"), unseen_classifiers=("count",), unseen_contours=4, unseen_folds=2,
+                       unseen_per_class=2, objects_per_class=2, noise_levels={"taxel_noise": (0.5,)})
+    kwargs = {"sizes": sizes, "classifiers": {"count": CountingMean}, "parts": ("unseen", "noise"), "workers": 2,
+              "progress": False}
+    results = reproduce(data, tmp_path / "report", **kwargs)
+    assert CALLS["fit"] == 2
+    assert {(r["pose"], r["strategy"]) for r in results["noise"]["rows"]} == {
+        (p, s) for p in ("upright", "any pose") for s in ("guided", "blind")}
+    # every sequence of the 4 objects x 2 noise contours, per (pose, strategy, kind, level)
+    assert {r["accuracy"]["n"] for r in results["noise"]["rows"]} == {4 * 2}
+    CALLS.update(fit=0, predict=0)
+    again = reproduce(data, tmp_path / "report", **kwargs)
+    assert CALLS == {"fit": 0, "predict": 0}
+    assert list(_accuracies(again["unseen"])) == list(_accuracies(results["unseen"]))
