@@ -37,6 +37,7 @@ import json
 import logging
 import os
 import shutil
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -217,8 +218,18 @@ def create_store(path: Path, settings: dict, meta: dict) -> None:
         (tmp / RECORDS).mkdir()
         os.replace(tmp, path)
     except BaseException:  # an interrupted or failed creation leaves nothing behind
-        shutil.rmtree(tmp, ignore_errors=True)
+        _remove_when_settled(tmp)
         raise
+
+
+def _remove_when_settled(folder: Path, settle_s: float = 0.05, tries: int = 20) -> None:
+    """Remove ``folder``, again until it stays gone for ``settle_s``: zarr writes several files concurrently, and
+    when one fails the others still land (asyncio's gather does not cancel them), sometimes after a first removal."""
+    for _ in range(tries):
+        shutil.rmtree(folder, ignore_errors=True)
+        time.sleep(settle_s)
+        if not folder.exists():
+            return
 
 
 def remove_stale_creations(path: Path) -> list[Path]:
