@@ -284,9 +284,10 @@ def render_views(
     return render_stack(model, n_views, width, height, directions=directions, frame=frame).views
 
 
-def surface_points(model: ObjectModel, view: View, where: np.ndarray | None = None) -> np.ndarray:
+def surface_points(model: ObjectModel, view: View | ViewStack, where: np.ndarray | None = None) -> np.ndarray:
     """(K, 3) float64 exact surface points (barycentric blend of the hit triangle), mm, of the hit pixels
-    selected by the (H, W) bool ``where`` (all hit pixels when None), in row-major order."""
+    selected by the bool ``where`` ((H, W) for a view, (N, H, W) for a stack; all hit pixels when None), in
+    row-major order (a stack: view after view)."""
     select = view.mask if where is None else (view.mask & where)
     corners = model.vertices[model.triangles[view.triangle_ids[select]]]  # (K, 3, 3)
     return np.einsum("kc,kcj->kj", view.barycentric[select].astype(np.float64), corners)

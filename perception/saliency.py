@@ -52,6 +52,7 @@ from perception.render import (
     ViewStack,
     render_stack,
     render_views,
+    surface_points,
     view_directions,
 )
 from perception.validate import check_count, check_seed
@@ -149,13 +150,18 @@ class Saliency:
 
 @dataclass(frozen=True)
 class ViewMaps:
-    """Per-view multiview maps: the views, per-channel conspicuity (N, H, W), the combined map and its peaks."""
+    """Per-view multiview maps: the rendered views (stacked), per-channel conspicuity (N, H, W), the combined map
+    and its peaks."""
 
-    views: list[View]
+    stack: ViewStack
     channels: dict[str, np.ndarray]
     combined: np.ndarray
     peaks: np.ndarray
-    stack: ViewStack | None = None
+
+    @property
+    def views(self) -> list[View]:
+        """The N rendered :class:`~perception.render.View` objects (slices of ``stack``)."""
+        return self.stack.views
 
 
 def _check_weights(
@@ -225,7 +231,7 @@ def multiview_maps(
     combined = sum(w[c] * maps[c] for c in channels) / sum(w.values())
     top = combined.max()
     peaks = (combined == ndimage.maximum_filter(combined, size=(1, 9, 9))) & mask & (combined >= 0.25 * top)
-    return ViewMaps(stack.views, maps, combined, peaks & (top > 0), stack)
+    return ViewMaps(stack, maps, combined, peaks & (top > 0))
 
 
 def _pool(model: ObjectModel, stack: ViewStack, values: np.ndarray) -> np.ndarray:
@@ -248,14 +254,6 @@ def _pool(model: ObjectModel, stack: ViewStack, values: np.ndarray) -> np.ndarra
         _, nearest = cKDTree(model.vertices[seen]).query(model.vertices[~seen])
         pooled[:, ~seen] = pooled[:, np.flatnonzero(seen)[nearest]]
     return pooled
-
-
-def _stack_points(model: ObjectModel, stack: ViewStack, where: np.ndarray) -> np.ndarray:
-    """(K, 3) exact surface points (mm) of the hit pixels of all views selected by the (N, H, W) bool ``where``,
-    view after view, row-major: :func:`perception.render.surface_points` of every view, concatenated."""
-    select = stack.mask & where
-    corners = model.vertices[model.triangles[stack.triangle_ids[select]]]  # (K, 3, 3)
-    return np.einsum("kc,kcj->kj", stack.barycentric[select].astype(np.float64), corners).reshape(-1, 3)
 
 
 def _unit_max(x: np.ndarray) -> np.ndarray:
@@ -311,7 +309,7 @@ def saliency(
     maps = multiview_maps(model, weights=weights, n_views=n_views, size_px=size_px, seed=seed)
     stack = np.stack([maps.channels[c] for c in channels] + [maps.combined])
     pooled = _pool(model, maps.stack, stack)
-    fixations = _stack_points(model, maps.stack, maps.peaks)
+    fixations = surface_points(model, maps.stack, maps.peaks)
     return Saliency(
         model,
         _unit_max(pooled[-1]),
@@ -492,12 +490,12 @@ def plot_channels(
     conspicuity map and the combined map with its non-maximum-suppressed peaks (red dots). Returns the path.
     ``n_views`` and ``size_px`` as in :func:`saliency`."""
     maps = multiview_maps(model, seed=seed, n_views=n_views, size_px=size_px)
-    rows = np.argsort([-v.mask.sum() for v in maps.views], kind="stable")[:n_rows]
+    rows = np.argsort(-maps.stack.mask.sum(axis=(1, 2)), kind="stable")[:n_rows]
     columns = ["shading", *maps.channels, "combined"]
     fig = _figure(figsize=(1.8 * len(columns), 1.9 * len(rows)))
     axes = fig.subplots(len(rows), len(columns), squeeze=False)
     for r, k in enumerate(rows):
-        images = [maps.views[k].intensity, *(maps.channels[c][k] for c in maps.channels), maps.combined[k]]
+        images = [maps.stack.intensity[k], *(maps.channels[c][k] for c in maps.channels), maps.combined[k]]
         for c, (title, image) in enumerate(zip(columns, images, strict=True)):
             ax = axes[r, c]
             ax.imshow(image, cmap="gray" if c == 0 else "inferno", vmin=0, vmax=max(float(image.max()), 1e-9))
