@@ -94,11 +94,8 @@ def capture_sequences(model, pose_seed: int, contours: int, *, elevation_deg=(35
 
     rotation = resting_rotation(model, pose_seed) if poses == "resting" else random_rotation(pose_seed)
     turned = rotate(model, rotation)
-    if elevation_deg[0] != elevation_deg[1] or distance_mm[0] != distance_mm[1]:
-        rng = np.random.default_rng([pose_seed, 35])
-        view = {"elevation_deg": float(rng.uniform(*elevation_deg)), "distance_mm": float(rng.uniform(*distance_mm))}
-    else:
-        view = {"elevation_deg": float(elevation_deg[0]), "distance_mm": float(distance_mm[0])}
+    rng = np.random.default_rng([pose_seed, 35])  # uniform(a, a) is exactly a: a one-value range draws nothing new
+    view = {"elevation_deg": float(rng.uniform(*elevation_deg)), "distance_mm": float(rng.uniform(*distance_mm))}
     reconstruct = reconstruction_settings(settings) if settings else None
     cap = virtual_capture(turned, views=1, size_mm=turned.size, seed=pose_seed, reconstruct=reconstruct, **view)
     world = cap.world
