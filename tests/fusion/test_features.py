@@ -136,6 +136,32 @@ def test_info_gain_keeps_the_informative_features():
     assert np.array_equal(again.scores_, sel.scores_)  # seeded: same bytes
 
 
+
+def test_info_gain_repeats_come_from_the_cache_with_sklearns_bytes(monkeypatch):
+    """A repeated (X, y, k, seed) is not estimated again and returns sklearn's own result; changed data, labels
+    relabelled into another class order, or another seed are estimated afresh; an unseeded call is never cached."""
+    import fusion.features as features
+
+    rng = np.random.default_rng(7)
+    y = np.repeat(np.arange(3), 30)
+    X = rng.standard_normal((90, 4)) + y[:, None] * np.array([2.0, 0.0, 0.5, 0.0])
+    expected = mutual_info_classif(X, y, n_neighbors=3, random_state=1)
+    calls = []
+    real = features.mutual_info_classif
+    monkeypatch.setattr(features, "mutual_info_classif", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(features, "_GAIN_CACHE", type(features._GAIN_CACHE)())
+    first = features.information_gain(X, y, 3, 1)
+    first[:] = -1.0  # a caller scribbling on its result must not change the cached one
+    second = features.information_gain(X.copy(), y.copy(), 3, 1)
+    assert len(calls) == 1 and np.array_equal(second, expected)
+    features.information_gain(X + 1e-9, y, 3, 1)  # other data
+    features.information_gain(X, 2 - y, 3, 1)  # same partition, classes in the other order
+    features.information_gain(X, y, 3, 2)  # other seed
+    features.information_gain(X, y, 3, None)
+    features.information_gain(X, y, 3, None)
+    assert len(calls) == 6
+
+
 # ------------------------------------------------------------------------------------------ SOM
 def _grouped_features(seed: int = 3):
     """15 features: 3 noisy copies of each of 5 independent signals (column 3 g + c copies signal g)."""
