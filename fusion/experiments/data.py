@@ -16,6 +16,9 @@ from tactile.sensor import FSRSensor
 
 log = logging.getLogger(__name__)
 
+#: Sub-folder of a stores folder that keeps the objects' interest points, shared by all its stores.
+SALIENCY_CACHE = "interest-points"
+
 
 def folder_objects(folder: str | Path, classes=None, per_class: int | None = None,
                    max_classes: int | None = None) -> list[tuple[Path, str]]:
@@ -119,7 +122,8 @@ def ensure_store(objects, folder: Path, *, strategies, contours: int, seed: int,
 
     The store is named after its settings (``<objects>obj-<contours>c-<hash>.zarr``), so parts that need
     the same data share one store and changed sizes make a new one. Objects that fail to generate are logged
-    and left out (``generate`` records them); re-running tries them again.
+    and left out (``generate`` records them); re-running tries them again. The stores of one folder share
+    an interest-point cache (``folder/interest-points``), so each object's saliency is computed once.
 
     Returns:
         (the opened dataset, its :func:`store_record`).
@@ -133,7 +137,8 @@ def ensure_store(objects, folder: Path, *, strategies, contours: int, seed: int,
     record = store_record(objects, contours, seed, strategies, sensor, probes)
     path = Path(folder) / f"{len(record['objects'])}obj-{contours}c-{digest(record)[:10]}.zarr"
     report = generate(objects, path, strategies=tuple(strategies), contours_per_object=contours,
-                      sensor=sensor or FSRSensor(), probes=probes, seed=seed, workers=workers, progress=progress)
+                      sensor=sensor or FSRSensor(), probes=probes, seed=seed, workers=workers, progress=progress,
+                      saliency_cache=Path(folder) / SALIENCY_CACHE)
     for name, reason in report.failed:
         log.warning("%s: object %s failed and is left out: %s", path.name, name, reason)
     if report.failed and len(report.failed) == report.objects:

@@ -13,7 +13,7 @@ the object in that pose (no saliency is recomputed). Intervals: bootstrap over o
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -25,8 +25,7 @@ from fusion.experiments.models import DISPLAY, Predictions, digest, predict
 from fusion.experiments.protocol import POSES, fold_folder, pose_stores
 from fusion.experiments.touch import load_batch, save_batch, touch_objects
 from fusion.modelfile import SUFFIX
-from perception.errors import SaliencyError
-from perception.geometry import ObjectModel
+from perception.interest_cache import KnownInterestPoints
 from tactile.dead_taxels import repair_dead_taxels
 from tactile.explore import SequenceBatch
 from tactile.sampling import STRATEGIES as METHODS
@@ -38,21 +37,6 @@ log = logging.getLogger(__name__)
 TEST_SEED_OFFSET = 7919
 
 
-@dataclass(frozen=True, eq=False)
-class StoredAttention:
-    """The interest points a dataset store recorded for one object, usable where sampling wants a Saliency."""
-
-    model: ObjectModel
-    method: str
-    points: np.ndarray
-
-    def interest_points(self, n: int, **_) -> np.ndarray:
-        if n > len(self.points):
-            raise SaliencyError(f"{self.model.name}: the store recorded {len(self.points)} interest points, "
-                                f"{n} asked for")
-        return self.points[:n].copy()
-
-
 def _attention(ds, models: list, strategy: str, seed: int) -> dict | None:
     """{object name: attention} of a guided-like strategy: the store's interest points, else computed."""
     method = METHODS[strategy]
@@ -62,7 +46,7 @@ def _attention(ds, models: list, strategy: str, seed: int) -> dict | None:
     for model in models:
         stored = ds.interest_points(model.name).get(strategy) if ds is not None else None
         if stored is not None and len(stored):
-            out[model.name] = StoredAttention(model, method, stored)
+            out[model.name] = KnownInterestPoints(model, method, stored)
         else:
             from perception.saliency import saliency
 
@@ -152,4 +136,4 @@ def _inputs(batch: SequenceBatch, sensor: FSRSensor, kinds: list[str]) -> dict[s
     return inputs
 
 
-__all__ = ["TEST_SEED_OFFSET", "StoredAttention", "noise_rows"]
+__all__ = ["TEST_SEED_OFFSET", "noise_rows"]

@@ -163,6 +163,7 @@ def generate(
     object_timeout_s: float | None = None,
     ray_address: str | None = None,
     command: str | None = None,
+    saliency_cache: str | Path | None = None,
 ) -> GenerationReport:
     """Explore every object along ``contours_per_object`` contours per strategy into the zarr store ``out``.
 
@@ -186,6 +187,10 @@ def generate(
         object_timeout_s: a worker still running after this long is stopped and its object recorded as
             failed (local executor); None waits.
         command: the creation command to record (default: this process's command line).
+        saliency_cache: a folder of interest points by mesh content
+            (:class:`~perception.interest_cache.InterestPointCache`): objects found there skip their saliency,
+            the others add theirs. Stores of the same objects with other sizes or sensors then compute each
+            object's saliency once. The store's bytes are the same with or without it.
 
     Returns:
         a :class:`GenerationReport`.
@@ -258,7 +263,8 @@ def generate(
                     f"kept in {out}, re-run to resume)"
                 )
 
-        args = (str(out), specs, settings, sensor, todo, n_workers, finished, bar)
+        cache = None if saliency_cache is None else str(Path(saliency_cache).resolve())
+        args = (str(out), specs, settings, sensor, todo, n_workers, finished, bar, cache)
         try:
             if executor == "local":
                 _run_local(*args, object_timeout_s)
@@ -301,14 +307,16 @@ def _reason_for_exit(code: int | None) -> str:
     )
 
 
-def _child(conn, store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor) -> None:
+def _child(conn, store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor,
+           saliency_cache: str | None = None) -> None:
     """Worker process body: explore one object, report progress and the outcome through ``conn``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt stops
     _die_with_parent()
     from tactile.dataset.worker import explore_into_store
 
     try:
-        explore_into_store(store, index, spec, settings, sensor, progress=lambda n: conn.send(("progress", n)))
+        explore_into_store(store, index, spec, settings, sensor, progress=lambda n: conn.send(("progress", n)),
+                           saliency_cache=saliency_cache)
         conn.send(("done", None))
     except Exception as exc:  # noqa: BLE001 -- any failure of one object is recorded, never raised
         conn.send(("failed", f"{type(exc).__name__}: {exc}"))
@@ -363,7 +371,7 @@ def _context():
     return ctx
 
 
-def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, timeout_s) -> None:
+def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, saliency_cache, timeout_s) -> None:
     from multiprocessing.connection import wait
 
     ctx = _context()
@@ -375,7 +383,7 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, t
                 index = pending.popleft()
                 reader, writer = ctx.Pipe(duplex=False)
                 proc = ctx.Process(
-                    target=_child, args=(writer, store, index, specs[index], settings, sensor),
+                    target=_child, args=(writer, store, index, specs[index], settings, sensor, saliency_cache),
                     name=f"generate-{index}", daemon=True,
                 )
                 with _without_main_module():
@@ -417,17 +425,18 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, t
 
 
 # -------------------------------------------------------------------------------------- Ray executor
-def _ray_task(store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor) -> tuple:
+def _ray_task(store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor,
+              saliency_cache: str | None = None) -> tuple:
     from tactile.dataset.worker import explore_into_store
 
     try:
-        explore_into_store(store, index, spec, settings, sensor)
+        explore_into_store(store, index, spec, settings, sensor, saliency_cache=saliency_cache)
         return True, None
     except Exception as exc:  # noqa: BLE001 -- any failure of one object is recorded, never raised
         return False, f"{type(exc).__name__}: {exc}"
 
 
-def _run_ray(store, specs, settings, sensor, todo, n_workers, finished, bar, address) -> None:
+def _run_ray(store, specs, settings, sensor, todo, n_workers, finished, bar, saliency_cache, address) -> None:
     try:
         import ray
     except ImportError as exc:
@@ -443,7 +452,7 @@ def _run_ray(store, specs, settings, sensor, todo, n_workers, finished, bar, add
             ray.init(num_cpus=n_workers, include_dashboard=False, log_to_driver=False)
     task = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
     layout = layout_of(settings)
-    refs = {task.remote(store, i, specs[i], settings, sensor): i for i in todo}
+    refs = {task.remote(store, i, specs[i], settings, sensor, saliency_cache): i for i in todo}
     try:
         while refs:
             ready, _ = ray.wait(list(refs), num_returns=1)

@@ -18,9 +18,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from perception import saliency as attention
 from perception.errors import ContourError
 from perception.geometry import ObjectModel
+from perception.interest_cache import InterestPointCache
 from tactile import sampling
 from tactile.contours import Contour
 from tactile.dataset.objects import ObjectSpec
@@ -82,9 +82,12 @@ def explore_into_store(
     settings: dict,
     sensor: FSRSensor,
     progress: Callable[[int], None] | None = None,
+    saliency_cache: str | None = None,
 ) -> dict:
     """Explore object ``index`` (``spec``) with every strategy of ``settings``, write its rows, then its
     completion record with the digest of each array's rows (see :mod:`tactile.dataset.store`); returns the record.
+    With ``saliency_cache`` (a folder, :class:`~perception.interest_cache.InterestPointCache`), interest points
+    found there are used instead of computing the saliency, and those computed are kept there.
 
     Raises:
         whatever loading, saliency or exploring the object raises (the caller records it as failed).
@@ -100,12 +103,18 @@ def explore_into_store(
     # Named, not listed: listing the group would trip over the records folder (not a zarr node).
     arrays = {name: open_for_writing(store, name) for name in ARRAYS}
     digests = {name: array_digest() for name in ARRAYS}
-    saliencies: dict[str, attention.Saliency] = {}  # one per method, shared by the strategies using it
+    saliencies: dict = {}  # one per method, shared by the strategies using it
     interest: dict[str, list] = {}
+    cache = None if saliency_cache is None else InterestPointCache(saliency_cache)
     for s, strategy in enumerate(layout.strategies):
         method = sampling.STRATEGIES[strategy]
-        toucher = Toucher(model, strategy, probes=probes, saliency=saliencies.get(method))
+        found = saliencies.get(method)
+        if found is None and method is not None and cache is not None:
+            found = cache.known(model, method, 0, min(sampling.INTEREST_POOL, model.n_vertices))
+        toucher = Toucher(model, strategy, probes=probes, saliency=found)  # saliency seed 0, as the cache's
         if method is not None:
+            if found is None and cache is not None:
+                cache.put(model, method, 0, toucher.points)
             saliencies[method] = toucher.saliency
             interest[strategy] = toucher.points.tolist()
         rows = layout.rows(index, s)

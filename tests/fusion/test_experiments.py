@@ -463,7 +463,8 @@ def test_reproduce_command_help_and_errors(tmp_path, capsys):
 
 
 def test_guided_noise_contours_reuse_the_stores_interest_points():
-    from fusion.experiments.robustness import StoredAttention, _attention
+    from fusion.experiments.robustness import _attention
+    from perception.interest_cache import KnownInterestPoints
 
     mug = make_object("mug", 0)
     points = mug.vertices[::max(1, len(mug.vertices) // 10)][:10]
@@ -473,7 +474,7 @@ def test_guided_noise_contours_reuse_the_stores_interest_points():
             return {"guided": points} if name == mug.name else {}
 
     attention = _attention(FakeStore(), [mug], "guided", seed=0)
-    assert isinstance(attention[mug.name], StoredAttention)
+    assert isinstance(attention[mug.name], KnownInterestPoints)
     assert _attention(FakeStore(), [mug], "blind", seed=0) is None
     sequences, _ = touch_object(mug, "guided", 4, probes=8, seed=0, attention=attention[mug.name])
     for seq in sequences:

@@ -140,7 +140,7 @@ def test_info_gain_keeps_the_informative_features():
 def test_info_gain_repeats_come_from_the_cache_with_sklearns_bytes(monkeypatch):
     """A repeated (X, y, k, seed) is not estimated again and returns sklearn's own result; changed data, labels
     relabelled into another class order, or another seed are estimated afresh; an unseeded call is never cached."""
-    import fusion.features as features
+    from fusion import features
 
     rng = np.random.default_rng(7)
     y = np.repeat(np.arange(3), 30)

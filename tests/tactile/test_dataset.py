@@ -396,3 +396,28 @@ def test_repeated_guided_contours_are_stored_as_pressed_alone(tmp_path):
                                   saliency=sal)[0]
         assert np.abs(batch.frames[k] - expected.frames).max() <= ds.max_frame_error * (1 + 1e-6)
         np.testing.assert_array_equal(batch.pad_sides_mm[k], expected.pad_sides_mm.astype(np.float32))
+
+
+def test_stores_sharing_a_saliency_cache_have_the_same_bytes_and_read_its_points(guided_store, tmp_path):
+    """With a cache the store's bytes equal the store made without one (the guided_store fixture); a second
+    store of the same objects reads the cache: points planted there are the ones its guided planes pass through."""
+    cache = tmp_path / "cache"
+    out = tmp_path / "cached"
+    generate([("mug", 0), ("box", 1)], out, strategies=("guided", "blind"), contours_per_object=3,
+             sensor=FSRSensor(), probes=25, seed=3, workers=2, progress=False, saliency_cache=cache)
+    assert store_files(out) == store_files(guided_store)
+    entries = sorted(cache.glob("*.npy"))
+    assert len(entries) == 2  # one per object (multiview), none for blind
+    mug = make_object("mug", 0)
+    planted = mug.vertices[np.linspace(0, len(mug.vertices) - 1, 10).astype(int)]
+    from perception.interest_cache import InterestPointCache
+
+    InterestPointCache(cache).put(mug, "multiview", 0, planted)
+    again = tmp_path / "again"
+    generate([("mug", 0)], again, strategies=("guided",), contours_per_object=4, sensor=SMALL, probes=6, seed=1,
+             workers=1, progress=False, saliency_cache=cache)
+    ds = open_dataset(again)
+    np.testing.assert_array_equal(ds.interest_points("mug/0")["guided"], planted)
+    batch = ds.load()
+    for i in range(len(ds)):
+        assert (np.abs((planted - batch.plane_points[i]) @ batch.plane_normals[i]) < 1e-6).sum() >= 2

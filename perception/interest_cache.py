@@ -1,0 +1,113 @@
+"""Interest points found before: a store's record or an on-disk cache, usable wherever sampling wants a Saliency.
+
+Several stores of the same objects (other sensors, probe counts or contour counts: the experiments' run-time
+part makes eight) would each compute every object's saliency again; :class:`InterestPointCache` keeps the
+points of each (mesh, method, seed, count) once. Its key is a digest of the loaded mesh (vertices, triangles,
+colours, transform, centering: another pose, scale or repair is another mesh), the method, seed and count, and the sources of the
+``perception`` package (points cached by other code are computed again). Entries are small ``.npy`` files read
+without pickle; one that is damaged, of the wrong shape or not finite is ignored and recomputed.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from perception.atomic import atomic_path
+from perception.errors import SaliencyError
+from perception.geometry import ObjectModel
+
+log = logging.getLogger(__name__)
+
+#: An entry larger than this is not an interest-point list (a 10 x 3 float64 file is 368 bytes).
+MAX_ENTRY_BYTES = 1 << 16
+
+
+@dataclass(frozen=True, eq=False)
+class KnownInterestPoints:
+    """Interest points of ``model`` by ``method`` found before (a store's record, a cache), strongest first."""
+
+    model: ObjectModel
+    method: str
+    points: np.ndarray
+
+    def interest_points(self, n: int, **_) -> np.ndarray:
+        if n > len(self.points):
+            raise SaliencyError(f"{self.model.name}: {len(self.points)} interest points are known, {n} asked for")
+        return self.points[:n].copy()
+
+
+@functools.cache
+def code_version() -> str:
+    """A digest of the ``perception`` package's Python sources (read once per process)."""
+    root = Path(__file__).resolve().parent
+    h = hashlib.blake2b(digest_size=8)
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+class InterestPointCache:
+    """Interest points on disk under ``folder``, by mesh content, method, seed and count (module docstring)."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+
+    def key(self, model: ObjectModel, method: str, seed: int, n: int) -> str:
+        # Everything of the model that saliency can read (colours feed the colour channels); not its name.
+        h = hashlib.blake2b(digest_size=16)
+        for array in (model.vertices, model.triangles, model.vertex_colors, model.transform):
+            if array is None:
+                h.update(b"none")
+                continue
+            a = np.ascontiguousarray(array)
+            h.update(repr((a.dtype.str, a.shape)).encode())
+            h.update(a.data)
+        h.update(repr((model.centering, method, int(seed), int(n), code_version())).encode())
+        return h.hexdigest()
+
+    def _path(self, key: str) -> Path:
+        return self.folder / f"{key}.npy"
+
+    def get(self, model: ObjectModel, method: str, seed: int, n: int) -> np.ndarray | None:
+        """The cached (n, 3) points (mm), or None when absent or unusable."""
+        path = self._path(self.key(model, method, seed, n))
+        try:
+            if path.stat().st_size > MAX_ENTRY_BYTES:
+                raise ValueError(f"{path.stat().st_size} bytes")
+            points = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as exc:
+            log.warning("%s: unreadable interest-point cache entry (%s); computing again", path, exc)
+            return None
+        if points.shape != (n, 3) or points.dtype != np.float64 or not np.isfinite(points).all():
+            log.warning("%s: cache entry is not %d finite float64 points; computing again", path, n)
+            return None
+        return points
+
+    def put(self, model: ObjectModel, method: str, seed: int, points: np.ndarray) -> None:
+        """Keep ``points`` (n, 3); a write that fails is logged, never raised (the cache only saves time)."""
+        points = np.asarray(points, dtype=np.float64)
+        path = self._path(self.key(model, method, seed, len(points)))
+        try:
+            os.makedirs(self.folder, exist_ok=True)
+            with atomic_path(path) as tmp, open(tmp, "wb") as f:
+                np.save(f, points, allow_pickle=False)
+        except OSError as exc:
+            log.warning("%s: could not cache interest points (%s)", path, exc)
+
+    def known(self, model: ObjectModel, method: str, seed: int, n: int) -> KnownInterestPoints | None:
+        """The cached points as a :class:`KnownInterestPoints`, or None."""
+        points = self.get(model, method, seed, n)
+        return None if points is None else KnownInterestPoints(model, method, points)
+
+
+__all__ = ["MAX_ENTRY_BYTES", "InterestPointCache", "KnownInterestPoints", "code_version"]

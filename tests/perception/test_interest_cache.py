@@ -1,0 +1,66 @@
+"""The interest-point cache: keyed by what saliency reads, damaged entries ignored, known points served."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from perception.errors import SaliencyError
+from perception.geometry import random_rotation
+from perception.interest_cache import MAX_ENTRY_BYTES, InterestPointCache, KnownInterestPoints
+from perception.shapes import make_object
+
+
+@pytest.fixture
+def mug():
+    return make_object("mug", 0)
+
+
+def test_round_trip_and_key_follows_the_mesh_not_its_name(mug, tmp_path):
+    cache = InterestPointCache(tmp_path)
+    points = mug.vertices[:10].copy()
+    assert cache.get(mug, "multiview", 0, 10) is None
+    cache.put(mug, "multiview", 0, points)
+    np.testing.assert_array_equal(cache.get(mug, "multiview", 0, 10), points)
+    renamed = dataclasses.replace(mug, name="another name", label="cup")
+    np.testing.assert_array_equal(cache.get(renamed, "multiview", 0, 10), points)
+    turned = dataclasses.replace(mug, vertices=mug.vertices @ random_rotation(3).T)
+    assert cache.get(turned, "multiview", 0, 10) is None  # another pose is another mesh
+    coloured = dataclasses.replace(mug, vertex_colors=np.full((mug.n_vertices, 3), 0.5))
+    assert cache.get(coloured, "multiview", 0, 10) is None  # colours feed the colour channels
+    assert cache.get(mug, "mesh", 0, 10) is None and cache.get(mug, "multiview", 1, 10) is None
+    assert cache.get(mug, "multiview", 0, 9) is None
+
+
+@pytest.mark.parametrize("damage", ["garbage", "shape", "nan", "large", "pickle"])
+def test_damaged_entries_are_ignored(mug, tmp_path, damage):
+    cache = InterestPointCache(tmp_path)
+    cache.put(mug, "multiview", 0, mug.vertices[:10])
+    (path,) = tmp_path.glob("*.npy")
+    if damage == "garbage":
+        path.write_bytes(b"\x93NUMPY not really")
+    elif damage == "shape":
+        np.save(path, np.zeros((9, 3)))
+    elif damage == "nan":
+        np.save(path, np.full((10, 3), np.nan))
+    elif damage == "large":
+        np.save(path, np.zeros((MAX_ENTRY_BYTES // 24 + 10, 3)))
+    else:
+        np.save(path, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    assert cache.get(mug, "multiview", 0, 10) is None
+
+
+def test_an_unwritable_cache_only_warns(mug, tmp_path, caplog):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    InterestPointCache(blocker / "cache").put(mug, "multiview", 0, mug.vertices[:10])
+    assert "could not cache" in caplog.text
+
+
+def test_known_points_serve_sampling_and_refuse_more_than_known(mug):
+    known = KnownInterestPoints(mug, "multiview", mug.vertices[:10])
+    np.testing.assert_array_equal(known.interest_points(4), mug.vertices[:4])
+    with pytest.raises(SaliencyError, match="10 interest points are known, 11 asked for"):
+        known.interest_points(11)
