@@ -19,12 +19,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import joblib
 import numpy as np
 
 from fusion.base import TactileClassifier, load_model
 from fusion.modelfile import SUFFIX
 from perception.atomic import atomic_path, write_text
 from perception.errors import DatasetError, InvalidArgumentError, ModelMismatchError
+from perception.runtime import usable_cores
 from tactile.explore import SequenceBatch
 
 log = logging.getLogger(__name__)
@@ -210,7 +212,10 @@ def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[Tacti
             log.warning("cached model %s unusable (%s); training again", path, exc)
     batch = train() if callable(train) else train
     start = time.perf_counter()
-    estimator.fit(batch)
+    # scikit-learn steps left at n_jobs=None (the information gain over features, the SVM's calibration folds)
+    # use every core while training; nothing else runs then, and their results do not depend on the job count.
+    with joblib.parallel_config(n_jobs=usable_cores()):
+        estimator.fit(batch)
     seconds = time.perf_counter() - start
     estimator.save(path)
     write_text(meta_path, json.dumps({"record": record, "fit_seconds": seconds}, indent=2, default=str))

@@ -162,6 +162,24 @@ def test_info_gain_repeats_come_from_the_cache_with_sklearns_bytes(monkeypatch):
     assert len(calls) == 6
 
 
+
+def test_info_gain_bytes_do_not_depend_on_the_job_count(monkeypatch):
+    """The experiments train with joblib's n_jobs set to every core: the selection must not change with it."""
+    import joblib
+
+    from fusion import features
+
+    rng = np.random.default_rng(11)
+    y = np.repeat(np.arange(4), 25)
+    X = rng.standard_normal((100, 12)) + np.outer(y, np.linspace(0, 1, 12))
+    monkeypatch.setattr(features, "_GAIN_CACHE", type(features._GAIN_CACHE)())
+    one = features.information_gain(X, y, 3, 0)
+    features._GAIN_CACHE.clear()
+    with joblib.parallel_config(n_jobs=2):
+        two = features.information_gain(X, y, 3, 0)
+    assert np.array_equal(one, two)
+
+
 # ------------------------------------------------------------------------------------------ SOM
 def _grouped_features(seed: int = 3):
     """15 features: 3 noisy copies of each of 5 independent signals (column 3 g + c copies signal g)."""
