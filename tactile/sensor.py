@@ -321,6 +321,38 @@ class FSRSensor:
                 is neither None, a non-negative integer nor a Generator.
         """
         seed = check_seed(seed, f"{model.name}: press", SensorSpecError)
+        gaps, sides = self._adapted_gaps(model, positions, normals, tangents, adaptive)
+        return self._read(gaps, np.random.default_rng(seed)), sides
+
+    def press_contours(self, model: ObjectModel, contours, seeds, *, adaptive: bool = True) -> list[tuple]:
+        """:meth:`press` of each contour (anything with (P, 3) ``positions``, ``normals``, ``tangents``) with its
+        seed: [(frames (P, rows, cols), sides (P,))]. The pads of all contours are adapted in one pass (the
+        adaptation is per probe, so the frames are those of one press per contour, bit for bit); each
+        contour's read-out (noise, dead taxels) draws from its own seed.
+
+        Raises:
+            SensorSpecError: as :meth:`press`, or a seed count that differs from the contours'.
+        """
+        seeds = [check_seed(seed, f"{model.name}: press", SensorSpecError) for seed in seeds]
+        if len(seeds) != len(contours):
+            raise SensorSpecError(f"{model.name}: {len(seeds)} seeds for {len(contours)} contours")
+        if not contours:
+            return []
+        counts = [len(np.atleast_2d(c.positions)) if np.size(c.positions) else 0 for c in contours]
+        if min(counts) == 0:
+            raise SensorSpecError(f"{model.name}: contour {counts.index(0)} has no probes; give at least one probe")
+        try:
+            stacked = [np.concatenate([np.atleast_2d(getattr(c, a)) for c in contours])
+                       for a in ("positions", "normals", "tangents")]
+        except (TypeError, ValueError) as exc:
+            raise SensorSpecError(f"{model.name}: the contours' probe poses do not stack into (N, 3): {exc}") from exc
+        gaps, sides = self._adapted_gaps(model, *stacked, adaptive)
+        ends = np.cumsum(counts)[:-1]
+        return [(self._read(g, np.random.default_rng(seed)), side)
+                for g, side, seed in zip(np.split(gaps, ends), np.split(sides, ends), seeds)]
+
+    def _adapted_gaps(self, model, positions, normals, tangents, adaptive: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Raw gaps (N, rows, cols) float32 of the pads after settling and shrinking, and their sides (N,)."""
         positions, normals, tangents = self._check_poses(model, positions, normals, tangents)
         poses = (model, positions, normals, tangents)
         steps = np.zeros(len(positions), dtype=np.int64)
@@ -339,8 +371,7 @@ class FSRSensor:
             # Ripples finer than the survey's taxel pitch show only now.
             poses, gaps = self._settle(poses, gaps, None, steps)
             self._shrink(poses, gaps, steps)
-        sides = self._ladder(steps)
-        return self._read(gaps.reshape(-1, self.rows, self.cols), np.random.default_rng(seed)), sides
+        return gaps.reshape(-1, self.rows, self.cols), self._ladder(steps)
 
     def _settle(self, poses, gaps: np.ndarray, taxels, steps: np.ndarray):
         """Settle the penetrating pads on the surface under them (``gaps`` (N, T) seen on the ``taxels``,

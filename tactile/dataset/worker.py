@@ -4,10 +4,10 @@ Sequence k of strategy s of an object is, by construction, what
 ``touch(model, s, 1, sensor, probes, seed=contour_seed(seed, name, s, k), saliency=...)`` returns: the
 "stream" seed scheme of :mod:`tactile.touching`, run by one :class:`~tactile.touching.Toucher` per strategy.
 All contours of one strategy are drawn first (a plane drawn again is cut once: guided strategies draw pairs
-of 10 interest points, so 950 draws hold at most 90 distinct planes), then pressed in large batches (one
-ray-casting call per ~1,000 probes). When the sensor has no noise and no dead taxels its read-out does not
-use the seed, so a batched press gives the same frames as one press per contour and a repeated contour is
-pressed once. With noise, each contour is pressed alone with its seed.
+of 10 interest points, so 950 draws hold at most 90 distinct planes), then pressed in large batches
+(:meth:`~tactile.sensor.FSRSensor.press_contours`: one adaptive pass, each contour read out with its own seed,
+the same frames as one press per contour). When the sensor has no noise and no dead taxels its read-out does
+not use the seed, so a repeated contour is pressed once.
 """
 
 from __future__ import annotations
@@ -63,15 +63,9 @@ def _distinct(sensor: FSRSensor, contours: list[Contour]) -> tuple[np.ndarray, n
 
 
 def _press(sensor: FSRSensor, model: ObjectModel, contours: list[Contour], noise_seeds) -> tuple:
-    """Frames (N, P, R, C) float32 and pad sides (N, P) of the contours, as ``explore`` gives them: one
-    batched press when the read-out ignores the seed, else each contour pressed with its seed."""
-    n, p = len(contours), contours[0].n_probes
-    if _seed_free(sensor):
-        stack = [np.concatenate([getattr(c, a) for c in contours]) for a in ("positions", "normals", "tangents")]
-        frames, sides = sensor.press(model, *stack)
-        return frames.reshape(n, p, sensor.rows, sensor.cols), sides.reshape(n, p)
-    pressed = [sensor.press(model, c.positions, c.normals, c.tangents, seed=int(s))
-               for c, s in zip(contours, noise_seeds)]
+    """Frames (N, P, R, C) float32 and pad sides (N, P) of the contours, as ``explore`` gives them (one
+    adaptive pass for all, each read out with its seed)."""
+    pressed = sensor.press_contours(model, contours, [int(s) for s in noise_seeds])
     return np.stack([f for f, _ in pressed]), np.stack([s for _, s in pressed])
 
 

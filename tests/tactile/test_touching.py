@@ -14,7 +14,7 @@ from perception.shapes import make_object
 from tactile.contours import make_contour, plane_through
 from tactile.explore import explore
 from tactile.sensor import FSRSensor
-from tactile.touching import SPARE_PLANES, Toucher, explore_object, touch
+from tactile.touching import SPARE_PLANES, Toucher, TouchTiming, explore_object, touch
 
 SENSOR = FSRSensor(rows=8, cols=8)
 NOISY = FSRSensor(rows=8, cols=8, noise_std=0.05, dead_taxel_rate=0.05)
@@ -126,3 +126,30 @@ class TestGivenPlanes:
         plane = plane_through(box.center, box.vertices[0], box.vertices[5])
         with pytest.raises(InvalidArgumentError, match="1 planes given for n_contours=2"):
             touch(box, "blind", 2, SENSOR, 10, 3, planes=[plane])
+
+
+@pytest.mark.parametrize("sensor", [FSRSensor(rows=16, cols=16, noise_std=0.05, dead_taxel_rate=0.1),
+                                    FSRSensor(rows=16, cols=16)], ids=["noisy", "clean"])
+def test_touch_presses_in_one_pass_what_one_press_per_contour_gives(sensor):
+    """touch() presses its contours together; each sequence equals FSRSensor.press of that contour alone with
+    its noise seed, bit for bit (a mug: its handle makes pads shrink and settle), timed or not."""
+    from perception.errors import SensorSpecError
+
+    mug = make_object("mug", 1)
+    contours = []
+    sequences = touch(mug, "blind", 6, sensor, probes=12, seed=4, contours=contours)
+    shrunk = 0
+    for seq, contour in zip(sequences, contours):
+        frames, sides = sensor.press(mug, contour.positions, contour.normals, contour.tangents, seed=seq.seed)
+        np.testing.assert_array_equal(seq.frames, frames)
+        np.testing.assert_array_equal(seq.pad_sides_mm, sides)
+        shrunk += int((sides < sensor.side_mm).sum())
+    assert shrunk > 0  # the adaptation ran
+    timed = touch(mug, "blind", 6, sensor, probes=12, seed=4, timing=TouchTiming())
+    for a, b in zip(sequences, timed):
+        np.testing.assert_array_equal(a.frames, b.frames)
+    with pytest.raises(SensorSpecError, match="2 seeds for 1 contours"):
+        sensor.press_contours(mug, contours[:1], [1, 2])
+    empty = type("Empty", (), {"positions": np.zeros((0, 3)), "normals": np.zeros((0, 3)), "tangents": np.zeros((0, 3))})
+    with pytest.raises(SensorSpecError, match="contour 1 has no probes"):
+        sensor.press_contours(mug, [contours[0], empty], [1, 2])
