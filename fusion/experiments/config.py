@@ -134,10 +134,10 @@ class Sizes:
                 "noise_mm": self.active_noise_mm, "visual": self.active_visual}
 
 
-#: The full run (target: within 60 minutes on 2 cores).
+#: The full run (target: within 30 minutes on 2 cores).
 FULL = Sizes()
 
-#: ``--quick`` (target: within 10 minutes on 2 cores).
+#: ``--quick`` (target: within 5 minutes on 2 cores, smoke-sized: a check that every part runs, not a measurement).
 QUICK = Sizes(
     paper_contours=60,
     unseen_contours=16,
