@@ -14,6 +14,7 @@ import functools
 import hashlib
 import logging
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,19 +78,36 @@ class InterestPointCache:
         return self.folder / f"{key}.npy"
 
     def get(self, model: ObjectModel, method: str, seed: int, n: int) -> np.ndarray | None:
-        """The cached (n, 3) points (mm), or None when absent or unusable."""
+        """The cached (n, 3) points (mm), or None when absent or unusable. Only a small regular file is opened
+        (never blocking: a FIFO or device is skipped), and its header is checked before any array is read."""
         path = self._path(self.key(model, method, seed, n))
         try:
-            if path.stat().st_size > MAX_ENTRY_BYTES:
-                raise ValueError(f"{path.stat().st_size} bytes")
-            points = np.load(path, allow_pickle=False)
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
         except FileNotFoundError:
             return None
-        except (OSError, ValueError) as exc:
+        except OSError as exc:
             log.warning("%s: unreadable interest-point cache entry (%s); computing again", path, exc)
             return None
-        if points.shape != (n, 3) or points.dtype != np.float64 or not np.isfinite(points).all():
-            log.warning("%s: cache entry is not %d finite float64 points; computing again", path, n)
+        try:
+            with os.fdopen(fd, "rb") as f:
+                info = os.fstat(f.fileno())
+                if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_ENTRY_BYTES:
+                    raise ValueError(f"not a regular file of at most {MAX_ENTRY_BYTES} bytes")
+                version = np.lib.format.read_magic(f)
+                if version not in ((1, 0), (2, 0)):
+                    raise ValueError(f".npy format version {version}")
+                read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                               else np.lib.format.read_array_header_2_0)
+                shape, fortran, dtype = read_header(f)
+                if shape != (n, 3) or dtype != np.dtype("<f8") or fortran:
+                    raise ValueError(f"holds {shape} {dtype}, not {n} x 3 float64")
+                f.seek(0)  # read_array reads the header again
+                points = np.lib.format.read_array(f, allow_pickle=False)
+        except (OSError, ValueError, MemoryError) as exc:
+            log.warning("%s: unusable interest-point cache entry (%s); computing again", path, exc)
+            return None
+        if points.shape != (n, 3) or not np.isfinite(points).all():
+            log.warning("%s: cache entry is not %d finite points; computing again", path, n)
             return None
         return points
 

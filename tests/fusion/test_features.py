@@ -163,6 +163,34 @@ def test_info_gain_repeats_come_from_the_cache_with_sklearns_bytes(monkeypatch):
 
 
 
+def test_info_gain_cache_keys_the_neighbours_copies_hits_and_forgets_the_least_recent(monkeypatch):
+    from fusion import features
+
+    rng = np.random.default_rng(0)
+    y = np.repeat(np.arange(3), 20)
+    X = rng.standard_normal((60, 3)) + y[:, None]
+    calls = []
+    real = features.mutual_info_classif
+    monkeypatch.setattr(features, "mutual_info_classif", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(features, "_GAIN_CACHE", type(features._GAIN_CACHE)())
+    features.information_gain(X, y, 3, 0)
+    assert np.array_equal(features.information_gain(X, y, 5, 0), mutual_info_classif(X, y, n_neighbors=5, random_state=0))
+    hit = features.information_gain(X, y, 3, 0)
+    hit[:] = -1.0
+    assert (features.information_gain(X, y, 3, 0) >= 0).all()
+    features.information_gain(X, np.array([f"c{v}" for v in y]), 3, 0)  # the same partition, named: a hit
+    assert len(calls) == 2
+    for s in range(1, features._GAIN_CACHE_SIZE):
+        features.information_gain(X, y, 3, 0)  # keep it the most recently used
+        features.information_gain(X, y, 3, 100 + s)
+    assert len(features._GAIN_CACHE) == features._GAIN_CACHE_SIZE
+    n = len(calls)
+    features.information_gain(X, y, 3, 0)
+    assert len(calls) == n  # recently used: kept
+    features.information_gain(X, y, 5, 0)
+    assert len(calls) == n + 1  # the least recently used entry (k = 5) was dropped
+
+
 def test_info_gain_bytes_do_not_depend_on_the_job_count(monkeypatch):
     """The experiments train with joblib's n_jobs set to every core: the selection must not change with it."""
     import joblib

@@ -64,3 +64,67 @@ def test_known_points_serve_sampling_and_refuse_more_than_known(mug):
     np.testing.assert_array_equal(known.interest_points(4), mug.vertices[:4])
     with pytest.raises(SaliencyError, match="10 interest points are known, 11 asked for"):
         known.interest_points(11)
+
+
+def test_key_covers_everything_saliency_reads_and_the_code(mug, monkeypatch):
+    from perception import interest_cache
+    from perception.geometry import CENTERINGS
+
+    cache = InterestPointCache("unused")
+    key = cache.key(mug, "multiview", 0, 10)
+    moved = mug.transform.copy()
+    moved[0, 3] += 1.0
+    other = next(c for c in CENTERINGS if c != mug.centering)
+    for changed in (dataclasses.replace(mug, transform=moved), dataclasses.replace(mug, triangles=mug.triangles[:, ::-1]),
+                    dataclasses.replace(mug, centering=other)):
+        assert cache.key(changed, "multiview", 0, 10) != key
+    assert cache.key(mug, "multiview", 0, 9) != key
+    monkeypatch.setattr(interest_cache, "code_version", lambda: "other code")
+    assert cache.key(mug, "multiview", 0, 10) != key
+
+
+class _Boom:
+    def __reduce__(self):
+        return (pytest.fail, ("a cache entry ran code",))
+
+
+@pytest.mark.parametrize("damage", ["float32", "pickle_right_shape", "fifo", "huge_header", "oversized"])
+def test_entries_are_checked_before_anything_is_read(mug, tmp_path, monkeypatch, damage):
+    """A FIFO is not waited on, a pickled array never unpickled, a header promising a huge array never
+    allocated, an oversized file never parsed."""
+    import os
+
+    cache = InterestPointCache(tmp_path)
+    cache.put(mug, "multiview", 0, mug.vertices[:10])
+    (path,) = tmp_path.glob("*.npy")
+    if damage == "float32":
+        np.save(path, mug.vertices[:10].astype(np.float32))
+    elif damage == "pickle_right_shape":
+        a = np.empty((10, 3), dtype=object)
+        a[:] = _Boom()
+        np.save(path, a, allow_pickle=True)
+    elif damage == "fifo":
+        path.unlink()
+        os.mkfifo(path)
+    elif damage == "huge_header":
+        header = b"{'descr': '<f8', 'fortran_order': False, 'shape': (1000000000, 3), }"
+        pad = 64 - (10 + len(header) + 1) % 64
+        path.write_bytes(b"\x93NUMPY\x01\x00" + (len(header) + pad + 1).to_bytes(2, "little") + header + b" " * pad + b"\n")
+    else:
+        path.write_bytes(b"\x93NUMPY" + b"\0" * MAX_ENTRY_BYTES)
+    monkeypatch.setattr(np.lib.format, "read_array", lambda *a, **k: pytest.fail("an unchecked entry was read"))
+    assert cache.get(mug, "multiview", 0, 10) is None
+
+
+def test_known_points_are_copies_and_a_failed_write_leaves_no_entry(mug, tmp_path, monkeypatch):
+    known = KnownInterestPoints(mug, "multiview", mug.vertices[:10].copy())
+    known.interest_points(4)[:] = 0.0
+    np.testing.assert_array_equal(known.points[:4], mug.vertices[:4])
+
+    def half(f, a, **k):
+        f.write(b"\x93NUMPY")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "save", half)
+    InterestPointCache(tmp_path).put(mug, "multiview", 0, mug.vertices[:10])
+    assert not list(tmp_path.glob("*"))
