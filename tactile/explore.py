@@ -41,6 +41,16 @@ class TactileSequence:
     strategy: str = "manual"
     seed: int | None = None
 
+    @classmethod
+    def of_contour(cls, model: ObjectModel, contour: Contour, frames: np.ndarray, sides: np.ndarray, *,
+                   seed=None, strategy: str = "manual") -> TactileSequence:
+        """The sequence of ``contour`` on ``model`` read as ``frames`` with pads of ``sides``: it records the
+        contour's (planned) poses, copied, and the seed when it is an integer."""
+        return cls(frames=frames, normals=contour.normals.copy(), positions=contour.positions.copy(),
+                   tangents=contour.tangents.copy(), pad_sides_mm=sides, plane=contour.plane, object_name=model.name,
+                   label=model.label, strategy=strategy,
+                   seed=int(seed) if isinstance(seed, (int, np.integer)) else None)
+
     @property
     def n_probes(self) -> int:
         return len(self.frames)
@@ -64,18 +74,7 @@ def explore(
     frames, sides = sensor.press(
         model, contour.positions, contour.normals, contour.tangents, seed=seed, adaptive=adaptive
     )
-    return TactileSequence(
-        frames=frames,
-        normals=contour.normals.copy(),
-        positions=contour.positions.copy(),
-        tangents=contour.tangents.copy(),
-        pad_sides_mm=sides,
-        plane=contour.plane,
-        object_name=model.name,
-        label=model.label,
-        strategy=strategy,
-        seed=int(seed) if isinstance(seed, (int, np.integer)) else None,
-    )
+    return TactileSequence.of_contour(model, contour, frames, sides, seed=seed, strategy=strategy)
 
 
 @dataclass(eq=False)

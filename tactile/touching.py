@@ -316,26 +316,20 @@ def touch(
         next(steps, None)
         if jitter_mm > 0 and jitter_rng is None:  # the "stream" scheme's jitter: its own stream, made when needed
             jitter_rng = _stream_jitter_rng(seed)
-        todo.append((item.contour, jitter_contour(item.contour, jitter_mm, jitter_rng), item.noise_seed))
+        contour, pressed, noise = item.contour, jitter_contour(item.contour, jitter_mm, jitter_rng), item.noise_seed
+        todo.append((contour, pressed, noise))
         if timing is not None:
-            sequences.append(_sequence(model, *todo[-1], *sensor.press_contours(model, [todo[-1][1]],
-                                                                                [todo[-1][2]])[0], strategy))
+            (read,) = sensor.press_contours(model, [pressed], [noise])
+            sequences.append(TactileSequence.of_contour(model, contour, *read, seed=noise, strategy=strategy))
             timing.contour_seconds.append(time.perf_counter() - start)
     if timing is None:
-        pressed = sensor.press_contours(model, [c for _, c, _ in todo], [s for _, _, s in todo])
-        sequences = [_sequence(model, *item, *read, strategy) for item, read in zip(todo, pressed)]
+        reads = sensor.press_contours(model, [pressed for _, pressed, _ in todo], [noise for _, _, noise in todo])
+        # Each sequence records the planned poses (the robot does not know its jitter).
+        sequences = [TactileSequence.of_contour(model, contour, *read, seed=noise, strategy=strategy)
+                     for (contour, _, noise), read in zip(todo, reads)]
     if contours is not None:
         contours.extend(contour for contour, _, _ in todo)
     return sequences
-
-
-def _sequence(model: ObjectModel, contour: Contour, pressed: Contour, seed: int, frames: np.ndarray,
-              sides: np.ndarray, strategy: str) -> TactileSequence:
-    """The sequence of ``contour`` pressed at the poses of ``pressed`` (jittered, or the contour itself); it
-    records the planned poses (the robot does not know its error)."""
-    return TactileSequence(frames=frames, normals=contour.normals.copy(), positions=contour.positions.copy(),
-                           tangents=contour.tangents.copy(), pad_sides_mm=sides, plane=contour.plane,
-                           object_name=model.name, label=model.label, strategy=strategy, seed=int(seed))
 
 
 #: :func:`touch` under the name the first scripts used (its defaults: the "stream" seed scheme of the stores).
