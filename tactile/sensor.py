@@ -351,6 +351,28 @@ class FSRSensor:
         return [(self._read(g, np.random.default_rng(seed)), side)
                 for g, side, seed in zip(np.split(gaps, ends), np.split(sides, ends), seeds)]
 
+    def reread(self, clean_frames, seed: int | np.random.Generator | None = None) -> np.ndarray:
+        """The frames this sensor reads where a noise-free gap-mode sensor of the same grid and range read
+        ``clean_frames`` (P, rows, cols), mm: its taxel noise and dead taxels drawn from ``seed``, bit for bit
+        what :meth:`press` with that seed gives, without casting a ray (the pads' geometry does not depend on
+        the read-out; a gap-mode reading is the range-clipped gap, and clipping twice changes nothing).
+
+        Raises:
+            SensorSpecError: this sensor is not in gap mode, the frames are not (P, rows, cols) of this grid,
+                not finite or outside [0, range_mm], or a bad seed.
+        """
+        seed = check_seed(seed, "FSRSensor.reread", SensorSpecError)
+        if self.mode != "gap":
+            raise SensorSpecError(f"FSRSensor.reread: only a gap-mode sensor re-reads frames, this one is {self.mode!r}")
+        frames = np.asarray(clean_frames)
+        if frames.ndim != 3 or frames.shape[1:] != (self.rows, self.cols) or not len(frames):
+            raise SensorSpecError(f"FSRSensor.reread: frames must be (P, {self.rows}, {self.cols}) with P >= 1, "
+                                  f"got shape {frames.shape}")
+        if not np.isfinite(frames).all() or frames.min() < 0 or frames.max() > self.range_mm:
+            raise SensorSpecError(f"FSRSensor.reread: frames must be finite gaps in [0, {self.range_mm:g}] mm (a "
+                                  "noise-free gap-mode reading)")
+        return self._read(frames.astype(np.float32, copy=False), np.random.default_rng(seed))
+
     def _adapted_gaps(self, model, positions, normals, tangents, adaptive: bool) -> tuple[np.ndarray, np.ndarray]:
         """Raw gaps (N, rows, cols) float32 of the pads after settling and shrinking, and their sides (N,)."""
         positions, normals, tangents = self._check_poses(model, positions, normals, tangents)

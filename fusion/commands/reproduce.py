@@ -67,7 +67,7 @@ def register(sub) -> None:
                                                       "protocol, all for unseen objects)")
     parser.add_argument("--objects-per-class", type=int, default=None,
                         help="instances per class of the paper protocol (default 3)")
-    parser.add_argument("--quick", action="store_true", help="small sizes (about 10 minutes on 2 cores)")
+    parser.add_argument("--quick", action="store_true", help="small sizes (a smoke run: about 5 minutes on 2 cores)")
     parser.add_argument("--out", help="report folder (default out/reproduce, or out/reproduce-quick)")
     parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(DEFAULT_PARTS),
                         help="parts to run (default all but calibration and openset)")

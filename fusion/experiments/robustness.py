@@ -6,7 +6,9 @@ models see them; its level 0 is the clean reading repaired (what the repair cost
 
 Every level touches the same contours (planes and seeds from the run seed + ``TEST_SEED_OFFSET``, the object
 and the strategy, :func:`fusion.experiments.touch.touch_object`), so only the perturbation differs between
-levels; level 0 is the clean reading. Guided contours are drawn from the interest points the store recorded for
+levels; level 0 is the clean reading. Read-out noise (taxel noise, dead taxels) moves no pad, so those levels
+re-read the clean frames with each sequence's own seed (:meth:`tactile.sensor.FSRSensor.reread`, bit for bit what
+touching again gives); only pose jitter touches again. Guided contours are drawn from the interest points the store recorded for
 the object in that pose (no saliency is recomputed). Intervals: bootstrap over objects.
 """
 
@@ -110,21 +112,35 @@ def noise_rows(ctx: Context, objects) -> list[dict]:
 
 def _noisy_batch(ctx: Context, models: list, class_names: list[str], pose: str, strategy: str, kind: str,
                  level: float, sensor: FSRSensor, jitter: float, attention) -> SequenceBatch:
-    """The test objects touched with one noise kind and level (its ``sensor`` and pose ``jitter``, mm), cached
-    under ``noise/``; dead taxels repaired later read the same frames as dead taxels."""
+    """The test objects touched with one noise kind and level (its ``sensor`` and pose ``jitter``, mm).
+
+    Read-out noise (taxel noise, dead taxels; jitter 0) re-reads the clean batch's frames with each sequence's own
+    seed (:meth:`FSRSensor.reread`: the frames touching again would give, bit for bit, without a ray); the clean
+    and jittered batches are touched and cached under ``noise/``."""
+    if kind != "clean" and jitter == 0:  # _sensor_and_jitter: the default pad with read-out noise only
+        clean, seeds = _touched(ctx, models, class_names, pose, strategy, "clean", 0.0, FSRSensor(), 0.0, attention)
+        frames = np.stack([sensor.reread(f, int(s)) for f, s in zip(clean.frames, seeds)])
+        return replace(clean, frames=frames, sensor_spec=sensor.spec())
+    return _touched(ctx, models, class_names, pose, strategy, kind, level, sensor, jitter, attention)[0]
+
+
+def _touched(ctx: Context, models: list, class_names: list[str], pose: str, strategy: str, kind: str,
+             level: float, sensor: FSRSensor, jitter: float, attention) -> tuple[SequenceBatch, np.ndarray]:
+    """The test objects touched with ``sensor`` and ``jitter`` and each sequence's read-out seed, cached."""
     sizes = ctx.sizes
-    read = "dead_taxels" if kind == "dead_taxels_repaired" else kind
     names = [m.name for m in models]
-    key = {"objects": names, "pose": pose, "strategy": strategy, "kind": read, "level": level,
+    key = {"objects": names, "pose": pose, "strategy": strategy, "kind": kind, "level": level,
            "contours": sizes.noise_contours, "seed": ctx.seed + TEST_SEED_OFFSET, "sensor": sensor.spec()}
-    path = ctx.path("noise", f"{pose.replace(' ', '')}-{strategy}-{read}-{level:g}-{digest(names)}.npz")
-    batch = load_batch(path, key)
-    if batch is None:
+    path = ctx.path("noise", f"{pose.replace(' ', '')}-{strategy}-{kind}-{level:g}-{digest(names)}.npz")
+    found = load_batch(path, key, noise_seeds=True)
+    if found is None:
+        seeds: list[int] = []
         batch = touch_objects(models, class_names, strategy, sizes.noise_contours, sensor=sensor,
                               seed=ctx.seed + TEST_SEED_OFFSET, jitter_mm=jitter, attention=attention,
-                              progress=ctx.progress)
-        save_batch(batch, path, key)
-    return batch
+                              progress=ctx.progress, noise_seeds=seeds)
+        save_batch(batch, path, key, noise_seeds=seeds)
+        found = batch, np.asarray(seeds, dtype=np.int64)
+    return found
 
 
 def _inputs(batch: SequenceBatch, sensor: FSRSensor, kinds: list[str]) -> dict[str, SequenceBatch]:

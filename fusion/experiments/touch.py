@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from fusion.experiments.models import read_cache, write_cache
 from perception.geometry import ObjectModel
 from perception.runtime import progress_bar
@@ -62,11 +64,14 @@ def touch_objects(
     attention: dict | None = None,
     timing: TouchTiming | None = None,
     progress: bool = False,
+    noise_seeds: list | None = None,
 ) -> SequenceBatch:
     """Touch every model (labels from ``model.label``) and stack the sequences; object ids follow ``models``.
 
     Args:
         attention: optional {model name: Saliency} to reuse.
+        noise_seeds: if given, each sequence's read-out seed is appended to it (in the batch's order), so that
+            :meth:`tactile.sensor.FSRSensor.reread` can give the frames of a noisier sensor without touching again.
     """
     sensor = sensor or FSRSensor()
     sequences = []
@@ -74,6 +79,8 @@ def touch_objects(
         found, _ = touch_object(model, strategy, n_contours, sensor=sensor, probes=probes, seed=seed,
                                 jitter_mm=jitter_mm, attention=(attention or {}).get(model.name), timing=timing)
         sequences += found
+    if noise_seeds is not None:
+        noise_seeds.extend(s.seed for s in sequences)
     return SequenceBatch.from_sequences(sequences, class_names=list(class_names), sensor_spec=sensor.spec())
 
 
@@ -82,21 +89,33 @@ _ARRAYS = ("frames", "normals", "positions", "tangents", "pad_sides_mm", "plane_
            "labels", "object_ids")
 
 
-def save_batch(batch: SequenceBatch, path: str | Path, key: dict | None = None) -> Path:
-    """Write ``batch`` (and a cache ``key``) to ``path`` (.npz) atomically."""
+def save_batch(batch: SequenceBatch, path: str | Path, key: dict | None = None, noise_seeds=None) -> Path:
+    """Write ``batch`` (and a cache ``key``, and optionally each sequence's read-out seed) to ``path`` (.npz)
+    atomically."""
     meta = {"class_names": list(batch.class_names), "object_names": list(batch.object_names),
             "sensor_spec": batch.sensor_spec, "key": key or {}}
-    return write_cache(path, meta, {a: getattr(batch, a) for a in _ARRAYS})
+    arrays = {a: getattr(batch, a) for a in _ARRAYS}
+    if noise_seeds is not None:
+        arrays["noise_seeds"] = np.asarray(noise_seeds, dtype=np.int64)
+    return write_cache(path, meta, arrays)
 
 
-def load_batch(path: str | Path, key: dict | None = None) -> SequenceBatch | None:
-    """The batch cached at ``path``, or None when absent, unreadable or made with another ``key``."""
-    found = read_cache(path, "key", key, lambda meta, data: (meta, {a: data[a] for a in _ARRAYS}))
+def load_batch(path: str | Path, key: dict | None = None, *, noise_seeds: bool = False):
+    """The batch cached at ``path``, or None when absent, unreadable or made with another ``key``; with
+    ``noise_seeds``, (batch, its read-out seeds (S,) int64), or None when the file holds no seeds for it."""
+    def read(meta, data):
+        seeds = data["noise_seeds"] if noise_seeds and "noise_seeds" in data.files else None
+        return meta, {a: data[a] for a in _ARRAYS}, seeds
+
+    found = read_cache(path, "key", key, read)
     if found is None:
         return None
-    meta, arrays = found
-    return SequenceBatch(**arrays, class_names=meta["class_names"], object_names=meta["object_names"],
-                         sensor_spec=meta["sensor_spec"])
+    meta, arrays, seeds = found
+    batch = SequenceBatch(**arrays, class_names=meta["class_names"], object_names=meta["object_names"],
+                          sensor_spec=meta["sensor_spec"])
+    if not noise_seeds:
+        return batch
+    return (batch, seeds) if seeds is not None and seeds.shape == (len(batch),) else None
 
 
 __all__ = ["load_batch", "save_batch", "touch_object", "touch_objects"]

@@ -164,3 +164,26 @@ class TestNoiseExperimentFrames:
         assert np.array_equal(raw, broken.frames)
         assert (np.abs(repaired - raw).max(axis=(1, 2, 3)) > 1e-3).all()  # every sequence had a dead taxel fixed
         assert np.abs(repaired - clean.frames).mean() < 0.5 * np.abs(raw - clean.frames).mean()
+
+
+def test_noise_part_rereads_read_out_noise_bit_for_bit_and_touches_jitter(tmp_path):
+    """The noise part derives taxel-noise and dead-taxel batches from its cached clean batch (no rays): they equal
+    touching with the noisy sensor, bit for bit; jittered batches are touched (and cached)."""
+    from fusion.experiments.config import QUICK
+    from fusion.experiments.context import Context
+    from fusion.experiments.robustness import TEST_SEED_OFFSET, _noisy_batch, _sensor_and_jitter
+    from fusion.experiments.touch import touch_objects
+    from perception.shapes import make_object
+
+    ctx = Context(out=tmp_path, seed=2, sizes=QUICK, classifiers={}, progress=False)
+    models = [make_object("box", 0), make_object("ring", 0)]
+    for kind, level in [("taxel_noise", 0.3), ("dead_taxels", 0.2), ("dead_taxels_repaired", 0.2), ("pose_jitter", 1.0)]:
+        sensor, jitter = _sensor_and_jitter(kind, level)
+        got = _noisy_batch(ctx, models, ["box", "ring"], "upright", "blind", kind, level, sensor, jitter, None)
+        expected = touch_objects(models, ["box", "ring"], "blind", QUICK.noise_contours, sensor=sensor,
+                                 seed=2 + TEST_SEED_OFFSET, jitter_mm=jitter)
+        assert got.frames.tobytes() == expected.frames.tobytes(), kind
+        assert got.sensor_spec == expected.sensor_spec
+        np.testing.assert_array_equal(got.positions, expected.positions)
+    cached = sorted(p.name.split("-")[2] for p in (tmp_path / "noise").iterdir())  # pose-strategy-kind-...
+    assert cached == ["clean", "pose_jitter"]  # read-out noise needed no touch of its own

@@ -153,3 +153,42 @@ def test_touch_presses_in_one_pass_what_one_press_per_contour_gives(sensor):
     empty = type("Empty", (), {"positions": np.zeros((0, 3)), "normals": np.zeros((0, 3)), "tangents": np.zeros((0, 3))})
     with pytest.raises(SensorSpecError, match="contour 1 has no probes"):
         sensor.press_contours(mug, [contours[0], empty], [1, 2])
+
+
+@pytest.mark.parametrize("noisy", [FSRSensor(rows=16, cols=16, noise_std=0.3), FSRSensor(rows=16, cols=16, dead_taxel_rate=0.2),
+                                   FSRSensor(rows=16, cols=16, noise_std=1.0, dead_taxel_rate=0.05)],
+                         ids=["taxel-noise", "dead-taxels", "both"])
+def test_reread_gives_what_pressing_with_the_noisy_sensor_gives(noisy):
+    """Read-out noise does not move the pads: re-reading a clean touch's frames with each sequence's seed gives
+    the noisy sensor's touch bit for bit (a mug, so pads shrink and settle), and leaves the clean frames alone."""
+    mug = make_object("mug", 1)
+    clean = touch(mug, "blind", 4, FSRSensor(rows=16, cols=16), probes=10, seed=9)
+    noisy_touch = touch(mug, "blind", 4, noisy, probes=10, seed=9)
+    for c, n in zip(clean, noisy_touch):
+        before = c.frames.copy()
+        reread = noisy.reread(c.frames, c.seed)
+        assert reread.dtype == np.float32
+        np.testing.assert_array_equal(reread, n.frames)
+        np.testing.assert_array_equal(c.frames, before)
+        assert not np.array_equal(reread, c.frames)
+
+
+def test_reread_refuses_what_is_not_a_clean_gap_reading():
+    from perception.errors import SensorSpecError
+
+    frames = np.full((3, 8, 8), 2.0, dtype=np.float32)
+    sensor = FSRSensor(rows=8, cols=8, noise_std=0.1)
+    np.testing.assert_array_equal(FSRSensor(rows=8, cols=8).reread(frames, 1), frames)  # no noise: unchanged
+    with pytest.raises(SensorSpecError, match="gap mode|gap-mode"):
+        FSRSensor(rows=8, cols=8, mode="contact").reread(frames, 1)
+    with pytest.raises(SensorSpecError, match=r"\(P, 8, 8\)"):
+        sensor.reread(frames[:, :4], 1)
+    with pytest.raises(SensorSpecError, match=r"\(P, 8, 8\)"):
+        sensor.reread(frames[:0], 1)
+    for bad in (np.nan, -0.5, 10.5):
+        broken = frames.copy()
+        broken[1, 2, 3] = bad
+        with pytest.raises(SensorSpecError, match=r"\[0, 10\] mm"):
+            sensor.reread(broken, 1)
+    with pytest.raises(SensorSpecError):
+        sensor.reread(frames, -3)
