@@ -29,11 +29,14 @@ Each channel becomes a conspicuity map with :func:`itti_normalize`.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from scipy import fft as sp_fft
 from scipy import ndimage
 
 from perception.errors import InvalidArgumentError
+from perception.runtime import usable_cores
 
 #: Channels computed for every mesh, in order.
 GEOMETRY_CHANNELS = ("intensity", "contrast", "orientation", "curvature", "edges", "entropy", "symmetry")
@@ -303,6 +306,7 @@ def compute_channels(
     pixel_mm: float,
     channels: tuple[str, ...],
     color: np.ndarray | None = None,
+    threads: int | None = None,
 ) -> dict[str, np.ndarray]:
     """Conspicuity maps (N, H, W) in [0, 1] for the named channels of a view stack.
 
@@ -313,6 +317,7 @@ def compute_channels(
         pixel_mm: pixel side, mm.
         channels: names from :data:`ALL_CHANNELS`; colour channels need ``color``.
         color: (N, H, W, 3) RGB in [0, 1], or None.
+        threads: channels computed at once (default: the usable cores); the maps do not depend on it.
 
     Raises:
         InvalidArgumentError: an unknown channel, or a colour channel without ``color``.
@@ -320,35 +325,43 @@ def compute_channels(
     unknown = [name for name in channels if name not in ALL_CHANNELS]
     if unknown:
         raise InvalidArgumentError(f"unknown channel(s) {unknown}; known: {', '.join(ALL_CHANNELS)}")
+    if color is None and any(name in COLOR_CHANNELS for name in channels):
+        raise InvalidArgumentError(f"channel {next(n for n in channels if n in COLOR_CHANNELS)!r} needs colours")
     intensity = intensity.astype(np.float64)
     normal = normal.astype(np.float64)
     depth = depth.astype(np.float64)
+    color = None if color is None else color.astype(np.float64)
     blurs = _MaskBlur(mask)
     shading_4 = blurs.value(intensity, 4.0)  # shared by the background fill and the intensity surround
     filled = fill_background(intensity, mask, 4.0, _blurs=blurs, _value=shading_4)
-    raw = {}
-    for name in channels:
-        if name in COLOR_CHANNELS and color is None:
-            raise InvalidArgumentError(f"channel {name!r} needs colours")
+
+    def conspicuity(name: str) -> np.ndarray:
         if name == "intensity":
-            raw[name] = _center_surround(intensity, mask, blurs=blurs, surround_value=shading_4)
+            raw = _center_surround(intensity, mask, blurs=blurs, surround_value=shading_4)
         elif name == "contrast":
             mean = blurs(intensity, 2.0)
-            raw[name] = np.sqrt(np.clip(blurs(intensity**2, 2.0) - mean**2, 0.0, None))
+            raw = np.sqrt(np.clip(blurs(intensity**2, 2.0) - mean**2, 0.0, None))
         elif name == "orientation":
-            raw[name] = _orientation(filled, mask)
+            raw = _orientation(filled, mask)
         elif name == "curvature":
-            raw[name] = _curvature(normal, depth, mask, pixel_mm, blurs)
+            raw = _curvature(normal, depth, mask, pixel_mm, blurs)
         elif name == "edges":
-            raw[name] = _edges(normal, depth, mask, pixel_mm, blurs)
+            raw = _edges(normal, depth, mask, pixel_mm, blurs)
         elif name == "entropy":
-            raw[name] = _entropy(filled, mask)
+            raw = _entropy(filled, mask)
         elif name == "symmetry":
-            raw[name] = _symmetry(filled, mask)
+            raw = _symmetry(filled, mask)
         elif name == "color_opponency":
-            raw[name] = _color_opponency(color.astype(np.float64), mask)
-        elif name == "dkl":
-            raw[name] = _dkl(color.astype(np.float64), mask)
-        else:
-            raise InvalidArgumentError(f"unknown channel {name!r}; known: {', '.join(ALL_CHANNELS)}")
-    return {name: itti_normalize(value, mask) for name, value in raw.items()}
+            raw = _color_opponency(color, mask)
+        else:  # "dkl" (the names were checked above)
+            raw = _dkl(color, mask)
+        return itti_normalize(raw, mask)
+
+    # The channels are independent and their filters (scipy.ndimage, numpy, pocketfft) release the GIL, so
+    # threads compute them side by side; each map is the same array as computed alone (the shared blur
+    # weights are pure functions of the mask), and the dict keeps the order of ``channels``.
+    workers = min(len(channels), usable_cores() if threads is None else int(threads))
+    if workers <= 1:
+        return {name: conspicuity(name) for name in channels}
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="channels") as pool:
+        return dict(zip(channels, pool.map(conspicuity, channels)))

@@ -236,3 +236,22 @@ def test_itti_with_a_mask_equals_itti_of_the_masked_maps(images):
     assert channels._window(small, 3)[1:] == (slice(7, 21), slice(15, 33))
     got = channels.itti_normalize(maps, small)
     assert got.tobytes() == channels.itti_normalize(np.where(small, maps, 0.0)).tobytes() and got.max() > 0
+
+
+def test_channels_in_threads_equal_each_channel_computed_alone():
+    """compute_channels runs its channels side by side in threads: every map is byte for byte the map of that
+    channel computed alone, on one thread, and the maps come back in the order asked for."""
+    model = _box()
+    stack = render_stack(model, width=48, height=40, directions=view_directions(6))
+    rng = np.random.default_rng(3)
+    color = rng.random(stack.mask.shape + (3,)) * stack.mask[..., None]
+    args = (stack.intensity, stack.depth, stack.normal, stack.mask, 1.2)
+    names = channels.ALL_CHANNELS[::-1]  # an order unlike the module's
+    together = channels.compute_channels(*args, names, color, threads=4)
+    assert tuple(together) == names
+    for name in names:
+        alone = channels.compute_channels(*args, (name,), color, threads=1)[name]
+        assert alone.any(), name
+        assert together[name].tobytes() == alone.tobytes(), name
+    with pytest.raises(channels.InvalidArgumentError, match="'dkl' needs colours"):
+        channels.compute_channels(*args, ("intensity", "dkl"), None)
