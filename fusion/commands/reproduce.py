@@ -70,7 +70,7 @@ def register(sub) -> None:
     parser.add_argument("--quick", action="store_true", help="small sizes (a smoke run: about 5 minutes on 2 cores)")
     parser.add_argument("--out", help="report folder (default out/reproduce, or out/reproduce-quick)")
     parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(DEFAULT_PARTS),
-                        help="parts to run (default all but calibration and openset)")
+                        help=f"parts to run (default: {', '.join(DEFAULT_PARTS)})")
     parser.add_argument("--workers", type=int, default=None, help="data generation workers (default: the cores)")
     parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout")
