@@ -12,7 +12,10 @@ One run measures, on the same objects and cores:
     contours repeat (pairs of 10 interest points), and generation presses a repeated contour once, so the
     ratio can pass 1; the table also gives the raw time of the distinct contours alone and the ratio of
     that to the generation time (the share of generation that is the unavoidable ray casting).
-(c) Storage: bytes per sequence on disk, and the frame encoding compared on stored sequences: quantised
+(c) Writing: the seconds the workers spent handing rows to zarr (encode, checksum, write) beside Blosc with
+    the store's settings encoding the same bytes chunk by chunk and nothing else (both summed over workers,
+    / workers).
+    Storage: bytes per sequence on disk, and the frame encoding compared on stored sequences: quantised
     uint16 (the store's) against float16, each with the store's Blosc codec: max |error| and bytes.
 (d) One full DataLoader epoch (shuffled, batch 64, ``--workers`` loader processes) over the store:
     wall time, sequences/s, peak memory of the process tree.
@@ -214,6 +217,36 @@ def storage(store: Path, n: int = 400) -> dict:
     }
 
 
+def writing(store: Path, workers: int) -> dict:
+    """The generation's writing stage beside its limit: the seconds the workers spent handing rows to zarr
+    (each object's record, ``write_seconds``; summed, / workers) and Blosc with the store's settings encoding
+    the same bytes, chunk by chunk as the store holds them, and nothing else (summed, / workers)."""
+    import numcodecs
+    import zarr
+
+    from tactile.dataset import open_dataset
+    from tactile.dataset.store import ARRAYS, COMPRESSOR, read_records
+
+    records = read_records(store, len(open_dataset(store).object_names)).values()
+    codec = numcodecs.Blosc(COMPRESSOR["cname"], COMPRESSOR["clevel"], numcodecs.Blosc.SHUFFLE)
+    encode_s, raw_bytes = 0.0, 0
+    for name in ARRAYS:
+        array = zarr.open_array(f"{store}/{name}", mode="r")
+        rows = int(array.chunks[0])
+        block = rows * max(1, 1024 // rows)  # read many chunks at once, encode them one by one
+        for start in range(0, array.shape[0], block):
+            values = array[start:start + block]
+            for lo in range(0, len(values), rows):
+                chunk = np.ascontiguousarray(values[lo:lo + rows])
+                started = time.perf_counter()
+                codec.encode(chunk)
+                encode_s += time.perf_counter() - started
+                raw_bytes += chunk.nbytes
+    write_s = sum(float(r.get("write_seconds", 0.0)) for r in records)
+    return {"write_seconds": write_s / workers, "blosc_seconds": encode_s / workers, "raw_bytes": raw_bytes,
+            "ratio": (encode_s / write_s) if write_s > 0 else None}
+
+
 # ---------------------------------------------------------------------------------- DataLoader
 def loader_epoch(store: Path, workers: int, batch_size: int = 64) -> dict:
     import torch
@@ -280,6 +313,7 @@ def run(mode: str, workers: int, out: Path | None, keep: bool, repeats: int) -> 
         raw_distinct_wall = result["raw"]["distinct_cast_seconds_sum"] / workers
         result["ratio_to_raw_distinct"] = raw_distinct_wall / wall
         result["storage"] = storage(store)
+        result["writing"] = writing(store, workers)
         result["loader"] = loader_epoch(store, workers)
     finally:
         if not keep:  # only what this run made: --out may hold other files
@@ -301,6 +335,10 @@ def _print(result: dict) -> None:
     print(f"  ratio to raw    {result['ratio_to_raw']:.2f}")
     print(f"  distinct        {raw['distinct_sequences']} sequences (a repeated contour is pressed once): raw "
           f"{raw['distinct_cast_seconds_sum'] / result['workers']:.1f} s, ratio {result['ratio_to_raw_distinct']:.2f}")
+    w = result["writing"]
+    ratio = "n/a" if w["ratio"] is None else f"{w['ratio']:.2f}"
+    print(f"  writing         {w['write_seconds']:8.2f} s  raw Blosc of the same {w['raw_bytes'] / 1e6:.0f} MB "
+          f"{w['blosc_seconds']:.2f} s, ratio {ratio}")
     print(f"  store           {s['bytes_per_sequence']:8.0f} bytes/sequence ({s['frame_bytes_per_sequence']:.0f} "
           f"of them frames), {s['store_bytes'] / 1e6:.1f} MB")
     for e in s["encodings"]:

@@ -40,7 +40,8 @@ def store_files(path: Path) -> dict[str, object]:
         rel = file.relative_to(path).as_posix()
         if rel.startswith("records/"):
             record = json.loads(file.read_text())
-            record.pop("seconds", None)
+            for timing in ("seconds", "write_seconds"):
+                record.pop(timing, None)
             files[rel] = record
         elif rel == "zarr.json":
             meta = json.loads(file.read_text())
@@ -421,3 +422,21 @@ def test_stores_sharing_a_saliency_cache_have_the_same_bytes_and_read_its_points
     batch = ds.load()
     for i in range(len(ds)):
         assert (np.abs((planted - batch.plane_points[i]) @ batch.plane_normals[i]) < 1e-6).sum() >= 2
+
+
+def test_records_time_the_writes_and_the_benchmark_encodes_every_stored_byte(blind_store):
+    """Each object's record says how long its rows took to write; benchmarks.dataset.writing sets that beside
+    Blosc encoding exactly the stored arrays' bytes (counted here from the arrays' shapes and types)."""
+    import zarr
+
+    from benchmarks.dataset import writing
+    from tactile.dataset.store import ARRAYS, read_records
+
+    records = read_records(blind_store, len(BLIND_OBJECTS)).values()
+    assert len(records) == len(BLIND_OBJECTS) and all(r["write_seconds"] > 0 for r in records)
+    expected = sum(int(np.prod(a.shape)) * a.dtype.itemsize
+                   for a in (zarr.open_array(f"{blind_store}/{name}", mode="r") for name in ARRAYS))
+    found = writing(blind_store, workers=2)
+    assert found["raw_bytes"] == expected
+    assert found["write_seconds"] == pytest.approx(sum(r["write_seconds"] for r in records) / 2)
+    assert found["blosc_seconds"] > 0 and found["ratio"] == pytest.approx(2 * found["blosc_seconds"] / sum(r["write_seconds"] for r in records))
