@@ -226,6 +226,9 @@ class CNNClassifier(TactileClassifier):
             ones).
         modality_rule: how the two nets' probabilities combine (:func:`fuse_modalities`): ``"product"`` (the
             default) or ``"sum"`` (the paper's).
+        max_steps: most optimizer steps per net (None: no cap): on a large training set the epochs are cut to
+            the fewest whose steps reach it (the schedule then spans those epochs); small sets train all
+            ``epochs``.
 
     Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
@@ -246,7 +249,7 @@ class CNNClassifier(TactileClassifier):
                  patience: int = 6, val_fraction: float = 0.0, random_state: int = 0, device: str = "auto",
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
                  frame_size: int = 16, augment: bool | str = "both", test_views: int = 1,
-                 modality_rule: str = "product", **renamed):
+                 modality_rule: str = "product", max_steps: int | None = None, **renamed):
         random_state = renamed_seed(renamed, random_state, type(self).__name__)
         self.cue = cue
         self.epochs = epochs
@@ -266,15 +269,19 @@ class CNNClassifier(TactileClassifier):
         self.augment = augment
         self.test_views = test_views
         self.modality_rule = modality_rule
+        self.max_steps = max_steps
 
     # ------------------------------------------------------------------------------------ checks
     def _check_params(self) -> None:
         check_cue(self.cue)
         if self.modality not in MODALITIES:
             raise InvalidArgumentError(f"CNNClassifier: unknown modality {self.modality!r}; choose one of {MODALITIES}")
-        for name in ("epochs", "batch_size", "frame_size", "patience"):
+        for name in ("epochs", "batch_size", "frame_size", "patience", "max_steps"):
             value = getattr(self, name)
-            if int(value) != value or value < 1:
+            if name == "max_steps" and value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                    or int(value) != value or value < 1:
                 raise InvalidArgumentError(f"CNNClassifier: {name} must be a positive integer, got {value!r}")
         if self.augment not in (True, False, *AUGMENT):
             raise InvalidArgumentError(f"CNNClassifier: augment must be a bool or one of {AUGMENT}, got {self.augment!r}")
@@ -436,7 +443,8 @@ class CNNClassifier(TactileClassifier):
         y_t = torch.from_numpy(y.astype(np.int64))
         best, best_state, best_epoch, since = (-1.0, np.inf), None, 0, 0
         epoch_times, curve = [], []
-        epochs = progress_bar(range(self.epochs), enabled=self.progress, desc=f"train {kind}", leave=False)
+        epochs = progress_bar(range(self._epochs(len(train_idx))), enabled=self.progress, desc=f"train {kind}",
+                              leave=False)
         for epoch in epochs:
             net.train()
             started = time.perf_counter()
@@ -487,13 +495,20 @@ class CNNClassifier(TactileClassifier):
         full, rest = divmod(n_train, self.batch_size)
         return full + (1 if rest >= 2 or n_train == 1 else 0)
 
+    def _epochs(self, n_train: int) -> int:
+        """Epochs to train on ``n_train`` sequences: ``epochs``, cut to the fewest that reach ``max_steps``."""
+        if self.max_steps is None:
+            return int(self.epochs)
+        per_epoch = max(self._steps_per_epoch(n_train), 1)
+        return int(min(self.epochs, -(-int(self.max_steps) // per_epoch)))
+
     def _optimizer(self, net: nn.Module, n_train: int):
         """(optimizer, per-step scheduler or None): Adam, AdamW when ``weight_decay`` > 0, under the schedule."""
         if self.weight_decay > 0:
             opt = torch.optim.AdamW(net.parameters(), lr=self.lr, weight_decay=self.weight_decay)
         else:
             opt = torch.optim.Adam(net.parameters(), lr=self.lr)
-        steps = self.epochs * self._steps_per_epoch(n_train)
+        steps = self._epochs(n_train) * self._steps_per_epoch(n_train)
         if self.schedule == "constant" or steps < 2:
             return opt, None
         return opt, torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.lr, total_steps=steps)

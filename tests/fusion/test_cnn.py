@@ -320,6 +320,32 @@ def test_one_cycle_schedule_peaks_at_lr_and_runs_exactly_its_steps(monkeypatch):
     assert seen[0] == pytest.approx(2e-3 / 25) and seen[-1] < 2e-3 / 100
 
 
+@pytest.mark.parametrize("max_steps,epochs_run", [(None, 10), (7, 4), (8, 4), (9, 5), (500, 10), (1, 1)])
+def test_max_steps_cuts_the_epochs_and_the_schedule_spans_those_that_run(monkeypatch, max_steps, epochs_run):
+    # 30 sequences in batches of 16: 2 steps per epoch, so a cap of 7 steps needs ceil(7 / 2) = 4 epochs (8 steps);
+    # the one-cycle schedule covers exactly the steps run: it starts at lr / 25 and ends far below the peak.
+    seen = []
+    original = torch.optim.AdamW.step
+
+    def step(self, *args, **kwargs):
+        seen.append(self.param_groups[0]["lr"])
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.AdamW, "step", step)
+    model = CNNClassifier(**{**FAST, "epochs": 10, "lr": 2e-3, "modality": "kinesthetic", "max_steps": max_steps})
+    model.fit(make_batch(n_per_class=10))
+    assert len(seen) == 2 * epochs_run and model.history_["kinesthetic"]["epochs"] == epochs_run
+    if epochs_run > 1:  # (OneCycleLR over 2 steps has no warm-up to speak of)
+        assert seen[0] == pytest.approx(2e-3 / 25)
+        assert max(seen) == pytest.approx(2e-3, rel=0.3) and seen[-1] < 2e-3 / 100
+
+
+@pytest.mark.parametrize("bad", [0, -5, 2.5, "many", True])
+def test_max_steps_must_be_a_positive_integer_or_none(bad):
+    with pytest.raises(InvalidArgumentError, match="max_steps must be a positive integer"):
+        CNNClassifier(**{**FAST, "max_steps": bad}).fit(make_batch(n_per_class=4))
+
+
 def test_paper_recipe_is_plain_adam_at_a_constant_rate(monkeypatch):
     made = []
     for cls in (torch.optim.Adam, torch.optim.AdamW):
