@@ -18,13 +18,18 @@ Architecture (``CutaneousNet``, input (B, 1, P, R, C) standardised gaps):
 batch norm, ReLU; circular over probes, zero over cue channels, as the paper's 2D kernels over 25 x 3) and
 two fully connected layers (-> 64 -> classes).
 
-Training (:class:`CNNClassifier`): each net on its own for the paper's 50 epochs on all the training data,
+Training (:class:`CNNClassifier`): each net on its own for the paper's 50 epochs on all the training data, at
+most 5,000 optimizer steps (``max_steps``: a large set trains fewer epochs, the schedule spanning them), with
 AdamW (weight decay 0.01) under a one-cycle learning-rate schedule (peak ``lr`` = 3e-3, cosine annealing),
 cross-entropy with label smoothing 0.1. This recipe was chosen on a development set that is not the benchmark
 (built-in catalogue objects: 6 training and 4 held-out instances per class, blind, 24 contours; fusion / cutaneous
 / kinesthetic accuracy of single touches on the held-out instances 98.4 / 92.7 / 95.4 % with the paper's Adam at a
 constant 1e-3, 99.0 / 96.9 / 97.3 % with this recipe, 40 objects); ``schedule="constant"``, ``weight_decay=0``,
-``label_smoothing=0`` and ``lr=1e-3`` give the paper's Adam. Early stopping is optional (``val_fraction > 0``: whole training objects held out,
+``label_smoothing=0`` and ``lr=1e-3`` give the paper's Adam. The step cap was chosen inside the paper protocol's
+training part (blind SHREC paper store, its 80 % training sequences split again 80/20 by sequence, the normals-cue
+pair; the protocol's test sequences unread): inner fusion accuracy 99.37 / 99.73 / 99.84 % for 2,500 / 5,000 / no
+cap (50 epochs), fits of 70 / 126 / 301 s on 2 cores; the unseen-objects folds (about 2,500 steps in 50 epochs) and
+smaller sets are not cut. Early stopping is optional (``val_fraction > 0``: whole training objects held out,
 stopping on their accuracy, ties broken by loss, the best epoch's weights restored). It is off by default
 because on objects never trained on it cost more than it saved: unseen SHREC objects (grouped 3-fold, blind,
 one fold), K = 1 / 8: 73.5 / 88.9 % with it (nets stopped after 9-43 epochs, noisy validation on about ten
@@ -249,7 +254,7 @@ class CNNClassifier(TactileClassifier):
                  patience: int = 6, val_fraction: float = 0.0, random_state: int = 0, device: str = "auto",
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
                  frame_size: int = 16, augment: bool | str = "both", test_views: int = 1,
-                 modality_rule: str = "product", max_steps: int | None = None, **renamed):
+                 modality_rule: str = "product", max_steps: int | None = 5000, **renamed):
         random_state = renamed_seed(renamed, random_state, type(self).__name__)
         self.cue = cue
         self.epochs = epochs
@@ -281,7 +286,7 @@ class CNNClassifier(TactileClassifier):
             if name == "max_steps" and value is None:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                    or int(value) != value or value < 1:
+                    or not np.isfinite(value) or int(value) != value or value < 1:
                 raise InvalidArgumentError(f"CNNClassifier: {name} must be a positive integer, got {value!r}")
         if self.augment not in (True, False, *AUGMENT):
             raise InvalidArgumentError(f"CNNClassifier: augment must be a bool or one of {AUGMENT}, got {self.augment!r}")
@@ -587,7 +592,9 @@ class CNNClassifier(TactileClassifier):
 
     # ------------------------------------------------------------------------------- persistence
     _NETS = ("cutaneous", "kinesthetic")
-    OLDER_FILE_PARAMS: ClassVar[dict] = {"modality_rule": "sum"}  # files written before the rule was a parameter summed
+    #: Files written before a parameter existed: what those models were trained or predict with (the sum; no
+    #: step cap).
+    OLDER_FILE_PARAMS: ClassVar[dict] = {"modality_rule": "sum", "max_steps": None}
 
     def _model_state(self, arrays: dict[str, np.ndarray]) -> dict:
         """Plain fitted attributes, and each trained net's state dict as tensors ``<net>.<parameter>``."""

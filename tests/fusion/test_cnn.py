@@ -340,10 +340,22 @@ def test_max_steps_cuts_the_epochs_and_the_schedule_spans_those_that_run(monkeyp
         assert max(seen) == pytest.approx(2e-3, rel=0.3) and seen[-1] < 2e-3 / 100
 
 
-@pytest.mark.parametrize("bad", [0, -5, 2.5, "many", True])
-def test_max_steps_must_be_a_positive_integer_or_none(bad):
-    with pytest.raises(InvalidArgumentError, match="max_steps must be a positive integer"):
-        CNNClassifier(**{**FAST, "max_steps": bad}).fit(make_batch(n_per_class=4))
+@pytest.mark.parametrize("name", ["max_steps", "epochs", "batch_size"])
+@pytest.mark.parametrize("bad", [0, -5, 2.5, "many", True, float("nan"), float("inf")])
+def test_counts_must_be_positive_integers(name, bad):
+    with pytest.raises(InvalidArgumentError, match=f"{name} must be a positive integer"):
+        CNNClassifier(**{**FAST, name: bad}).fit(make_batch(n_per_class=4))
+
+
+def test_older_model_files_load_as_trained_without_a_step_cap(tmp_path):
+    model = CNNClassifier(**{**FAST, "epochs": 1}).fit(make_batch(n_per_class=4))
+    assert model.max_steps == 5000  # the default cap
+    from fusion.modelfile import read_model_file, write_model_file
+
+    description, arrays = read_model_file(model.save(tmp_path / "new.vtm"))
+    assert load_model(tmp_path / "new.vtm").max_steps == 5000
+    del description["params"]["dict"]["max_steps"]  # a file written before the cap was a parameter
+    assert load_model(write_model_file(tmp_path / "old.vtm", description, arrays)).max_steps is None
 
 
 def test_paper_recipe_is_plain_adam_at_a_constant_rate(monkeypatch):
