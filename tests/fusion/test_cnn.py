@@ -302,9 +302,9 @@ def test_steps_per_epoch_counts_the_batches_the_loop_runs(n_train, batch_size, s
     assert CNNClassifier(batch_size=batch_size)._steps_per_epoch(n_train) == steps
 
 
-def test_one_cycle_schedule_peaks_at_lr_and_runs_exactly_its_steps(monkeypatch):
-    # Record the learning rate of every optimizer step: the schedule must be stepped once per batch, reach
-    # lr at 30 % of the steps (OneCycleLR's default warm-up share) and end near lr / (25 * 1e4).
+@pytest.fixture
+def step_rates(monkeypatch) -> list[float]:
+    """The learning rate of every AdamW step taken while the test runs, in order."""
     seen = []
     original = torch.optim.AdamW.step
 
@@ -313,6 +313,13 @@ def test_one_cycle_schedule_peaks_at_lr_and_runs_exactly_its_steps(monkeypatch):
         return original(self, *args, **kwargs)
 
     monkeypatch.setattr(torch.optim.AdamW, "step", step)
+    return seen
+
+
+def test_one_cycle_schedule_peaks_at_lr_and_runs_exactly_its_steps(step_rates):
+    # The schedule must be stepped once per batch, reach lr at 30 % of the steps (OneCycleLR's default warm-up
+    # share) and end near lr / (25 * 1e4).
+    seen = step_rates
     batch = make_batch(n_per_class=10)  # 30 sequences: 16 + 14 per epoch, 2 steps
     CNNClassifier(**{**FAST, "epochs": 10, "lr": 2e-3, "modality": "kinesthetic"}).fit(batch)
     assert len(seen) == 20
@@ -321,17 +328,10 @@ def test_one_cycle_schedule_peaks_at_lr_and_runs_exactly_its_steps(monkeypatch):
 
 
 @pytest.mark.parametrize("max_steps,epochs_run", [(None, 10), (7, 4), (8, 4), (9, 5), (500, 10), (1, 1)])
-def test_max_steps_cuts_the_epochs_and_the_schedule_spans_those_that_run(monkeypatch, max_steps, epochs_run):
+def test_max_steps_cuts_the_epochs_and_the_schedule_spans_those_that_run(step_rates, max_steps, epochs_run):
     # 30 sequences in batches of 16: 2 steps per epoch, so a cap of 7 steps needs ceil(7 / 2) = 4 epochs (8 steps);
     # the one-cycle schedule covers exactly the steps run: it starts at lr / 25 and ends far below the peak.
-    seen = []
-    original = torch.optim.AdamW.step
-
-    def step(self, *args, **kwargs):
-        seen.append(self.param_groups[0]["lr"])
-        return original(self, *args, **kwargs)
-
-    monkeypatch.setattr(torch.optim.AdamW, "step", step)
+    seen = step_rates
     model = CNNClassifier(**{**FAST, "epochs": 10, "lr": 2e-3, "modality": "kinesthetic", "max_steps": max_steps})
     model.fit(make_batch(n_per_class=10))
     assert len(seen) == 2 * epochs_run and model.history_["kinesthetic"]["epochs"] == epochs_run
