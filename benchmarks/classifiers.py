@@ -13,7 +13,7 @@ preprocessing; inference is ``predict_proba`` on the whole test part, per sequen
 
 ``--epoch-timing N`` adds a projection: one CNN epoch of each net on N synthetic 25 x 32 x 32 sequences
 (default off; 18,240 is the paper-scale training set), scaled to 18,240 sequences, times the epochs the
-fitted nets ran (or 50, the paper's, when no fit ran).
+fitted nets ran (or 50, the paper's, when no fit ran), cut to what the CNN's default step cap allows there.
 
     .venv/bin/python -m benchmarks.classifiers [--quick] [--store PATH] [--json] [--epochs N] ...
 """
@@ -116,7 +116,8 @@ def conventional_rows(train, test, args) -> list[dict]:
 
 def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | None) -> dict:
     """One epoch of each net on ``n`` synthetic 25 x 32 x 32 sequences, scaled to the paper's 18,240 and
-    multiplied by the epochs each net ran in the benchmark's fit (``epochs_run``; 50 each without one)."""
+    multiplied by the epochs each net would run on those 18,240: the epochs it ran in the benchmark's fit
+    (``epochs_run``; 50 without one), cut to what the default step cap (``CNNClassifier.max_steps``) allows."""
     from fusion.cnn import CNNClassifier
     from tactile.explore import SequenceBatch
     from tactile.sensor import FSRSensor
@@ -135,7 +136,8 @@ def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | 
     model = CNNClassifier(epochs=1, val_fraction=0.0, threads=threads, progress=False, random_state=seed)
     model.fit(batch)
     paper_epoch_s = {k: h["epoch_seconds"] * PAPER_TRAIN / n for k, h in model.history_.items()}
-    epochs = {k: (epochs_run or {}).get(k) or 50 for k in paper_epoch_s}
+    capped = CNNClassifier()._epochs(PAPER_TRAIN)  # 50 epochs, or fewer under the default step cap
+    epochs = {k: min((epochs_run or {}).get(k) or 50, capped) for k in paper_epoch_s}
     total_s = sum(paper_epoch_s[k] * epochs[k] for k in paper_epoch_s)
     return {"sequences": n, "paper_epoch_s": paper_epoch_s, "epochs": epochs, "projected_train_min": total_s / 60}
 
