@@ -285,8 +285,9 @@ class CNNClassifier(TactileClassifier):
             value = getattr(self, name)
             if name == "max_steps" and value is None:
                 continue
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                    or not np.isfinite(value) or int(value) != value or value < 1:
+            whole = isinstance(value, (int, np.integer)) or (
+                isinstance(value, (float, np.floating)) and bool(np.isfinite(value)) and float(value).is_integer())
+            if isinstance(value, bool) or not whole or value < 1:
                 raise InvalidArgumentError(f"CNNClassifier: {name} must be a positive integer, got {value!r}")
         if self.augment not in (True, False, *AUGMENT):
             raise InvalidArgumentError(f"CNNClassifier: augment must be a bool or one of {AUGMENT}, got {self.augment!r}")

@@ -102,7 +102,8 @@ def save_batch(batch: SequenceBatch, path: str | Path, key: dict | None = None, 
 
 def load_batch(path: str | Path, key: dict | None = None, *, noise_seeds: bool = False):
     """The batch cached at ``path``, or None when absent, unreadable or made with another ``key``; with
-    ``noise_seeds``, (batch, its read-out seeds (S,) int64), or None when the file holds no seeds for it."""
+    ``noise_seeds``, (batch, its read-out seeds (S,) int64), or None when the file holds no usable seeds for it
+    (absent, not one non-negative integer per sequence)."""
     def read(meta, data):
         seeds = data["noise_seeds"] if noise_seeds and "noise_seeds" in data.files else None
         return meta, {a: data[a] for a in _ARRAYS}, seeds
@@ -115,7 +116,8 @@ def load_batch(path: str | Path, key: dict | None = None, *, noise_seeds: bool =
                           sensor_spec=meta["sensor_spec"])
     if not noise_seeds:
         return batch
-    return (batch, seeds) if seeds is not None and seeds.shape == (len(batch),) else None
+    usable = seeds is not None and seeds.shape == (len(batch),) and seeds.dtype.kind in "iu" and (seeds >= 0).all()
+    return (batch, seeds.astype(np.int64)) if usable else None
 
 
 __all__ = ["load_batch", "save_batch", "touch_object", "touch_objects"]

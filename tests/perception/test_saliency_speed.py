@@ -249,9 +249,27 @@ def test_channels_in_threads_equal_each_channel_computed_alone():
     names = channels.ALL_CHANNELS[::-1]  # an order unlike the module's
     together = channels.compute_channels(*args, names, color, threads=4)
     assert tuple(together) == names
+    assert tuple(channels.compute_channels(*args, names, color, threads=1)) == names
     for name in names:
         alone = channels.compute_channels(*args, (name,), color, threads=1)[name]
         assert alone.any(), name
         assert together[name].tobytes() == alone.tobytes(), name
     with pytest.raises(channels.InvalidArgumentError, match="'dkl' needs colours"):
         channels.compute_channels(*args, ("intensity", "dkl"), None)
+
+
+@pytest.mark.parametrize("threads,names,workers", [(1, channels.GEOMETRY_CHANNELS, None), (3, channels.GEOMETRY_CHANNELS[:5], 3),
+                                                   (8, channels.GEOMETRY_CHANNELS[:2], 2), (4, ("edges",), None)])
+def test_channel_threads_follow_the_argument(monkeypatch, threads, names, workers):
+    """At most ``threads`` workers and never more than the channels; one thread or one channel makes no pool."""
+    made = []
+    real = channels.ThreadPoolExecutor
+
+    def recording(*args, max_workers=None, **kwargs):
+        made.append(max_workers)
+        return real(*args, max_workers=max_workers, **kwargs)
+
+    monkeypatch.setattr(channels, "ThreadPoolExecutor", recording)
+    stack = render_stack(_box(), width=32, height=32, directions=view_directions(3))
+    channels.compute_channels(stack.intensity, stack.depth, stack.normal, stack.mask, 1.2, names, threads=threads)
+    assert made == ([] if workers is None else [workers])

@@ -424,9 +424,10 @@ def test_stores_sharing_a_saliency_cache_have_the_same_bytes_and_read_its_points
         assert (np.abs((planted - batch.plane_points[i]) @ batch.plane_normals[i]) < 1e-6).sum() >= 2
 
 
-def test_records_time_the_writes_and_the_benchmark_encodes_every_stored_byte(blind_store):
+def test_records_time_the_writes_and_the_benchmark_encodes_every_stored_byte(blind_store, monkeypatch):
     """Each object's record says how long its rows took to write; benchmarks.dataset.writing sets that beside
     Blosc encoding exactly the stored arrays' bytes (counted here from the arrays' shapes and types)."""
+    import numcodecs
     import zarr
 
     from benchmarks.dataset import writing
@@ -436,7 +437,40 @@ def test_records_time_the_writes_and_the_benchmark_encodes_every_stored_byte(bli
     assert len(records) == len(BLIND_OBJECTS) and all(r["write_seconds"] > 0 for r in records)
     expected = sum(int(np.prod(a.shape)) * a.dtype.itemsize
                    for a in (zarr.open_array(f"{blind_store}/{name}", mode="r") for name in ARRAYS))
+    encoded = []
+    real_encode = numcodecs.Blosc.encode
+    monkeypatch.setattr(numcodecs.Blosc, "encode", lambda self, buf: (encoded.append(np.asarray(buf).nbytes),
+                                                                      real_encode(self, buf))[1])
     found = writing(blind_store, workers=2)
-    assert found["raw_bytes"] == expected
+    assert found["raw_bytes"] == expected == sum(encoded)  # every stored byte went through Blosc
     assert found["write_seconds"] == pytest.approx(sum(r["write_seconds"] for r in records) / 2)
     assert found["blosc_seconds"] > 0 and found["ratio"] == pytest.approx(2 * found["blosc_seconds"] / sum(r["write_seconds"] for r in records))
+
+
+def test_write_seconds_add_up_every_write(tmp_path, monkeypatch):
+    """Each array's rows are timed into the record: slowing every write by 5 ms shows in the total (the worker run
+    in this process, rewriting a stored object's rows)."""
+    import tactile.dataset.worker as worker
+    from tactile.dataset.objects import ObjectSpec
+    from tactile.dataset.store import ARRAYS, read_attrs
+
+    out = tmp_path / "store"
+    generate([("box", 0)], out, workers=1, **BLIND)
+    real_open = worker.open_for_writing
+
+    class Slow:
+        def __init__(self, array):
+            self.array = array
+
+        def __setitem__(self, key, value):
+            time.sleep(0.005)
+            self.array[key] = value
+
+        def __getattr__(self, name):
+            return getattr(self.array, name)
+
+    monkeypatch.setattr(worker, "open_for_writing", lambda *a, **k: Slow(real_open(*a, **k)))
+    settings = read_attrs(out)["settings"]
+    record = worker.explore_into_store(str(out), 0, ObjectSpec("box/0", "box", catalogue=("box", 0)), settings,
+                                       FSRSensor.from_spec(settings["sensor"]))
+    assert record["write_seconds"] >= 0.005 * len(ARRAYS)

@@ -184,6 +184,8 @@ def test_reread_refuses_what_is_not_a_clean_gap_reading():
     with pytest.raises(SensorSpecError, match=r"\(P, 8, 8\)"):
         sensor.reread(frames[:, :4], 1)
     with pytest.raises(SensorSpecError, match=r"\(P, 8, 8\)"):
+        sensor.reread(frames[:, :, :4], 1)
+    with pytest.raises(SensorSpecError, match=r"\(P, 8, 8\)"):
         sensor.reread(frames[:0], 1)
     for bad in (np.nan, -0.5, 10.5):
         broken = frames.copy()
