@@ -187,11 +187,17 @@ def raw_limit(store: Path, workers: int) -> dict:
 
 
 # ----------------------------------------------------------------------------------- storage
-def storage(store: Path, n: int = 400) -> dict:
+def _store_codec():
+    """Blosc with the store's settings (:data:`tactile.dataset.store.COMPRESSOR`), alone."""
     import numcodecs
 
-    from tactile.dataset import open_dataset
     from tactile.dataset.store import COMPRESSOR
+
+    return numcodecs.Blosc(COMPRESSOR["cname"], COMPRESSOR["clevel"], numcodecs.Blosc.SHUFFLE)
+
+
+def storage(store: Path, n: int = 400) -> dict:
+    from tactile.dataset import open_dataset
 
     ds = open_dataset(store)
     size = sum(p.stat().st_size for p in store.rglob("*") if p.is_file())
@@ -199,7 +205,7 @@ def storage(store: Path, n: int = 400) -> dict:
     pick = np.sort(np.random.default_rng(0).choice(len(ds), min(n, len(ds)), replace=False))
     frames = ds.frames(pick)
     codes = np.rint(frames.astype(np.float64) / ds.attrs["settings"]["encoding"]["scale"]).astype(np.uint16)
-    codec = numcodecs.Blosc(COMPRESSOR["cname"], COMPRESSOR["clevel"], numcodecs.Blosc.SHUFFLE)
+    codec = _store_codec()
     # The stored frames are the uint16 decode; compare against what float16 would have kept of them. The
     # uint16 error bound is the encoding's (the pressed readings are not kept).
     half = frames.astype(np.float16)
@@ -221,14 +227,13 @@ def writing(store: Path, workers: int) -> dict:
     """The generation's writing stage beside its limit: the seconds the workers spent handing rows to zarr
     (each object's record, ``write_seconds``; summed, / workers) and Blosc with the store's settings encoding
     the same bytes, chunk by chunk as the store holds them, and nothing else (summed, / workers)."""
-    import numcodecs
     import zarr
 
     from tactile.dataset import open_dataset
-    from tactile.dataset.store import ARRAYS, COMPRESSOR, read_records
+    from tactile.dataset.store import ARRAYS, read_records
 
     records = read_records(store, len(open_dataset(store).object_names)).values()
-    codec = numcodecs.Blosc(COMPRESSOR["cname"], COMPRESSOR["clevel"], numcodecs.Blosc.SHUFFLE)
+    codec = _store_codec()
     encode_s, raw_bytes = 0.0, 0
     for name in ARRAYS:
         array = zarr.open_array(f"{store}/{name}", mode="r")

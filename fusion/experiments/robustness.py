@@ -6,10 +6,11 @@ models see them; its level 0 is the clean reading repaired (what the repair cost
 
 Every level touches the same contours (planes and seeds from the run seed + ``TEST_SEED_OFFSET``, the object
 and the strategy, :func:`fusion.experiments.touch.touch_object`), so only the perturbation differs between
-levels; level 0 is the clean reading. Read-out noise (taxel noise, dead taxels) moves no pad, so those levels
-re-read the clean frames with each sequence's own seed (:meth:`tactile.sensor.FSRSensor.reread`, bit for bit what
-touching again gives); only pose jitter touches again. Guided contours are drawn from the interest points the store recorded for
-the object in that pose (no saliency is recomputed). Intervals: bootstrap over objects.
+levels; level 0 is the clean reading. Read-out noise (taxel noise, dead taxels) moves no pad, so those
+levels re-read the clean frames with each sequence's own seed (:meth:`tactile.sensor.FSRSensor.reread`, bit
+for bit what touching again gives); only pose jitter touches again. Guided contours are drawn from the interest
+points the store recorded for the object in that pose (no saliency is recomputed). Intervals: bootstrap over
+objects.
 """
 
 from __future__ import annotations
@@ -89,13 +90,17 @@ def noise_rows(ctx: Context, objects) -> list[dict]:
             estimators = [{name: load_model(fold_folder(ctx, "unseen", sizes.strategies, i) / f"{name}{SUFFIX}")
                            for name in sizes.unseen_classifiers} for i in range(len(folds))]
             attention = _attention(test_ds, list(models.values()), strategy, ctx.seed)
+            cleans: dict[int, tuple] = {}  # per fold: the clean batch and its seeds, read once for every level
             for kind, level in levels:
                 kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
                 sensor, jitter = _sensor_and_jitter(kind, level)
                 preds: dict[tuple[str, str], list] = {}
                 for i, test_models in enumerate(fold_objects):
+                    if i not in cleans:
+                        cleans[i] = _touched(ctx, test_models, class_names, pose, strategy, "clean", 0.0, FSRSensor(),
+                                             0.0, attention)
                     batch = _noisy_batch(ctx, test_models, class_names, pose, strategy, kind, level, sensor, jitter,
-                                         attention)
+                                         attention, clean=cleans[i])
                     inputs = _inputs(batch, sensor, kinds)
                     for name, estimator in estimators[i].items():
                         for view, data in inputs.items():
@@ -111,14 +116,20 @@ def noise_rows(ctx: Context, objects) -> list[dict]:
 
 
 def _noisy_batch(ctx: Context, models: list, class_names: list[str], pose: str, strategy: str, kind: str,
-                 level: float, sensor: FSRSensor, jitter: float, attention) -> SequenceBatch:
+                 level: float, sensor: FSRSensor, jitter: float, attention,
+                 clean: tuple | None = None) -> SequenceBatch:
     """The test objects touched with one noise kind and level (its ``sensor`` and pose ``jitter``, mm).
 
     Read-out noise (taxel noise, dead taxels; jitter 0) re-reads the clean batch's frames with each sequence's own
     seed (:meth:`FSRSensor.reread`: the frames touching again would give, bit for bit, without a ray); the clean
-    and jittered batches are touched and cached under ``noise/``."""
-    if kind != "clean" and jitter == 0:  # _sensor_and_jitter: the default pad with read-out noise only
-        clean, seeds = _touched(ctx, models, class_names, pose, strategy, "clean", 0.0, FSRSensor(), 0.0, attention)
+    and jittered batches are touched and cached under ``noise/``. ``clean``: the clean (batch, seeds) of these
+    models when the caller holds them already."""
+    if kind == "clean" or jitter == 0:  # _sensor_and_jitter: the default pad, with read-out noise only
+        if clean is None:
+            clean = _touched(ctx, models, class_names, pose, strategy, "clean", 0.0, FSRSensor(), 0.0, attention)
+        clean, seeds = clean
+        if kind == "clean":
+            return clean
         frames = np.stack([sensor.reread(f, int(s)) for f, s in zip(clean.frames, seeds)])
         return replace(clean, frames=frames, sensor_spec=sensor.spec())
     return _touched(ctx, models, class_names, pose, strategy, kind, level, sensor, jitter, attention)[0]
