@@ -67,7 +67,7 @@ def attention_rows(ctx: Context, objects) -> list[dict]:
         for pose in POSES:
             stores = pose_stores(ctx, objects, pose, strategies, sizes.attention_contours)
             preds = {strategy: by_name[name] for strategy, by_name in grouped_kfold(
-                ctx, "attention", stores, strategies, {name: factory}, sizes.attention_folds).items()}
+                ctx, "attention", stores, strategies, {name: factory}, sizes.attention_folds, pose=pose).items()}
             blind = preds.get("blind")
             for strategy, pred in preds.items():
                 versus = (paired_difference(pred, blind, k, seed=ctx.seed)

@@ -38,6 +38,9 @@ class Sizes:
         unseen_contours, unseen_folds: contours per object of the unseen-objects part and its grouped
             k-fold by object.
         unseen_per_class: instances per class of the unseen-objects part (None: all).
+        unseen_train_contours: contours per training object of the unseen-objects folds (None: ``unseen_contours``);
+            the test objects keep ``unseen_contours`` each, so more training contours change what the models learn
+            from, not what they are scored on.
         touches: K, the contours per decision.
         noise_contours: contours per test object (of the unseen-objects folds) for each noise level (same seed at
             every level).
@@ -65,6 +68,7 @@ class Sizes:
     unseen_contours: int = 24
     unseen_folds: int = 3
     unseen_per_class: int | None = None
+    unseen_train_contours: int | None = None
     touches: tuple[int, ...] = (1, 2, 4, 8)
     noise_contours: int = 4
     noise_levels: dict = field(
@@ -100,6 +104,9 @@ class Sizes:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise InvalidArgumentError(f"Sizes.{name} must be a positive integer, got {value!r}")
+        train = self.unseen_train_contours
+        if train is not None and (isinstance(train, bool) or not isinstance(train, int) or train < 1):
+            raise InvalidArgumentError(f"Sizes.unseen_train_contours must be a positive integer or None, got {train!r}")
         for name in ("unseen_folds", "attention_folds"):
             if getattr(self, name) < 2:
                 raise InvalidArgumentError(f"Sizes.{name} must be at least 2, got {getattr(self, name)!r}")

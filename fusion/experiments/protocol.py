@@ -96,39 +96,45 @@ def unseen_objects(ctx: Context, objects, pose: str = "upright") -> dict[str, di
         InvalidArgumentError: an unknown pose.
     """
     sizes = ctx.sizes
-    stores = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours)
+    stores = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours, sizes.unseen_train_contours)
     classifiers = pick(ctx.classifiers, sizes.unseen_classifiers)
-    return grouped_kfold(ctx, "unseen", stores, sizes.strategies, classifiers, sizes.unseen_folds, pooled=True)
+    return grouped_kfold(ctx, "unseen", stores, sizes.strategies, classifiers, sizes.unseen_folds, pooled=True,
+                         pose=pose)
 
 
-def pose_stores(ctx: Context, objects, pose: str, strategies, contours: int) -> tuple:
-    """(training store, its record, test store, its record): the objects as stored for training, and for
-    testing the same store (``"upright"``) or the objects each in its seeded random pose (``"any pose"``).
+def pose_stores(ctx: Context, objects, pose: str, strategies, contours: int, train_contours: int | None = None
+                ) -> tuple:
+    """(training store, its record, test store, its record): the objects as stored with ``train_contours``
+    contours each (None: ``contours``) for training, and for testing the objects with ``contours`` each, as
+    stored (``"upright"``: the training store itself when the counts agree) or each in its seeded random pose
+    (``"any pose"``).
 
     Raises:
         InvalidArgumentError: an unknown pose.
     """
     if pose not in POSES:
         raise InvalidArgumentError(f"unknown pose {pose!r}; choose one of {', '.join(POSES)}")
-    ds, record = ctx.store(objects, strategies=strategies, contours=contours)
-    if pose == "upright":
-        return ds, record, ds, record
-    return (ds, record, *ctx.store(any_pose(objects, ctx.seed), strategies=strategies, contours=contours))
+    train_contours = contours if train_contours is None else train_contours
+    train = ctx.store(objects, strategies=strategies, contours=train_contours)
+    if pose == "upright" and train_contours == contours:
+        return (*train, *train)
+    tested = objects if pose == "upright" else any_pose(objects, ctx.seed)
+    return (*train, *ctx.store(tested, strategies=strategies, contours=contours))
 
 
 def grouped_kfold(ctx: Context, part: str, stores: tuple, strategies, classifiers: dict, n_folds: int, *,
-                  pooled: bool = False) -> dict[str, dict[str, Predictions]]:
+                  pooled: bool = False, pose: str = "upright") -> dict[str, dict[str, Predictions]]:
     """Out-of-fold predictions {strategy: {classifier name: Predictions}}: ``n_folds`` seeded folds by object of
     the training store; each fold's models predict that fold's test objects read from the test store (the same
-    objects, maybe in another pose).
+    objects, maybe in another pose (``pose`` says which; it names the cached predictions) or with other contours).
 
     ``pooled=False``: a model per strategy, trained on that strategy's contours (cached under
     ``models/<part>/<strategy>/fold<i>/``); ``pooled=True``: one model per fold, trained on the contours of every
     strategy in ``strategies`` (cached under ``models/<part>/<strategy>+<strategy>.../fold<i>/``), predicting each
     strategy's test contours. The folds are the same either way (the same objects, dealt by class)."""
     if not pooled:
-        return {s: _kfold(ctx, part, stores, (s,), classifiers, n_folds)[s] for s in strategies}
-    return _kfold(ctx, part, stores, tuple(strategies), classifiers, n_folds)
+        return {s: _kfold(ctx, part, stores, (s,), classifiers, n_folds, pose)[s] for s in strategies}
+    return _kfold(ctx, part, stores, tuple(strategies), classifiers, n_folds, pose)
 
 
 def fold_folder(ctx: Context, part: str, strategies, fold: int):
@@ -136,8 +142,8 @@ def fold_folder(ctx: Context, part: str, strategies, fold: int):
     return ctx.path("models", part, "+".join(strategies), f"fold{fold + 1}")
 
 
-def _kfold(ctx: Context, part: str, stores: tuple, strategies: tuple, classifiers: dict, n_folds: int
-           ) -> dict[str, dict[str, Predictions]]:
+def _kfold(ctx: Context, part: str, stores: tuple, strategies: tuple, classifiers: dict, n_folds: int,
+           pose: str = "upright") -> dict[str, dict[str, Predictions]]:
     """:func:`grouped_kfold` with models trained on the contours of all of ``strategies`` together."""
     ds, record, test_ds, test_store = stores
     index = np.sort(np.concatenate([ds.indices(s) for s in strategies]))
@@ -157,13 +163,12 @@ def _kfold(ctx: Context, part: str, stores: tuple, strategies: tuple, classifier
         for strategy in strategies:
             test = test_all[ds.sequence_strategies[test_all] == strategy]
             test = test if test_ds is ds else same_objects(ds, test, test_ds, strategy)
-            tag = "test" if test_ds is ds else "anypose"
+            tag = "test" if pose == "upright" else "anypose"
             test_record = {"tag": f"{strategy}-{tag}" if pooled else tag, "test": digest(test)}
             if test_ds is not ds:
                 test_record["store"] = digest(test_store)
             for name, factory in classifiers.items():
-                log.info("%s (%s), %s, fold %d: %s", part, "upright" if test_ds is ds else "any pose", strategy,
-                         i + 1, name)
+                log.info("%s (%s), %s, fold %d: %s", part, pose, strategy, i + 1, name)
                 parts.setdefault((strategy, name), []).append(train_and_predict(
                     name, factory, training, lambda t=test: test_ds.load(t), folder, train_record,
                     test_record))

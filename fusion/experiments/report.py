@@ -103,7 +103,8 @@ def render(results: dict) -> str:
     if unseen:
         lines += ["## Unseen objects", "",
                   (f"{unseen['n_objects']} objects of {len(unseen['classes'])} classes, {unseen['contours']} "
-                  f"contours per object and strategy; grouped {unseen['folds']}-fold by object (a test object is "
+                  f"contours per test object and strategy ({unseen.get('train_contours', unseen['contours'])} per "
+                  f"training object); grouped {unseen['folds']}-fold by object (a test object is "
                   "never in training), out-of-fold predictions of every sequence. One touch per decision; "
                   "interval: bootstrap over objects. One model per fold and classifier, trained on the training "
                   "objects as stored, on their contours of every strategy together: the strategies differ only in "

@@ -128,6 +128,7 @@ def reproduce(
         results["unseen"] = {
             "n_objects": len(unseen_list), "classes": list(dict.fromkeys(label for _, label in unseen_list)),
             "contours": sizes.unseen_contours, "folds": sizes.unseen_folds,
+            "train_contours": sizes.unseen_train_contours or sizes.unseen_contours,
             "rows": accuracy_rows(unseen_preds, "object", ctx.seed),
             "any_pose_rows": accuracy_rows(anypose_preds, "object", ctx.seed),
             "strategy_differences": strategy_differences(by_pose, sizes.touches, ctx.seed),

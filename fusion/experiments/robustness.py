@@ -81,7 +81,8 @@ def noise_rows(ctx: Context, objects) -> list[dict]:
     levels = [("clean", 0.0)] + [(k, float(v)) for k, vs in sizes.noise_levels.items() for v in vs]
     rows = []
     for pose in POSES:
-        ds, _, test_ds, _ = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours)
+        ds, _, test_ds, _ = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours,
+                                        sizes.unseen_train_contours)
         models = {m.name: m for m in load_models(objects if pose == "upright" else any_pose(objects, ctx.seed))}
         class_names = list(ds.class_names)
         for strategy in sizes.strategies:

@@ -617,3 +617,36 @@ def test_noise_reads_the_pooled_fold_models_and_a_rerun_reuses_every_prediction(
     again = reproduce(data, tmp_path / "report", **kwargs)
     assert CALLS == {"fit": 0, "predict": 0}
     assert list(_accuracies(again["unseen"])) == list(_accuracies(results["unseen"]))
+
+
+def test_unseen_folds_can_train_on_more_contours_than_they_test(tmp_path):
+    """``unseen_train_contours``: each fold's model learns from 15 contours per training object, while every test
+    object is scored on its 10 contours (upright from a store of their own, any pose as before), in the same folds."""
+    fits = []
+
+    class Recorder(NearestMean):
+        def _fit(self, batch, y):
+            fits.append((len(batch), {batch.object_names[o] for o in batch.object_ids}))
+            super()._fit(batch, y)
+
+    data = mesh_folder(tmp_path / "meshes")
+    sizes = TINY.with_(unseen_train_contours=15, unseen_classifiers=("rec",))
+    results = reproduce(data, tmp_path / "report", sizes=sizes, classifiers={"rec": Recorder},
+                        parts=("unseen",), workers=2, progress=False)
+    assert [n for n, _ in fits] == [15 * 4] * 3
+    assert all(len(names) == 4 for _, names in fits)
+    for rows in (results["unseen"]["rows"], results["unseen"]["any_pose_rows"]):
+        assert [r["accuracy"]["n"] for r in rows] == [6 * 10]
+    assert results["unseen"]["train_contours"] == 15 and results["unseen"]["contours"] == 10
+    stores = sorted(p.name.split("-")[1] for p in (tmp_path / "report" / "stores").glob("*.zarr"))
+    assert stores == ["10c", "10c", "15c"]  # upright test, any-pose test, training
+    # The folds are those of the 10-contour store: each object tested once, by the fold that left it out.
+    trained = [names for _, names in fits]
+    assert sorted(len(set.intersection(*trained[:i], *trained[i + 1:])) for i in range(3)) == [2, 2, 2]
+
+
+def test_sizes_refuse_bad_training_contours():
+    for bad in (0, -3, 2.5, True, "72"):
+        with pytest.raises(InvalidArgumentError, match="unseen_train_contours"):
+            Sizes(unseen_train_contours=bad)
+    assert Sizes(unseen_train_contours=None).unseen_train_contours is None
