@@ -449,7 +449,7 @@ class CNNClassifier(TactileClassifier):
         y_t = torch.from_numpy(y.astype(np.int64))
         best, best_state, best_epoch, since = (-1.0, np.inf), None, 0, 0
         epoch_times, curve = [], []
-        epochs = progress_bar(range(self._epochs(len(train_idx))), enabled=self.progress, desc=f"train {kind}",
+        epochs = progress_bar(range(self.epochs_for(len(train_idx))), enabled=self.progress, desc=f"train {kind}",
                               leave=False)
         for epoch in epochs:
             net.train()
@@ -501,7 +501,7 @@ class CNNClassifier(TactileClassifier):
         full, rest = divmod(n_train, self.batch_size)
         return full + (1 if rest >= 2 or n_train == 1 else 0)
 
-    def _epochs(self, n_train: int) -> int:
+    def epochs_for(self, n_train: int) -> int:
         """Epochs to train on ``n_train`` sequences: ``epochs``, cut to the fewest that reach ``max_steps``."""
         if self.max_steps is None:
             return int(self.epochs)
@@ -514,7 +514,7 @@ class CNNClassifier(TactileClassifier):
             opt = torch.optim.AdamW(net.parameters(), lr=self.lr, weight_decay=self.weight_decay)
         else:
             opt = torch.optim.Adam(net.parameters(), lr=self.lr)
-        steps = self._epochs(n_train) * self._steps_per_epoch(n_train)
+        steps = self.epochs_for(n_train) * self._steps_per_epoch(n_train)
         if self.schedule == "constant" or steps < 2:
             return opt, None
         return opt, torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.lr, total_steps=steps)

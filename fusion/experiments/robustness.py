@@ -26,7 +26,7 @@ from fusion.experiments.context import Context
 from fusion.experiments.data import any_pose, load_models
 from fusion.experiments.models import DISPLAY, Predictions, digest, predict
 from fusion.experiments.protocol import POSES, fold_folder, pose_stores
-from fusion.experiments.touch import load_batch, save_batch, touch_objects
+from fusion.experiments.touch import load_batch_with_seeds, save_batch, touch_objects
 from fusion.modelfile import SUFFIX
 from perception.interest_cache import KnownInterestPoints
 from tactile.dead_taxels import repair_dead_taxels
@@ -144,7 +144,7 @@ def _touched(ctx: Context, models: list, class_names: list[str], pose: str, stra
     key = {"objects": names, "pose": pose, "strategy": strategy, "kind": kind, "level": level,
            "contours": sizes.noise_contours, "seed": ctx.seed + TEST_SEED_OFFSET, "sensor": sensor.spec()}
     path = ctx.path("noise", f"{pose.replace(' ', '')}-{strategy}-{kind}-{level:g}-{digest(names)}.npz")
-    found = load_batch(path, key, noise_seeds=True)
+    found = load_batch_with_seeds(path, key)
     if found is None:
         seeds: list[int] = []
         batch = touch_objects(models, class_names, strategy, sizes.noise_contours, sensor=sensor,

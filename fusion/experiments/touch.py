@@ -100,12 +100,10 @@ def save_batch(batch: SequenceBatch, path: str | Path, key: dict | None = None, 
     return write_cache(path, meta, arrays)
 
 
-def load_batch(path: str | Path, key: dict | None = None, *, noise_seeds: bool = False):
-    """The batch cached at ``path``, or None when absent, unreadable or made with another ``key``; with
-    ``noise_seeds``, (batch, its read-out seeds (S,) int64), or None when the file holds no usable seeds for it
-    (absent, not one non-negative integer per sequence)."""
+def _load(path: str | Path, key: dict | None) -> tuple[SequenceBatch, np.ndarray | None] | None:
+    """(the cached batch, its stored read-out seeds or None), or None when absent, unreadable or of another key."""
     def read(meta, data):
-        seeds = data["noise_seeds"] if noise_seeds and "noise_seeds" in data.files else None
+        seeds = data["noise_seeds"] if "noise_seeds" in data.files else None
         return meta, {a: data[a] for a in _ARRAYS}, seeds
 
     found = read_cache(path, "key", key, read)
@@ -114,10 +112,24 @@ def load_batch(path: str | Path, key: dict | None = None, *, noise_seeds: bool =
     meta, arrays, seeds = found
     batch = SequenceBatch(**arrays, class_names=meta["class_names"], object_names=meta["object_names"],
                           sensor_spec=meta["sensor_spec"])
-    if not noise_seeds:
-        return batch
+    return batch, seeds
+
+
+def load_batch(path: str | Path, key: dict | None = None) -> SequenceBatch | None:
+    """The batch cached at ``path``, or None when absent, unreadable or made with another ``key``."""
+    found = _load(path, key)
+    return None if found is None else found[0]
+
+
+def load_batch_with_seeds(path: str | Path, key: dict | None = None) -> tuple[SequenceBatch, np.ndarray] | None:
+    """(the batch cached at ``path``, each sequence's read-out seed (S,) int64), or None when absent, unreadable,
+    made with another ``key``, or holding no usable seeds (absent, not one non-negative integer per sequence)."""
+    found = _load(path, key)
+    if found is None:
+        return None
+    batch, seeds = found
     usable = seeds is not None and seeds.shape == (len(batch),) and seeds.dtype.kind in "iu" and (seeds >= 0).all()
     return (batch, seeds.astype(np.int64)) if usable else None
 
 
-__all__ = ["load_batch", "save_batch", "touch_object", "touch_objects"]
+__all__ = ["load_batch", "load_batch_with_seeds", "save_batch", "touch_object", "touch_objects"]

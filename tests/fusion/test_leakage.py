@@ -192,10 +192,10 @@ def test_noise_part_rereads_read_out_noise_bit_for_bit_and_touches_jitter(tmp_pa
 def test_noise_levels_reuse_the_cached_clean_batch_and_its_seeds(tmp_path, monkeypatch):
     """After the clean batch is touched once, read-out noise levels never touch: touching is made to fail and
     the dead-taxel level still comes back; the cache holds each sequence's own read-out seed."""
-    import fusion.experiments.robustness as robustness
+    from fusion.experiments import robustness
     from fusion.experiments.config import QUICK
     from fusion.experiments.context import Context
-    from fusion.experiments.touch import load_batch, touch_object
+    from fusion.experiments.touch import load_batch_with_seeds, touch_object
     from perception.shapes import make_object
 
     ctx = Context(out=tmp_path, seed=4, sizes=QUICK, classifiers={}, progress=False)
@@ -204,7 +204,7 @@ def test_noise_levels_reuse_the_cached_clean_batch_and_its_seeds(tmp_path, monke
     sensor, _ = robustness._sensor_and_jitter("taxel_noise", 0.3)
     robustness._noisy_batch(*args, "taxel_noise", 0.3, sensor, 0.0, None)
     (clean_file,) = (tmp_path / "noise").iterdir()
-    _, seeds = load_batch(clean_file, None, noise_seeds=True)
+    _, seeds = load_batch_with_seeds(clean_file, None)
     expected = [s.seed for m in models
                 for s in touch_object(m, "blind", QUICK.noise_contours, seed=4 + robustness.TEST_SEED_OFFSET)[0]]
     assert seeds.dtype == np.int64 and seeds.tolist() == expected
@@ -218,17 +218,17 @@ def test_noise_levels_reuse_the_cached_clean_batch_and_its_seeds(tmp_path, monke
 
 
 def test_batch_cache_returns_seeds_only_when_they_are_usable(tmp_path):
-    from fusion.experiments.touch import load_batch, save_batch, touch_objects
+    from fusion.experiments.touch import load_batch, load_batch_with_seeds, save_batch, touch_objects
     from perception.shapes import make_object
 
     batch = touch_objects([make_object("box", 0)], ["box"], "blind", 3, probes=6, seed=1)
     plain = save_batch(batch, tmp_path / "plain.npz", {"k": 1})
-    assert load_batch(plain, {"k": 1}, noise_seeds=True) is None  # no seeds in the file: touch again
+    assert load_batch_with_seeds(plain, {"k": 1}) is None  # no seeds in the file: touch again
     assert load_batch(plain, {"k": 1}).frames.tobytes() == batch.frames.tobytes()
     for name, seeds in (("short", [5, 6]), ("negative", [5, -6, 7])):
         path = save_batch(batch, tmp_path / f"{name}.npz", {"k": 1}, noise_seeds=np.asarray(seeds))
-        assert load_batch(path, {"k": 1}, noise_seeds=True) is None, name
+        assert load_batch_with_seeds(path, {"k": 1}) is None, name
     good = save_batch(batch, tmp_path / "good.npz", {"k": 1}, noise_seeds=[7, 8, 9])
-    found, seeds = load_batch(good, {"k": 1}, noise_seeds=True)
+    found, seeds = load_batch_with_seeds(good, {"k": 1})
     assert seeds.dtype == np.int64 and seeds.tolist() == [7, 8, 9]
     assert found.frames.tobytes() == batch.frames.tobytes()

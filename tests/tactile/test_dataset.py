@@ -450,7 +450,7 @@ def test_records_time_the_writes_and_the_benchmark_encodes_every_stored_byte(bli
 def test_write_seconds_add_up_every_write(tmp_path, monkeypatch):
     """Each array's rows are timed into the record: slowing every write by 5 ms shows in the total (the worker run
     in this process, rewriting a stored object's rows)."""
-    import tactile.dataset.worker as worker
+    from tactile.dataset import worker
     from tactile.dataset.objects import ObjectSpec
     from tactile.dataset.store import ARRAYS, read_attrs
 
