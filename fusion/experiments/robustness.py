@@ -125,7 +125,9 @@ def _noisy_batch(ctx: Context, models: list, class_names: list[str], pose: str, 
     seed (:meth:`FSRSensor.reread`: the frames touching again would give, bit for bit, without a ray); the clean
     and jittered batches are touched and cached under ``noise/``. ``clean``: the clean (batch, seeds) of these
     models when the caller holds them already."""
-    if kind == "clean" or jitter == 0:  # _sensor_and_jitter: the default pad, with read-out noise only
+    # Re-reading is exact only for the clean pad's geometry: no jitter and every setting but the read-out's default.
+    readout_only = jitter == 0 and replace(sensor, noise_std=0.0, dead_taxel_rate=0.0) == FSRSensor()
+    if kind == "clean" or readout_only:
         if clean is None:
             clean = _touched(ctx, models, class_names, pose, strategy, "clean", 0.0, FSRSensor(), 0.0, attention)
         clean, seeds = clean

@@ -232,3 +232,20 @@ def test_batch_cache_returns_seeds_only_when_they_are_usable(tmp_path):
     found, seeds = load_batch_with_seeds(good, {"k": 1})
     assert seeds.dtype == np.int64 and seeds.tolist() == [7, 8, 9]
     assert found.frames.tobytes() == batch.frames.tobytes()
+
+
+def test_a_noisy_sensor_of_another_geometry_touches_again(tmp_path):
+    """Re-reading the clean frames is exact only for the default pad; a noisy pad of another size (no jitter) is
+    pressed for real: its frames have its own grid, and a noise kind with it is cached as a touched batch."""
+    from fusion.experiments import robustness
+    from fusion.experiments.config import QUICK
+    from fusion.experiments.context import Context
+    from perception.shapes import make_object
+    from tactile import FSRSensor
+
+    ctx = Context(out=tmp_path, seed=4, sizes=QUICK, classifiers={}, progress=False)
+    args = (ctx, [make_object("box", 0)], ["box"], "upright", "blind")
+    small = FSRSensor(rows=8, cols=8, noise_std=0.3)
+    batch = robustness._noisy_batch(*args, "taxel_noise", 0.3, small, 0.0, None)
+    assert batch.frames.shape[2:] == (8, 8)
+    assert sorted(p.name.split("-")[2] for p in (tmp_path / "noise").iterdir()) == ["taxel_noise"]
