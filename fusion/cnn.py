@@ -104,10 +104,14 @@ class _TwoConvNet(nn.Module):
     """Two convolutions with batch norm, circular over the probes, then two fully connected layers: the
     shape both nets share. Subclasses build conv1, bn1, conv2, bn2, fc1, drop and fc2."""
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, hidden) the hidden layer the classifying layer reads (after its ReLU)."""
         x = F.relu(self.bn1(self.conv1(_circular_probes(x))))
         x = F.relu(self.bn2(self.conv2(_circular_probes(x))))
-        return self.fc2(self.drop(F.relu(self.fc1(x.flatten(1)))))
+        return F.relu(self.fc1(x.flatten(1)))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.fc2(self.drop(self.features(x)))
 
 
 class CutaneousNet(_TwoConvNet):
@@ -590,6 +594,35 @@ class CNNClassifier(TactileClassifier):
         batch = as_batch(X)
         self.check_compatible(batch)
         return self._modality_proba(batch)
+
+    def embed(self, X) -> np.ndarray:
+        """(S, D) float64 feature vectors of the sequences: each trained net's hidden layer (the ``hidden`` = 64
+        features its last layer classifies), scaled to unit length per net, concatenated and divided by the square
+        root of the number of nets (so every vector has unit length). The feature space of the open-set distance
+        scores (:mod:`fusion.openset`); unit length makes a distance compare directions, not activation sizes.
+
+        Raises:
+            DatasetError: bad input. ModelMismatchError: data from another sensor, probe count or grid.
+        """
+        from fusion.base import as_batch
+
+        batch = as_batch(X)
+        self.check_compatible(batch)
+        device = self._device()
+        parts = []
+        with _torch_settings(self.threads or default_threads(), deterministic=False), torch.no_grad():
+            for net, inputs in ((self.cutaneous_net_, self._frames), (self.kinesthetic_net_, self._cues)):
+                if net is None:
+                    continue
+                x = inputs(batch)
+                net.to(device).eval()
+                f = torch.cat([net.features(x[i:i + PREDICT_CHUNK].to(device, torch.float32)).double().cpu()
+                               for i in range(0, len(x), PREDICT_CHUNK)])
+                net.to("cpu")
+                length = f.norm(dim=1, keepdim=True)
+                # A hidden layer of zeros (every ReLU off) has no direction: it stays at the origin.
+                parts.append(torch.where(length > 0, f / length.clamp_min(1e-300), f))
+        return (torch.cat(parts, dim=1) / np.sqrt(len(parts))).numpy()
 
     # ------------------------------------------------------------------------------- persistence
     _NETS = ("cutaneous", "kinesthetic")

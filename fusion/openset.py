@@ -24,7 +24,8 @@ Scores (higher = fits a known class better), of K touches of one object:
   all touches fit the decision).
 
 The distance scores need a feature space: the conventional classifier's (its pipeline before the SVM / kNN: the
-z-scored "SOM to 5" features), or a classifier's ``embed(batch) -> (S, D)`` method where it has one; without a
+z-scored "SOM to 5" features), or a classifier's ``embed(batch) -> (S, D)`` method where it has one (the CNN pair:
+its two hidden layers, unit length each, :meth:`fusion.cnn.CNNClassifier.embed`); without a
 feature space only ``"probability"`` is available. The result is the fitted attribute ``calibration_`` (plain
 data, saved in the model file and checked on loading by :func:`check_calibration`): ``predict_proba`` then gives
 calibrated probabilities, ``predict_proba_touches`` the tempered rule, ``known_score`` the score, and

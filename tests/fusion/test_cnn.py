@@ -471,3 +471,46 @@ def test_paper_cnn_sums_the_two_nets_and_the_pose_free_cnn_multiplies():
         np.testing.assert_allclose(out["fusion"], (c + k) / 2 if rule == "sum" else geometric, atol=1e-9,
                                    err_msg=name)
         assert not np.allclose((c + k) / 2, geometric, atol=1e-6)  # the two rules differ on these outputs
+
+
+# ------------------------------------------------------------------------------------------ embedding
+def test_embed_gives_the_hidden_layer_each_net_classifies_with_unit_length():
+    """``embed`` is, per net, the hidden layer that its last layer turns into the predicted probabilities: fc2 of
+    the (unnormalised) hidden layer read by a hook on fc1 gives ``predict_proba_modalities``; each net's part has
+    unit length and the two parts are weighted equally."""
+    batch = make_batch()
+    model = CNNClassifier(**FAST, random_state=2).fit(batch)
+    hidden = {}
+
+    def keep(kind):
+        def hook(module, inputs, out):  # returns None: the forward pass goes on unchanged
+            hidden[kind] = torch.relu(out).detach().double()
+        return hook
+
+    hooks = [getattr(model, f"{kind}_net_").fc1.register_forward_hook(keep(kind))
+             for kind in ("cutaneous", "kinesthetic")]
+    proba = model.predict_proba_modalities(batch)
+    for hook in hooks:
+        hook.remove()
+    emb = model.embed(batch)
+    assert emb.shape == (len(batch), 128) and emb.dtype == np.float64 and np.isfinite(emb).all()
+    for j, kind in enumerate(("cutaneous", "kinesthetic")):
+        h = hidden[kind].numpy()
+        net = getattr(model, f"{kind}_net_")
+        logits = h @ net.fc2.weight.detach().double().numpy().T + net.fc2.bias.detach().double().numpy()
+        soft = np.exp(logits - logits.max(1, keepdims=True))
+        np.testing.assert_allclose(soft / soft.sum(1, keepdims=True), proba[kind], atol=1e-5)
+        part = emb[:, 64 * j:64 * (j + 1)]
+        np.testing.assert_allclose(part * np.sqrt(2), h / np.linalg.norm(h, axis=1, keepdims=True), atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(emb, axis=1), 1.0, atol=1e-12)
+
+
+def test_embed_of_one_modality_and_its_errors():
+    batch = make_batch()
+    model = CNNClassifier(**FAST, modality="kinesthetic").fit(batch)
+    emb = model.embed(batch)
+    assert emb.shape == (len(batch), 64)
+    np.testing.assert_allclose(np.linalg.norm(emb, axis=1), 1.0, atol=1e-12)
+    other = make_batch(grid=(4, 4), spec=FSRSensor(rows=4, cols=4).spec())
+    with pytest.raises(ModelMismatchError):
+        model.embed(other)

@@ -192,3 +192,21 @@ class TestRecognize:
         assert result.label == UNKNOWN and result.unknown and result.closest == "c0"
         assert result.summary() == f"unknown; closest: c0, {result.probabilities['c0']:.2f}"
         assert result.to_dict()["unknown"] is True and result.rule == "tempered"
+
+
+def test_a_calibrated_cnn_scores_distances_in_its_own_feature_space(tmp_path):
+    """The CNN pair has a feature space (``embed``): calibration keeps its training sequences' 128 features as the
+    reference of the distance scores, and a saved and loaded model gives the same known scores."""
+    from fusion.cnn import CNNClassifier
+
+    train = toy_batch(KNOWN, seed=1)
+    model = calibrate(CNNClassifier(epochs=6, batch_size=16, progress=False, threads=1), train, class_folds=2,
+                      max_touches=2)
+    state = model.calibration_
+    assert state["reference"].shape == (len(train), 128)
+    np.testing.assert_allclose(state["reference"], model.embed(train))
+    assert state["score"] in ("probability", "distance", "class_distance")
+    test = toy_batch(KNOWN, seed=3)
+    scores = model.known_score(test)
+    assert np.isfinite(scores).all()
+    np.testing.assert_array_equal(load_model(model.save(tmp_path / "cnn.vtm")).known_score(test), scores)
