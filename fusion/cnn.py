@@ -506,7 +506,14 @@ class CNNClassifier(TactileClassifier):
         return full + (1 if rest >= 2 or n_train == 1 else 0)
 
     def epochs_for(self, n_train: int) -> int:
-        """Epochs to train on ``n_train`` sequences: ``epochs``, cut to the fewest that reach ``max_steps``."""
+        """Epochs to train on ``n_train`` sequences: ``epochs``, cut to the fewest that reach ``max_steps``.
+
+        Raises:
+            InvalidArgumentError: bad parameters (see the class), or ``n_train`` not a positive integer.
+        """
+        self._check_params()
+        if isinstance(n_train, bool) or not isinstance(n_train, (int, np.integer)) or n_train < 1:
+            raise InvalidArgumentError(f"CNNClassifier.epochs_for: n_train must be a positive integer, got {n_train!r}")
         if self.max_steps is None:
             return int(self.epochs)
         per_epoch = max(self._steps_per_epoch(n_train), 1)
@@ -598,8 +605,10 @@ class CNNClassifier(TactileClassifier):
     def embed(self, X) -> np.ndarray:
         """(S, D) float64 feature vectors of the sequences: each trained net's hidden layer (the ``hidden`` = 64
         features its last layer classifies), scaled to unit length per net, concatenated and divided by the square
-        root of the number of nets (so every vector has unit length). The feature space of the open-set distance
-        scores (:mod:`fusion.openset`); unit length makes a distance compare directions, not activation sizes.
+        root of the number of nets, so a vector has unit length (a net whose hidden units are all off for a
+        sequence adds zeros instead). The feature space of the open-set distance scores (:mod:`fusion.openset`);
+        unit length makes a distance compare directions, not activation sizes. The sequences are read as touched
+        (``test_views`` does not apply).
 
         Raises:
             DatasetError: bad input. ModelMismatchError: data from another sensor, probe count or grid.

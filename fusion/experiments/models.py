@@ -104,7 +104,8 @@ def read_cache(path: str | Path, field: str, key, read: Callable):
                 log.info("%s was made with other settings; making it again", path)
                 return None
             return read(meta, data)
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # a file cut short is BadZipFile
+    # A file cut short is BadZipFile; arrays that do not fit together (a damaged file) raise DatasetError in read.
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, DatasetError) as exc:
         log.warning("%s is unreadable (%s); making it again", path, exc)
         return None
 

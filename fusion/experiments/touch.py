@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.experiments.models import read_cache, write_cache
+from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
 from perception.runtime import progress_bar
 from tactile.contours import Contour
@@ -96,23 +97,23 @@ def save_batch(batch: SequenceBatch, path: str | Path, key: dict | None = None, 
             "sensor_spec": batch.sensor_spec, "key": key or {}}
     arrays = {a: getattr(batch, a) for a in _ARRAYS}
     if noise_seeds is not None:
-        arrays["noise_seeds"] = np.asarray(noise_seeds, dtype=np.int64)
+        seeds = np.asarray(noise_seeds)
+        if seeds.shape != (len(batch),) or (seeds.size and seeds.dtype.kind not in "iu"):
+            raise InvalidArgumentError(f"{path}: noise_seeds must be one integer per sequence ({len(batch)}), got "
+                                       f"shape {seeds.shape} of {seeds.dtype}")
+        arrays["noise_seeds"] = seeds.astype(np.int64)
     return write_cache(path, meta, arrays)
 
 
 def _load(path: str | Path, key: dict | None) -> tuple[SequenceBatch, np.ndarray | None] | None:
     """(the cached batch, its stored read-out seeds or None), or None when absent, unreadable or of another key."""
-    def read(meta, data):
+    def read(meta, data):  # inside read_cache: a file missing a field counts as unreadable (made again)
         seeds = data["noise_seeds"] if "noise_seeds" in data.files else None
-        return meta, {a: data[a] for a in _ARRAYS}, seeds
+        batch = SequenceBatch(**{a: data[a] for a in _ARRAYS}, class_names=meta["class_names"],
+                              object_names=meta["object_names"], sensor_spec=meta["sensor_spec"])
+        return batch, seeds
 
-    found = read_cache(path, "key", key, read)
-    if found is None:
-        return None
-    meta, arrays, seeds = found
-    batch = SequenceBatch(**arrays, class_names=meta["class_names"], object_names=meta["object_names"],
-                          sensor_spec=meta["sensor_spec"])
-    return batch, seeds
+    return read_cache(path, "key", key, read)
 
 
 def load_batch(path: str | Path, key: dict | None = None) -> SequenceBatch | None:
@@ -128,7 +129,8 @@ def load_batch_with_seeds(path: str | Path, key: dict | None = None) -> tuple[Se
     if found is None:
         return None
     batch, seeds = found
-    usable = seeds is not None and seeds.shape == (len(batch),) and seeds.dtype.kind in "iu" and (seeds >= 0).all()
+    usable = (seeds is not None and seeds.shape == (len(batch),) and seeds.dtype.kind in "iu" and (seeds >= 0).all()
+              and (seeds <= np.iinfo(np.int64).max).all())
     return (batch, seeds.astype(np.int64)) if usable else None
 
 

@@ -514,3 +514,39 @@ def test_embed_of_one_modality_and_its_errors():
     other = make_batch(grid=(4, 4), spec=FSRSensor(rows=4, cols=4).spec())
     with pytest.raises(ModelMismatchError):
         model.embed(other)
+
+
+@pytest.fixture(scope="module")
+def fitted_pair():
+    batch = make_batch()
+    return CNNClassifier(**FAST, random_state=2).fit(batch), batch
+
+
+def test_embed_reads_the_nets_in_eval_mode_and_in_any_chunks(fitted_pair, monkeypatch):
+    """Left in training mode (dropout, batch statistics), the nets would give other features; chunks of 5 give
+    the features of one pass."""
+    import fusion.cnn
+
+    model, batch = fitted_pair
+    whole = model.embed(batch)
+    model.cutaneous_net_.train()
+    model.kinesthetic_net_.train()
+    np.testing.assert_array_equal(model.embed(batch), whole)
+    monkeypatch.setattr(fusion.cnn, "PREDICT_CHUNK", 5)
+    np.testing.assert_allclose(model.embed(batch), whole, atol=1e-5)
+
+
+def test_embed_of_a_silent_net_adds_zeros_not_nan():
+    model = CNNClassifier(**FAST, random_state=2).fit(make_batch())
+    with torch.no_grad():
+        model.cutaneous_net_.fc1.bias.fill_(-1e6)  # every hidden ReLU off
+    emb = model.embed(make_batch())
+    assert np.isfinite(emb).all() and np.abs(emb[:, :64]).max() == 0
+    np.testing.assert_allclose(np.linalg.norm(emb, axis=1), np.sqrt(0.5), atol=1e-12)
+
+
+@pytest.mark.parametrize("params,n_train", [({}, 0), ({}, -5), ({}, 2.5), ({}, True), ({"batch_size": 0}, 10),
+                                            ({"max_steps": 0}, 10)])
+def test_epochs_for_refuses_what_it_cannot_count(params, n_train):
+    with pytest.raises(InvalidArgumentError):
+        CNNClassifier(**params).epochs_for(n_train)

@@ -650,3 +650,31 @@ def test_sizes_refuse_bad_training_contours():
         with pytest.raises(InvalidArgumentError, match="unseen_train_contours"):
             Sizes(unseen_train_contours=bad)
     assert Sizes(unseen_train_contours=None).unseen_train_contours is None
+
+
+def test_more_training_contours_feed_the_noise_part_and_a_rerun_reuses_everything(tmp_path):
+    """With ``unseen_train_contours``, upright and any-pose predictions are cached under their own names beside
+    each fold's model, the noise part reads those models (no fit of its own), and a second run fits and predicts
+    nothing; the report names both contour counts."""
+    CALLS.update(fit=0, predict=0)
+    data = mesh_folder(tmp_path / "meshes")
+    sizes = TINY.with_(unseen_train_contours=15, unseen_classifiers=("count",), noise_levels={"taxel_noise": (0.5,)})
+    kwargs = {"sizes": sizes, "classifiers": {"count": CountingMean}, "parts": ("unseen", "noise"), "workers": 2,
+              "progress": False}
+    results = reproduce(data, tmp_path / "report", **kwargs)
+    assert CALLS["fit"] == 3
+    fold = tmp_path / "report" / "models" / "unseen" / "blind" / "fold1"
+    assert sorted(p.name for p in fold.iterdir()) == ["count-anypose.npz", "count-test.npz", "count.json",
+                                                      "count.vtm"]
+    assert {r["accuracy"]["n"] for r in results["noise"]["rows"]} == {6 * TINY.noise_contours}
+    assert "10 contours per test object and strategy (15 per training object)" in (
+        tmp_path / "report" / "report.md").read_text()
+    CALLS.update(fit=0, predict=0)
+    reproduce(data, tmp_path / "report", **kwargs)
+    assert CALLS == {"fit": 0, "predict": 0}
+
+
+def test_by_default_the_unseen_part_trains_on_the_contours_it_tests(tiny_run):
+    _, out, results = tiny_run
+    assert results["unseen"]["train_contours"] == results["unseen"]["contours"] == 10
+    assert "(10 per training object)" in (out / "report.md").read_text()

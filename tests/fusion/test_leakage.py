@@ -218,16 +218,24 @@ def test_noise_levels_reuse_the_cached_clean_batch_and_its_seeds(tmp_path, monke
 
 
 def test_batch_cache_returns_seeds_only_when_they_are_usable(tmp_path):
-    from fusion.experiments.touch import load_batch, load_batch_with_seeds, save_batch, touch_objects
+    from fusion.experiments.models import write_cache
+    from fusion.experiments.touch import _ARRAYS, load_batch, load_batch_with_seeds, save_batch, touch_objects
+    from perception.errors import InvalidArgumentError
     from perception.shapes import make_object
 
     batch = touch_objects([make_object("box", 0)], ["box"], "blind", 3, probes=6, seed=1)
     plain = save_batch(batch, tmp_path / "plain.npz", {"k": 1})
     assert load_batch_with_seeds(plain, {"k": 1}) is None  # no seeds in the file: touch again
     assert load_batch(plain, {"k": 1}).frames.tobytes() == batch.frames.tobytes()
-    for name, seeds in (("short", [5, 6]), ("negative", [5, -6, 7])):
-        path = save_batch(batch, tmp_path / f"{name}.npz", {"k": 1}, noise_seeds=np.asarray(seeds))
-        assert load_batch_with_seeds(path, {"k": 1}) is None, name
+    path = save_batch(batch, tmp_path / "negative.npz", {"k": 1}, noise_seeds=np.asarray([5, -6, 7]))
+    assert load_batch_with_seeds(path, {"k": 1}) is None
+    with pytest.raises(InvalidArgumentError, match="one integer per sequence"):
+        save_batch(batch, tmp_path / "short.npz", {"k": 1}, noise_seeds=np.asarray([5, 6]))
+    meta = {"class_names": list(batch.class_names), "object_names": list(batch.object_names),
+            "sensor_spec": batch.sensor_spec, "key": {"k": 1}}
+    short = write_cache(tmp_path / "short-hand.npz", meta, {**{a: getattr(batch, a) for a in _ARRAYS},
+                                                            "noise_seeds": np.asarray([5, 6])})
+    assert load_batch_with_seeds(short, {"k": 1}) is None
     good = save_batch(batch, tmp_path / "good.npz", {"k": 1}, noise_seeds=[7, 8, 9])
     found, seeds = load_batch_with_seeds(good, {"k": 1})
     assert seeds.dtype == np.int64 and seeds.tolist() == [7, 8, 9]
@@ -249,3 +257,54 @@ def test_a_noisy_sensor_of_another_geometry_touches_again(tmp_path):
     batch = robustness._noisy_batch(*args, "taxel_noise", 0.3, small, 0.0, None)
     assert batch.frames.shape[2:] == (8, 8)
     assert sorted(p.name.split("-")[2] for p in (tmp_path / "noise").iterdir()) == ["taxel_noise"]
+
+
+def test_batch_cache_seeds_zero_is_usable_floats_and_huge_are_not(tmp_path):
+    from fusion.experiments.models import write_cache
+    from fusion.experiments.touch import _ARRAYS, load_batch, load_batch_with_seeds, save_batch, touch_objects
+    from perception.errors import InvalidArgumentError
+    from perception.shapes import make_object
+
+    batch = touch_objects([make_object("box", 0)], ["box"], "blind", 3, probes=6, seed=1)
+    path = save_batch(batch, tmp_path / "zero.npz", {"k": 1}, noise_seeds=[0, 1, 2])
+    assert load_batch_with_seeds(path, {"k": 1})[1].tolist() == [0, 1, 2]
+    with pytest.raises(InvalidArgumentError, match="noise_seeds"):
+        save_batch(batch, tmp_path / "float.npz", {"k": 1}, noise_seeds=[7.9, 8.1, 9.5])
+    meta = {"class_names": list(batch.class_names), "object_names": list(batch.object_names),
+            "sensor_spec": batch.sensor_spec, "key": {"k": 1}}
+    arrays = {a: getattr(batch, a) for a in _ARRAYS}
+    for name, seeds in (("float", np.array([7.0, 8.5, 9.0])), ("huge", np.array([2**63 + 1, 1, 2], np.uint64))):
+        written = write_cache(tmp_path / f"{name}-hand.npz", meta, {**arrays, "noise_seeds": seeds})
+        assert load_batch_with_seeds(written, {"k": 1}) is None, name
+    # A file whose meta lacks a field, or whose arrays do not fit together, is unreadable: made again, no crash.
+    no_names = write_cache(tmp_path / "no-names.npz", {"key": {"k": 1}}, arrays)
+    assert load_batch(no_names, {"k": 1}) is None
+    short = write_cache(tmp_path / "short.npz", meta, {**arrays, "labels": arrays["labels"][:1]})
+    assert load_batch(short, {"k": 1}) is None
+
+
+def test_a_clean_cache_without_seeds_is_touched_again(tmp_path):
+    """A clean batch cached without seeds (older code) cannot be re-read: it is touched again (the noisy frames
+    then equal pressing with the noisy sensor, byte for byte) and saved with its seeds."""
+    import json
+
+    from fusion.experiments import robustness
+    from fusion.experiments.config import QUICK
+    from fusion.experiments.context import Context
+    from fusion.experiments.touch import load_batch_with_seeds, save_batch, touch_objects
+    from perception.shapes import make_object
+
+    ctx = Context(out=tmp_path, seed=4, sizes=QUICK, classifiers={}, progress=False)
+    models = [make_object("box", 0)]
+    args = (ctx, models, ["box"], "upright", "blind")
+    robustness._touched(*args, "clean", 0.0, robustness.FSRSensor(), 0.0, None)
+    (clean_file,) = (tmp_path / "noise").iterdir()
+    batch, _ = load_batch_with_seeds(clean_file)
+    key = json.loads(str(np.load(clean_file)["meta"]))["key"]
+    save_batch(batch, clean_file, key)  # the same batch and key, no seeds
+    sensor, _ = robustness._sensor_and_jitter("taxel_noise", 0.3)
+    got = robustness._noisy_batch(*args, "taxel_noise", 0.3, sensor, 0.0, None)
+    expected = touch_objects(models, ["box"], "blind", QUICK.noise_contours, sensor=sensor,
+                             seed=4 + robustness.TEST_SEED_OFFSET)
+    assert got.frames.tobytes() == expected.frames.tobytes()
+    assert load_batch_with_seeds(clean_file, key) is not None
