@@ -65,6 +65,17 @@ class NearestMean(TactileClassifier):
 STANDINS = {"nm": lambda: NearestMean(), "nm-soft": lambda: NearestMean(scale=0.3)}
 
 
+def recorder(fits: list) -> type:
+    """A :class:`NearestMean` that appends (sequences, names of the objects) of every fit to ``fits``."""
+
+    class Recorder(NearestMean):
+        def _fit(self, batch, y):
+            fits.append((len(batch), {batch.object_names[o] for o in batch.object_ids}))
+            super()._fit(batch, y)
+
+    return Recorder
+
+
 def write_off(model, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = ["OFF", f"{len(model.vertices)} {len(model.triangles)} 0"]
@@ -399,11 +410,7 @@ def test_unseen_folds_train_one_model_on_every_strategys_contours(tmp_path):
     """Per fold one model, fitted on the guided and the blind contours of the fold's training objects (4 of the
     6), never on a test object; it predicts each strategy's contours of the 2 test objects, upright and turned."""
     fits = []
-
-    class Recorder(NearestMean):
-        def _fit(self, batch, y):
-            fits.append((len(batch), {batch.object_names[o] for o in batch.object_ids}))
-            super()._fit(batch, y)
+    Recorder = recorder(fits)
 
     data = mesh_folder(tmp_path / "meshes")
     sizes = TINY.with_(strategies=("guided", "blind"), unseen_classifiers=("rec",))
@@ -623,11 +630,7 @@ def test_unseen_folds_can_train_on_more_contours_than_they_test(tmp_path):
     """``unseen_train_contours``: each fold's model learns from 15 contours per training object, while every test
     object is scored on its 10 contours (upright from a store of their own, any pose as before), in the same folds."""
     fits = []
-
-    class Recorder(NearestMean):
-        def _fit(self, batch, y):
-            fits.append((len(batch), {batch.object_names[o] for o in batch.object_ids}))
-            super()._fit(batch, y)
+    Recorder = recorder(fits)
 
     data = mesh_folder(tmp_path / "meshes")
     sizes = TINY.with_(unseen_train_contours=15, unseen_classifiers=("rec",))
