@@ -91,7 +91,7 @@ class Sizes:
     epochs: int | None = None
     paper_classifiers: tuple[str, ...] = ("cnn-normals", "svm-normals", "knn-normals")
     unseen_classifiers: tuple[str, ...] = ("cnn", "svm", "knn")
-    calibration_classifiers: tuple[str, ...] = ("svm", "knn")
+    calibration_classifiers: tuple[str, ...] = ("cnn", "knn")
     calibration_strategy: str = "blind"
     openset_rotations: int = 5
     active_policies: tuple[str, ...] = ("random", "saliency", "information")

@@ -681,3 +681,38 @@ def test_by_default_the_unseen_part_trains_on_the_contours_it_tests(tiny_run):
     _, out, results = tiny_run
     assert results["unseen"]["train_contours"] == results["unseen"]["contours"] == 10
     assert "(10 per training object)" in (out / "report.md").read_text()
+
+
+class EmbeddingMean(NearestMean):
+    """NearestMean with a feature space (its z-scored statistics), so the open-set distance scores run too."""
+
+    def embed(self, batch):
+        return (_features(batch) - self.mu_) / self.sd_
+
+
+def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
+    """The two parts end to end on 8 catalogue classes x 6 objects (blind, 6 contours, any pose): ECE rows before and
+    after calibration for every K with intervals around them and one reliability figure; open-set rows for every
+    score and K, AUROCs in [0, 1] over exactly the left-out objects, and shares at the training-chosen threshold."""
+    classes = ("bottle", "bowl", "box", "can", "funnel", "mug", "ring", "wineglass")
+    data = mesh_folder(tmp_path / "meshes", classes=classes, per_class=6)
+    sizes = TINY.with_(unseen_contours=6, touches=(1, 2), openset_rotations=2, calibration_classifiers=("em",))
+    results = reproduce(data, tmp_path / "report", sizes=sizes, classifiers={"em": EmbeddingMean},
+                        parts=("calibration", "openset"), workers=2, progress=False)
+    ece = results["calibration"]["rows"]
+    assert {(r["k"], r["variant"].split(" ")[0]) for r in ece} >= {(k, v) for k in (1, 2) for v in ("before", "after")}
+    assert all(0 <= r["low"] <= r["ece"] <= r["high"] <= 1 for r in ece)
+    assert results["calibration"]["figures"] == ["reliability_em.png"]
+    assert (tmp_path / "report" / "reliability_em.png").read_bytes()[:4] == b"\x89PNG"
+    rows = results["openset"]["rows"]
+    assert {(r["k"], r["score"]) for r in rows} == {(k, s) for k in (1, 2)
+                                                   for s in ("probability", "distance", "class_distance", "chosen")}
+    left_out = results["openset"]["left_out"]
+    assert sorted(sum(left_out, [])) == sorted(classes)  # each class left out by exactly one rotation
+    for r in rows:
+        assert 0 <= r["auroc_low"] <= r["auroc"] <= r["auroc_high"] <= 1
+    # K = 1: every contour of every object once as unknown (8 x 6 x 6); as known, each rotation's held-out half of
+    # the other 4 classes' objects (2 rotations x 4 classes x 3 objects x 6 contours).
+    assert {(r["n_unknown"], r["n_known"]) for r in rows if r["k"] == 1} == {(288, 144)}
+    chosen = [r for r in rows if r["score"] == "chosen"]
+    assert all(0 <= r["known_kept"] <= 1 and 0 <= r["unknown_rejected"] <= 1 for r in chosen)
