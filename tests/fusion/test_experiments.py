@@ -708,7 +708,7 @@ def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
     assert {(r["k"], r["score"]) for r in rows} == {(k, s) for k in (1, 2)
                                                    for s in ("probability", "distance", "class_distance", "chosen")}
     left_out = results["openset"]["left_out"]
-    assert sorted(sum(left_out, [])) == sorted(classes)  # each class left out by exactly one rotation
+    assert sorted(c for group in left_out for c in group) == sorted(classes)  # each class left out by exactly one rotation
     for r in rows:
         assert 0 <= r["auroc_low"] <= r["auroc"] <= r["auroc_high"] <= 1
     # K = 1: every contour of every object once as unknown (8 x 6 x 6); as known, each rotation's held-out half of
