@@ -54,16 +54,24 @@ def split_indices(dataset, split: str, strategy: str | None, test_fraction: floa
 
 
 def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = "invariant", split: str = "sequence",
-                   test_fraction: float = 0.2, strategy: str | None = None, random_state: int = 0) -> dict:
+                   test_fraction: float = 0.2, strategy: str | None = None, random_state: int = 0,
+                   calibrated: bool = False) -> dict:
     """Fit classifier ``kind`` (:func:`fusion.classifiers.make_classifier`) on ``store``'s training part, record
     the :class:`TrainingRecord` as ``model.training_``, save it to ``out`` and score the held-out part.
 
+    With ``calibrated``, :func:`fusion.openset.calibrate` fits it instead: calibrated probabilities and, with at
+    least three classes, the "unknown" answer (leave-classes-out folds: up to four), all on the training part
+    only; its inner folds train the classifier several more times.
+
     Returns:
-        {"model", "cue", "out", "train_sequences", "fit_seconds"} and, with a held-out part, "test_sequences" and
-        "test_accuracy" (an interval dict), plus "accuracy" (the :class:`~fusion.evaluate.Accuracy`).
+        {"model", "cue", "out", "train_sequences", "fit_seconds"}, with ``calibrated`` also "calibration"
+        ({"temperature", "dependence", "score": the known score or None without a reject option}), and, with a
+        held-out part, "test_sequences" and "test_accuracy" (an interval dict), plus "accuracy" (the
+        :class:`~fusion.evaluate.Accuracy`).
 
     Raises:
-        InvalidArgumentError: an unknown classifier, cue or split. DatasetError: an unreadable store.
+        InvalidArgumentError: an unknown classifier, cue or split. DatasetError: an unreadable store; with
+            ``calibrated``, a class with fewer than three training objects.
     """
     from fusion.classifiers import make_classifier
     from fusion.evaluate import accuracy
@@ -73,13 +81,25 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
     train, test = split_indices(dataset, split, strategy, test_fraction, random_state)
     model = make_classifier(kind, cue=cue, random_state=random_state)
     start = time.perf_counter()
-    model.fit(dataset.load(train))
+    training = dataset.load(train)
+    if calibrated:
+        from fusion.openset import calibrate
+
+        n_classes = len(np.unique(training.labels))
+        model = calibrate(model, training, class_folds=max(2, min(4, n_classes)), open_set=n_classes >= 3,
+                          random_state=random_state)
+    else:
+        model.fit(training)
     fit_s = time.perf_counter() - start
     model.training_ = {**(getattr(model, "training_", None) or {}), **TrainingRecord(  # keeps fit's fingerprints
         str(store), dataset.attrs.get("store_id", ""), split, strategy, test_fraction, random_state, len(train)).to_dict()}
     model.save(out)
     result = {"model": kind, "cue": cue, "out": str(out), "train_sequences": len(train),
               "fit_seconds": round(fit_s, 2)}
+    if calibrated:
+        state = model.calibration_
+        result["calibration"] = {"temperature": round(float(state["temperature"]), 4),
+                                 "dependence": round(float(state["dependence"]), 4), "score": state.get("score")}
     if len(test):
         batch = dataset.load(test)
         check_held_out(model, batch, f"{store}: held-out {split} split", by_object=split == "object")

@@ -13,7 +13,8 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
     check_output_file(args.out, "--out")  # before training, not after
     result = train_on_store(args.store, args.model, args.out, cue=args.cue, split=args.split,
-                            test_fraction=args.test_fraction, strategy=args.strategy, random_state=args.seed)
+                            test_fraction=args.test_fraction, strategy=args.strategy, random_state=args.seed,
+                            calibrated=args.calibrate)
     acc = result.pop("accuracy", None)
     if args.json:
         print_json(result)
@@ -22,6 +23,11 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
                 f"{result['fit_seconds']:.1f} s -> {args.out}")
         if acc is not None:
             line += f"; held-out {args.split} split ({result['test_sequences']} sequences): {acc.percent()}"
+        if "calibration" in result:
+            cal = result["calibration"]
+            line += (f"; calibrated (temperature {cal['temperature']:g}, touch dependence {cal['dependence']:g}, "
+                     + (f"answers 'unknown' by {cal['score'].replace('_', ' ')})" if cal["score"] else
+                        "no 'unknown' answer: fewer than three classes)"))
         print(line)
     return 0
 
@@ -41,6 +47,9 @@ def register(sub) -> None:
     p.add_argument("--strategy", default=None, help="train on this strategy's sequences only (default: all)")
     p.add_argument("--cue", choices=CUES, default="invariant",
                    help="kinesthetic cue (default: pose-free invariant cues; normals: the paper's, pose-dependent)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="also fit calibrated probabilities and an 'unknown' answer on the training objects (held-out "
+                        "objects inside the training part; needs >= 3 objects per class; trains several more times)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print a JSON result on stdout")
     p.set_defaults(func=run)

@@ -64,3 +64,48 @@ def test_bad_inputs_end_with_one_line_and_exit_2(store, tmp_path, capsys):
     assert len(err) == 1 and "no such model file" in err[0]
     assert main(["train", "--store", str(tmp_path / "nothing.zarr"), "--model", "svm", "--out", str(tmp_path / "m")]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+@pytest.fixture(scope="module")
+def four_class_store(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train4") / "four.zarr"
+    objects = [(name, seed) for name in ("box", "can", "ring", "spoon") for seed in (0, 1, 2)]
+    generate(objects, out, strategies=("blind",), contours_per_object=8, sensor=FSRSensor(rows=8, cols=8),
+             probes=10, seed=0, workers=1, progress=False)
+    return out
+
+
+def test_train_calibrate_writes_a_model_that_can_answer_unknown(four_class_store, tmp_path, capsys):
+    """``--calibrate`` fits calibration and the reject option on the training objects: the saved model carries them
+    (the same state the library's calibrate fits on the same data) and predicts "unknown" below its threshold."""
+    from fusion.classifiers import make_classifier
+    from fusion.openset import SCORES, UNKNOWN, calibrate
+
+    model_path = tmp_path / "knn.vtm"
+    assert main(["train", "--store", str(four_class_store), "--model", "knn", "--split", "none", "--calibrate",
+                 "--out", str(model_path), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["calibration"]["score"] in SCORES
+    model = load_model(model_path)
+    data = open_dataset(four_class_store)
+    batch = data.load(data.indices(None))
+    expected = calibrate(make_classifier("knn", cue="invariant", random_state=0), batch, class_folds=4,
+                         random_state=0).calibration_
+    assert model.calibration_["score"] == expected["score"]
+    assert model.calibration_["temperature"] == pytest.approx(expected["temperature"])
+    np.testing.assert_allclose(model.calibration_["thresholds"], expected["thresholds"])
+    # Each sequence alone: "unknown" exactly where its known score is under the K = 1 threshold, else the class.
+    scores, threshold = model.known_score(batch), model.calibration_["thresholds"][0]
+    expected_answers = np.where(scores < threshold, UNKNOWN, model.predict(batch)).astype(str)
+    np.testing.assert_array_equal(model.predict(batch, reject=True).astype(str), expected_answers)
+    assert main(["train", "--store", str(four_class_store), "--model", "knn", "--split", "none", "--calibrate",
+                 "--out", str(tmp_path / "k2.vtm")]) == 0
+    assert "calibrated (temperature" in capsys.readouterr().out
+
+
+def test_train_calibrate_needs_three_objects_per_class(store, tmp_path, capsys):
+    assert main(["train", "--store", str(store), "--model", "knn", "--split", "none", "--calibrate",
+                 "--out", str(tmp_path / "m.vtm")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "fewer objects than the 3 calibration folds" in err[0]
+    assert not (tmp_path / "m.vtm").exists()
