@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.leakage import check_held_out
-from perception.errors import InvalidArgumentError
+from perception.errors import DatasetError, InvalidArgumentError
 
 #: How training holds out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none.
 SPLITS = ("sequence", "object", "none")
@@ -83,8 +83,14 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
     start = time.perf_counter()
     training = dataset.load(train)
     if calibrated:
-        from fusion.openset import calibrate
+        from fusion.openset import calibrate, object_keys
 
+        keys = object_keys(training)
+        names = np.asarray(training.class_names, dtype=object)[training.labels]
+        short = {str(c): len(set(keys[names == c])) for c in np.unique(names) if len(set(keys[names == c])) < 3}
+        if short:
+            raise DatasetError(f"{store}: --calibrate needs at least 3 training objects per class (it holds objects "
+                               f"out inside the training part); after the {split} split: {short}")
         n_classes = len(np.unique(training.labels))
         model = calibrate(model, training, class_folds=max(2, min(4, n_classes)), open_set=n_classes >= 3,
                           random_state=random_state)

@@ -100,6 +100,8 @@ def read_cache(path: str | Path, field: str, key, read: Callable):
     try:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
+            if not isinstance(meta, dict):
+                raise TypeError("its meta is not a JSON object")
             if key is not None and meta.get(field) != json.loads(json.dumps(key, default=str)):
                 log.info("%s was made with other settings; making it again", path)
                 return None

@@ -98,9 +98,10 @@ def save_batch(batch: SequenceBatch, path: str | Path, key: dict | None = None, 
     arrays = {a: getattr(batch, a) for a in _ARRAYS}
     if noise_seeds is not None:
         seeds = np.asarray(noise_seeds)
-        if seeds.shape != (len(batch),) or (seeds.size and seeds.dtype.kind not in "iu"):
-            raise InvalidArgumentError(f"{path}: noise_seeds must be one integer per sequence ({len(batch)}), got "
-                                       f"shape {seeds.shape} of {seeds.dtype}")
+        if seeds.shape != (len(batch),) or (seeds.size and seeds.dtype.kind not in "iu") or (
+                seeds.size and not ((seeds >= 0).all() and (seeds <= np.iinfo(np.int64).max).all())):
+            raise InvalidArgumentError(f"{path}: noise_seeds must be one integer in [0, 2**63) per sequence "
+                                       f"({len(batch)}), got shape {seeds.shape} of {seeds.dtype}")
         arrays["noise_seeds"] = seeds.astype(np.int64)
     return write_cache(path, meta, arrays)
 

@@ -98,14 +98,50 @@ def test_train_calibrate_writes_a_model_that_can_answer_unknown(four_class_store
     scores, threshold = model.known_score(batch), model.calibration_["thresholds"][0]
     expected_answers = np.where(scores < threshold, UNKNOWN, model.predict(batch)).astype(str)
     np.testing.assert_array_equal(model.predict(batch, reject=True).astype(str), expected_answers)
+    assert result["calibration"]["temperature"] == pytest.approx(model.calibration_["temperature"], abs=1e-4)
+    assert result["calibration"]["dependence"] == pytest.approx(model.calibration_["dependence"], abs=1e-4)
     assert main(["train", "--store", str(four_class_store), "--model", "knn", "--split", "none", "--calibrate",
                  "--out", str(tmp_path / "k2.vtm")]) == 0
-    assert "calibrated (temperature" in capsys.readouterr().out
+    assert f"answers 'unknown' by {result['calibration']['score'].replace('_', ' ')}" in capsys.readouterr().out
+
+
+def test_train_calibrate_fits_on_the_training_part_with_its_seed(four_class_store, tmp_path, capsys):
+    """With a held-out split and another seed, the calibration is the library's on exactly the training part."""
+    from fusion.classifiers import make_classifier
+    from fusion.openset import calibrate
+    from fusion.training import split_indices
+
+    model_path = tmp_path / "knn.vtm"
+    assert main(["train", "--store", str(four_class_store), "--model", "knn", "--calibrate", "--seed", "1",
+                 "--out", str(model_path), "--json"]) == 0
+    capsys.readouterr()
+    data = open_dataset(four_class_store)
+    train, _ = split_indices(data, "sequence", None, 0.2, 1)
+    expected = calibrate(make_classifier("knn", cue="invariant", random_state=1), data.load(train), class_folds=4,
+                         random_state=1).calibration_
+    got = load_model(model_path).calibration_
+    assert got["temperature"] == pytest.approx(expected["temperature"])
+    np.testing.assert_allclose(got["thresholds"], expected["thresholds"])
+
+
+@pytest.mark.parametrize("names,open_set", [(("box", "ring"), False), (("box", "can", "ring"), True)])
+def test_train_calibrate_with_two_or_three_classes(names, open_set, tmp_path, capsys):
+    """Two classes: calibrated, no 'unknown' answer (said so); three: leave-classes-out folds of one class each."""
+    store = tmp_path / "s.zarr"
+    generate([(n, seed) for n in names for seed in (0, 1, 2)], store, strategies=("blind",), contours_per_object=6,
+             sensor=FSRSensor(rows=8, cols=8), probes=10, seed=0, workers=1, progress=False)
+    assert main(["train", "--store", str(store), "--model", "knn", "--split", "none", "--calibrate",
+                 "--out", str(tmp_path / "m.vtm")]) == 0
+    out = capsys.readouterr().out
+    state = load_model(tmp_path / "m.vtm").calibration_
+    assert ("thresholds" in state) is open_set
+    assert ("no 'unknown' answer: fewer than three classes" in out) is not open_set
 
 
 def test_train_calibrate_needs_three_objects_per_class(store, tmp_path, capsys):
     assert main(["train", "--store", str(store), "--model", "knn", "--split", "none", "--calibrate",
                  "--out", str(tmp_path / "m.vtm")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "fewer objects than the 3 calibration folds" in err[0]
+    assert len(err) == 1 and "--calibrate needs at least 3 training objects per class" in err[0]
+    assert "{'box': 2, 'ring': 2, 'spoon': 2}" in err[0]
     assert not (tmp_path / "m.vtm").exists()

@@ -690,15 +690,35 @@ class EmbeddingMean(NearestMean):
         return (_features(batch) - self.mu_) / self.sd_
 
 
+OPEN_SET_CLASSES = ("bottle", "bowl", "box", "can", "funnel", "mug", "ring", "wineglass")
+OPEN_SET_SIZES = TINY.with_(unseen_contours=6, touches=(1, 2), openset_rotations=2, calibration_classifiers=("em",))
+
+
 def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
     """The two parts end to end on 8 catalogue classes x 6 objects (blind, 6 contours, any pose): ECE rows before and
     after calibration for every K with intervals around them and one reliability figure; open-set rows for every
     score and K, AUROCs in [0, 1] over exactly the left-out objects, and shares at the training-chosen threshold."""
-    classes = ("bottle", "bowl", "box", "can", "funnel", "mug", "ring", "wineglass")
+    classes = OPEN_SET_CLASSES
     data = mesh_folder(tmp_path / "meshes", classes=classes, per_class=6)
-    sizes = TINY.with_(unseen_contours=6, touches=(1, 2), openset_rotations=2, calibration_classifiers=("em",))
-    results = reproduce(data, tmp_path / "report", sizes=sizes, classifiers={"em": EmbeddingMean},
-                        parts=("calibration", "openset"), workers=2, progress=False)
+    fits = []
+
+    class Recording(EmbeddingMean):
+        def _fit(self, batch, y):
+            names = np.asarray(batch.object_names, dtype=object)[batch.object_ids]
+            labels = np.asarray(batch.class_names, dtype=object)[batch.labels]
+            fits.append({c: len(set(names[labels == c])) for c in set(labels)})
+            super()._fit(batch, y)
+
+    results = reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": Recording},
+                        parts=("openset",), workers=2, progress=False)
+    # Open set: every fit sees the known classes of one rotation only, and at most the 3 objects per class that its
+    # rotation did not hold out for testing (the other 3 of 6 are the known test objects).
+    left_out = results["openset"]["left_out"]
+    for fit in fits:
+        assert any(not set(fit) & set(group) for group in left_out), fit
+        assert max(fit.values()) <= 3, fit
+    results |= reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+                         parts=("calibration",), workers=2, progress=False)
     ece = results["calibration"]["rows"]
     assert {(r["k"], r["variant"].split(" ")[0]) for r in ece} >= {(k, v) for k in (1, 2) for v in ("before", "after")}
     assert all(0 <= r["low"] <= r["ece"] <= r["high"] <= 1 for r in ece)
@@ -716,3 +736,29 @@ def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
     assert {(r["n_unknown"], r["n_known"]) for r in rows if r["k"] == 1} == {(288, 144)}
     chosen = [r for r in rows if r["score"] == "chosen"]
     assert all(0 <= r["known_kept"] <= 1 and 0 <= r["unknown_rejected"] <= 1 for r in chosen)
+    picked = {r["score"] for r in results["openset"]["rotations"]}
+    if len(picked) == 1:  # every rotation chose one score: the "chosen" rows are that score's
+        (name,) = picked
+        by = {(r["k"], r["score"]): r["auroc"] for r in rows}
+        assert all(by[(k, "chosen")] == by[(k, name)] for k in (1, 2))
+
+
+def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
+    """The shares kept and rejected use each K's own threshold: below every score at K = 1 (all kept, none
+    rejected), above every score at K = 2 (none kept, all rejected)."""
+    from fusion.experiments import openset as experiment
+
+    asked = []
+
+    def threshold(model, k):
+        asked.append(k)
+        return -np.inf if k == 1 else np.inf
+
+    monkeypatch.setattr(experiment, "threshold_for", threshold)
+    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
+    results = reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+                        parts=("openset",), workers=2, progress=False)
+    assert sorted(set(asked)) == [1, 2]
+    shares = {r["k"]: (r["known_kept"], r["unknown_rejected"]) for r in results["openset"]["rows"]
+              if r["score"] == "chosen"}
+    assert shares == {1: (1.0, 0.0), 2: (0.0, 1.0)}

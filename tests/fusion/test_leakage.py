@@ -227,15 +227,14 @@ def test_batch_cache_returns_seeds_only_when_they_are_usable(tmp_path):
     plain = save_batch(batch, tmp_path / "plain.npz", {"k": 1})
     assert load_batch_with_seeds(plain, {"k": 1}) is None  # no seeds in the file: touch again
     assert load_batch(plain, {"k": 1}).frames.tobytes() == batch.frames.tobytes()
-    path = save_batch(batch, tmp_path / "negative.npz", {"k": 1}, noise_seeds=np.asarray([5, -6, 7]))
-    assert load_batch_with_seeds(path, {"k": 1}) is None
-    with pytest.raises(InvalidArgumentError, match="one integer per sequence"):
+    with pytest.raises(InvalidArgumentError, match="per sequence"):
         save_batch(batch, tmp_path / "short.npz", {"k": 1}, noise_seeds=np.asarray([5, 6]))
     meta = {"class_names": list(batch.class_names), "object_names": list(batch.object_names),
             "sensor_spec": batch.sensor_spec, "key": {"k": 1}}
-    short = write_cache(tmp_path / "short-hand.npz", meta, {**{a: getattr(batch, a) for a in _ARRAYS},
-                                                            "noise_seeds": np.asarray([5, 6])})
-    assert load_batch_with_seeds(short, {"k": 1}) is None
+    for name, seeds in (("short", [5, 6]), ("negative", [5, -6, 7])):  # written by hand: unusable on loading
+        path = write_cache(tmp_path / f"{name}-hand.npz", meta, {**{a: getattr(batch, a) for a in _ARRAYS},
+                                                                 "noise_seeds": np.asarray(seeds)})
+        assert load_batch_with_seeds(path, {"k": 1}) is None, name
     good = save_batch(batch, tmp_path / "good.npz", {"k": 1}, noise_seeds=[7, 8, 9])
     found, seeds = load_batch_with_seeds(good, {"k": 1})
     assert seeds.dtype == np.int64 and seeds.tolist() == [7, 8, 9]
@@ -268,8 +267,10 @@ def test_batch_cache_seeds_zero_is_usable_floats_and_huge_are_not(tmp_path):
     batch = touch_objects([make_object("box", 0)], ["box"], "blind", 3, probes=6, seed=1)
     path = save_batch(batch, tmp_path / "zero.npz", {"k": 1}, noise_seeds=[0, 1, 2])
     assert load_batch_with_seeds(path, {"k": 1})[1].tolist() == [0, 1, 2]
-    with pytest.raises(InvalidArgumentError, match="noise_seeds"):
-        save_batch(batch, tmp_path / "float.npz", {"k": 1}, noise_seeds=[7.9, 8.1, 9.5])
+    for bad in ([7.9, 8.1, 9.5], [True, False, True], [-1, 1, 2], np.array([2**63 + 1, 1, 2], np.uint64)):
+        with pytest.raises(InvalidArgumentError, match="noise_seeds"):
+            save_batch(batch, tmp_path / "bad.npz", {"k": 1}, noise_seeds=bad)
+    assert not (tmp_path / "bad.npz").exists()
     meta = {"class_names": list(batch.class_names), "object_names": list(batch.object_names),
             "sensor_spec": batch.sensor_spec, "key": {"k": 1}}
     arrays = {a: getattr(batch, a) for a in _ARRAYS}
@@ -279,6 +280,10 @@ def test_batch_cache_seeds_zero_is_usable_floats_and_huge_are_not(tmp_path):
     # A file whose meta lacks a field, or whose arrays do not fit together, is unreadable: made again, no crash.
     no_names = write_cache(tmp_path / "no-names.npz", {"key": {"k": 1}}, arrays)
     assert load_batch(no_names, {"k": 1}) is None
+    not_a_list = write_cache(tmp_path / "none-names.npz", {**meta, "class_names": None}, arrays)
+    assert load_batch(not_a_list, {"k": 1}) is None
+    not_an_object = write_cache(tmp_path / "list-meta.npz", [1, 2], arrays)
+    assert load_batch(not_an_object, {"k": 1}) is None
     short = write_cache(tmp_path / "short.npz", meta, {**arrays, "labels": arrays["labels"][:1]})
     assert load_batch(short, {"k": 1}) is None
 
