@@ -193,12 +193,14 @@ def run_recognition(out: Path, seed: int, sizes: Sizes, classifiers: dict | None
                       seed=seed, workers=workers, progress=progress)
     data_seconds = time.perf_counter() - start
     preds: dict[str, dict[str, dict[str, Predictions]]] = {"sequence": {}, "unseen": {}}
+    loaders = {}  # per strategy: the training sequences and the unseen instances' ones
     for strategy in sizes.strategies:
         index = ds.indices(strategy)
         seen, unseen = ds.split_by_object(1 / sizes.objects_per_class, seed=seed, index=index)
         train, test = ds.split_by_sequence(0.2, seed=seed, index=seen)
         batch = split_loader(ds, train, test)
         unseen_batch = split_loader(ds, train, unseen)
+        loaders[strategy] = unseen_batch
         folder = out / "models" if strategy == "guided" else out / "models" / strategy
         train_record = {"part": "demo", "store": digest(record), "strategy": strategy, "train": digest(train)}
         for name, factory in classifiers.items():
@@ -221,6 +223,11 @@ def run_recognition(out: Path, seed: int, sizes: Sizes, classifiers: dict | None
                            title=f"{DISPLAY.get(name, name)}, {strategy}, unseen instances")
             figures.append(file.name)
     k_best = max(sizes.touches)
+    name = "knn" if "knn" in classifiers else next(iter(classifiers))  # kNN: calibrating it takes seconds
+    strategy = sizes.strategies[-1]
+    calibration = run_calibration(out, name, classifiers[name], loaders[strategy], strategy, k_best, seed, echo)
+    if calibration:
+        figures.append(calibration["figure"])
     k_rows = [r for r in touches if r["k"] == k_best and r["rule"] == "log"]
     echo(f"\nUnseen instances, K = {k_best} touches per decision (sum of log probabilities):")
     for r in k_rows:
@@ -229,9 +236,57 @@ def run_recognition(out: Path, seed: int, sizes: Sizes, classifiers: dict | None
                   "epochs": sizes.epochs, "touches": list(sizes.touches),
                   "classifiers": list(sizes.unseen_classifiers), "strategies": list(sizes.strategies)}
     return {"sizes": {**demo_sizes, "classes": list(classes)}, "objects": [f"{c}/{s}" for c, s in objects],
-            "table": table, "touches": touches, "figures": figures, "data_seconds": round(data_seconds, 1),
+            "table": table, "touches": touches, "calibration": calibration, "figures": figures,
+            "data_seconds": round(data_seconds, 1),
             "seconds": round(time.perf_counter() - start, 1),
             "models": sorted(str(p.relative_to(out)) for p in (out / "models").rglob("*.vtm"))}
+
+
+def run_calibration(out: Path, name: str, factory, load, strategy: str, k: int, seed: int,
+                    echo: Callable[[str], None] = print) -> dict:
+    """Calibrate classifier ``name`` on the seen instances' ``strategy`` sequences (:func:`fusion.openset.calibrate`,
+    two folds by object, no open set: each class has two seen instances at most) and compare its unseen instances'
+    decisions before (raw, log rule) and after, at 1 and ``k`` touches: ECE with 95 % intervals over objects and a
+    reliability diagram (``reliability.png``).
+
+    Returns:
+        {"classifier", "strategy", "temperature", "dependence", "rows": [{"k", "variant", "ece", "low", "high",
+        "n"}], "figure"}, or None (said through ``echo``) when a class has fewer than two seen instances.
+    """
+    from fusion.calibration import ece_interval, plot_reliability, reliability
+    from fusion.decide import fuse_touches, touch_groups
+    from fusion.openset import calibrate, calibrated_fusion
+
+    train = load("train")
+    seen = {}
+    for obj, label in zip(train.object_ids, train.labels):
+        seen.setdefault(int(label), set()).add(int(obj))
+    if min(len(objects) for objects in seen.values()) < 2:
+        echo("\nCalibration skipped: it holds seen instances out, and a class has only one")
+        return None
+    model = calibrate(factory(), train, cv=2, open_set=False, max_touches=k, random_state=seed)
+    batch = load("test")
+    raw = model.predict_proba_uncalibrated(batch)
+    truth = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)
+    y = np.searchsorted(np.asarray(model.classes_).astype(str), truth)
+    fuse = {"before": lambda r: fuse_touches(r, "log"), "after": lambda r: calibrated_fusion(model.calibration_, r)}
+    rows, curves = [], {}
+    for touches in sorted({1, k}):
+        groups = touch_groups(batch.object_ids, touches, seed=seed)
+        first = groups[:, 0]
+        for variant, rule in fuse.items():
+            fused = rule(raw[groups])
+            rows.append({"k": touches, "variant": variant,
+                         **ece_interval(fused, y[first], batch.object_ids[first], seed=seed)})
+            curves[f"K={touches}, {variant}"] = reliability(fused, y[first])
+    label = DISPLAY.get(name, name)
+    plot_reliability(curves, out / "reliability.png", title=f"{label}, {strategy}, unseen instances")
+    echo(f"\nCalibration of {label} ({strategy}; fitted on the seen instances only), ECE on the unseen ones:")
+    for r in rows:
+        echo(f"  K = {r['k']:<2} {r['variant']:<7} {r['ece']:.3f} [{r['low']:.3f}, {r['high']:.3f}]")
+    state = model.calibration_
+    return {"classifier": label, "strategy": strategy, "temperature": round(float(state["temperature"]), 4),
+            "dependence": round(float(state["dependence"]), 4), "rows": rows, "figure": "reliability.png"}
 
 
 def _table(preds: dict, seed: int) -> list[dict]:
@@ -272,6 +327,12 @@ def _report(summary: dict) -> str:
                    "(interval over objects). 95 % percentile bootstrap, 1000 resamples."), "",
                   markdown_table(rec["table"]), "", "![accuracy vs K](accuracy_vs_k.png)", ""]
         lines += [f"![{f}]({f})" for f in summary["figures"] if f.startswith("confusion")]
+        cal = rec["calibration"]
+        lines += [] if not cal else ["", "### Calibration", "", (f"{cal['classifier']} ({cal['strategy']}), calibrated on the seen "
+                  f"instances only (temperature {cal['temperature']:g}, touch dependence {cal['dependence']:g}); "
+                  "ECE of the unseen instances' decisions [95 % interval over objects]: "
+                  + "; ".join(f"K = {r['k']} {r['variant']} {r['ece']:.3f} [{r['low']:.3f}, {r['high']:.3f}]"
+                              for r in cal["rows"])), "", "![reliability](reliability.png)"]
         lines += ["", f"Recognition took {rec['seconds']} s (data {rec['data_seconds']} s). Models: "
                   + ", ".join(f"`{m}`" for m in rec["models"]), ""]
     act = summary.get("active")
@@ -284,4 +345,4 @@ def _report(summary: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["DEMO_SIZES", "check_demo_sizes", "format_table", "run_demo", "run_recognition"]
+__all__ = ["DEMO_SIZES", "check_demo_sizes", "format_table", "run_calibration", "run_demo", "run_recognition"]

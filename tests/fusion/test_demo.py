@@ -55,3 +55,27 @@ def test_whole_demo_with_a_stand_in_classifier(tmp_path):
     assert saved["recognition"]["models"] == ["models/blind/nm.vtm", "models/nm.vtm"]
     report = (tmp_path / "report.md").read_text()
     assert "## Recognition" in report and "](accuracy_vs_k.png)" in report
+
+
+def test_demo_calibrates_on_seen_instances_and_scores_the_unseen_ones(tmp_path):
+    """Three instances per class: the two seen ones calibrate the classifier (two folds by object), the unseen one
+    is scored before and after at K = 1 and the largest K; ECE intervals around their values, a reliability
+    figure and its section in the report. With two instances per class the step is skipped, saying so."""
+    lines: list[str] = []
+    sizes = DEMO_SIZES.with_(objects_per_class=3, unseen_contours=8, touches=(1, 4), unseen_classifiers=("nm",),
+                             strategies=("blind",))
+    result = run_recognition(tmp_path, 0, sizes, {"nm": STANDINS["nm"]}, classes=["box", "ring", "can"], workers=2,
+                             progress=False, echo=lines.append)
+    cal = result["calibration"]
+    assert [(r["k"], r["variant"]) for r in cal["rows"]] == [(1, "before"), (1, "after"), (4, "before"),
+                                                              (4, "after")]
+    # the unseen instances: 3 objects x 8 sequences at K = 1, one cut of 8 // 4 groups each at K = 4
+    assert [r["n"] for r in cal["rows"]] == [24, 24, 6, 6]
+    assert all(0 <= r["low"] <= r["ece"] <= r["high"] <= 1 for r in cal["rows"])
+    assert "reliability.png" in result["figures"]
+    assert (tmp_path / "reliability.png").read_bytes()[:8] == PNG
+    assert any(line.startswith("Calibration of nm") for line in (x.strip() for x in lines))
+    skipped: list[str] = []
+    result = run_recognition(tmp_path / "two", 0, sizes.with_(objects_per_class=2), {"nm": STANDINS["nm"]},
+                             classes=["box", "ring"], workers=2, progress=False, echo=skipped.append)
+    assert result["calibration"] is None and any("Calibration skipped" in line for line in skipped)
