@@ -245,7 +245,7 @@ def run_recognition(out: Path, seed: int, sizes: Sizes, classifiers: dict | None
 def run_calibration(out: Path, name: str, factory, load, strategy: str, k: int, seed: int,
                     echo: Callable[[str], None] = print) -> dict:
     """Calibrate classifier ``name`` on the seen instances' ``strategy`` sequences (:func:`fusion.openset.calibrate`,
-    two folds by object, no open set: each class has two seen instances at most) and compare its unseen instances'
+    two folds by object, no open set: a class may have only two seen instances) and compare its unseen instances'
     decisions before (raw, log rule) and after, at 1 and ``k`` touches: ECE with 95 % intervals over objects and a
     reliability diagram (``reliability.png``).
 
