@@ -762,3 +762,26 @@ def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
     shares = {r["k"]: (r["known_kept"], r["unknown_rejected"]) for r in results["openset"]["rows"]
               if r["score"] == "chosen"}
     assert shares == {1: (1.0, 0.0), 2: (0.0, 1.0)}
+
+
+def test_attention_part_names_each_pose_to_the_folds(tmp_path, monkeypatch):
+    """The attention part asks the folds for every pose by name (the pose names the cached predictions: upright
+    and any-pose predictions of one fold model must not share a file)."""
+    from fusion.experiments import attention
+    from fusion.experiments.context import Context
+
+    asked = []
+
+    def folds(ctx, part, stores, strategies, classifiers, n_folds, **kwargs):
+        asked.append((part, stores, kwargs.get("pose")))
+        return {}
+
+    monkeypatch.setattr(attention, "grouped_kfold", folds)
+    monkeypatch.setattr(attention, "pose_stores", lambda ctx, objects, pose, strategies, contours: pose)
+    monkeypatch.setattr(attention, "saliency_seconds", lambda *a, **k: {})
+    data = mesh_folder(tmp_path / "meshes", per_class=1)
+    objects = [(p, p.parent.name) for p in sorted(data.glob("*/*.off"))]
+    ctx = Context(out=tmp_path / "report", seed=0, sizes=TINY, classifiers=STANDINS, progress=False)
+    attention.attention_rows(ctx, objects)
+    assert asked and all(part == "attention" and stores == pose for part, stores, pose in asked)
+    assert [pose for *_, pose in asked][:2] == ["upright", "any pose"]
