@@ -531,13 +531,15 @@ class CNNClassifier(TactileClassifier):
         return opt, torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.lr, total_steps=steps)
 
     @staticmethod
-    def _logits(net: nn.Module, x: torch.Tensor, device: torch.device) -> torch.Tensor:
-        """(S, C) float64 CPU logits of ``x`` in eval mode, in chunks."""
+    def _logits(net: nn.Module, x: torch.Tensor, device: torch.device, features: bool = False) -> torch.Tensor:
+        """(S, C) float64 CPU logits of ``x`` in eval mode, in chunks; ``features``: the hidden layer (S, hidden)
+        instead (:meth:`_TwoConvNet.features`)."""
         net.eval()
+        layer = net.features if features else net
         out = []
         with torch.no_grad():
             for start in range(0, len(x), PREDICT_CHUNK):
-                out.append(net(x[start:start + PREDICT_CHUNK].to(device, torch.float32)).double().cpu())
+                out.append(layer(x[start:start + PREDICT_CHUNK].to(device, torch.float32)).double().cpu())
         return torch.cat(out) if out else torch.empty((0, 0), dtype=torch.float64)
 
     def _fit(self, batch: SequenceBatch, y_index: np.ndarray) -> None:
@@ -619,14 +621,11 @@ class CNNClassifier(TactileClassifier):
         self.check_compatible(batch)
         device = self._device()
         parts = []
-        with _torch_settings(self.threads or default_threads(), deterministic=False), torch.no_grad():
+        with _torch_settings(self.threads or default_threads(), deterministic=False):
             for net, inputs in ((self.cutaneous_net_, self._frames), (self.kinesthetic_net_, self._cues)):
                 if net is None:
                     continue
-                x = inputs(batch)
-                net.to(device).eval()
-                f = torch.cat([net.features(x[i:i + PREDICT_CHUNK].to(device, torch.float32)).double().cpu()
-                               for i in range(0, len(x), PREDICT_CHUNK)])
+                f = self._logits(net.to(device), inputs(batch), device, features=True)
                 net.to("cpu")
                 length = f.norm(dim=1, keepdim=True)
                 # A hidden layer of zeros (every ReLU off) has no direction: it stays at the origin.

@@ -254,28 +254,25 @@ def run_calibration(out: Path, name: str, factory, load, strategy: str, k: int, 
         "n"}], "figure"}, or None (said through ``echo``) when a class has fewer than two seen instances.
     """
     from fusion.calibration import ece_interval, plot_reliability, reliability
-    from fusion.decide import fuse_touches, touch_groups
-    from fusion.openset import calibrate, calibrated_fusion
+    from fusion.decide import touch_groups
+    from fusion.experiments.openset import VARIANTS, class_index
+    from fusion.openset import calibrate, objects_per_class
 
     train = load("train")
-    seen = {}
-    for obj, label in zip(train.object_ids, train.labels):
-        seen.setdefault(int(label), set()).add(int(obj))
-    if min(len(objects) for objects in seen.values()) < 2:
+    if min(objects_per_class(train).values()) < 2:
         echo("\nCalibration skipped: it holds seen instances out, and a class has only one")
         return None
     model = calibrate(factory(), train, cv=2, open_set=False, max_touches=k, random_state=seed)
     batch = load("test")
     raw = model.predict_proba_uncalibrated(batch)
-    truth = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)
-    y = np.searchsorted(np.asarray(model.classes_).astype(str), truth)
-    fuse = {"before": lambda r: fuse_touches(r, "log"), "after": lambda r: calibrated_fusion(model.calibration_, r)}
+    y = class_index(model, batch)
+    fuse = {"before": VARIANTS["before (raw, log rule)"], "after": VARIANTS["after (+ confidence map for K)"]}
     rows, curves = [], {}
     for touches in sorted({1, k}):
         groups = touch_groups(batch.object_ids, touches, seed=seed)
         first = groups[:, 0]
         for variant, rule in fuse.items():
-            fused = rule(raw[groups])
+            fused = rule(model.calibration_, raw[groups])
             rows.append({"k": touches, "variant": variant,
                          **ece_interval(fused, y[first], batch.object_ids[first], seed=seed)})
             curves[f"K={touches}, {variant}"] = reliability(fused, y[first])

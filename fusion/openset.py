@@ -201,6 +201,16 @@ def object_keys(batch) -> np.ndarray:
     return names[np.asarray(batch.object_ids)]
 
 
+def objects_per_class(batch, names=None) -> dict[str, int]:
+    """{class name: how many objects of it ``batch`` touched} (sorted by class; a capture counted with its CAD twin,
+    :func:`object_keys`); ``names``: (S,) each sequence's class (default: the batch's labels)."""
+    if names is None:
+        names = np.asarray(batch.class_names, dtype=object)[np.asarray(batch.labels)]
+    names = np.asarray(names).astype(str)
+    keys = object_keys(batch)
+    return {str(c): len(set(keys[names == c].tolist())) for c in sorted(set(names.tolist()))}
+
+
 class _Inner:
     """Fits models on parts of one batch and predicts other parts, in the full class list's columns.
 
@@ -306,8 +316,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, max_touche
         raise DatasetError("calibrate: the training data has one class; need at least two")
     yi = np.searchsorted(classes.astype(str), names)
     keys = object_keys(batch)
-    per_class = {c: len(set(keys[yi == i].tolist())) for i, c in enumerate(classes)}
-    short = {c: n for c, n in per_class.items() if n < cv}
+    short = {c: n for c, n in objects_per_class(batch, names).items() if n < cv}
     if short:
         raise DatasetError(f"calibrate: classes with fewer objects than the {cv} calibration folds: {short}; "
                            "lower cv or add objects")
@@ -521,5 +530,5 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
 
 
 __all__ = ["DISTANCE_FLOOR", "SCORES", "UNKNOWN", "auroc", "calibrate", "calibrated_fusion", "check_calibration", "class_distances",
-           "decide", "embedding", "group_scores", "object_keys", "per_touch", "rejected_share", "threshold_for",
+           "decide", "embedding", "group_scores", "object_keys", "objects_per_class", "per_touch", "rejected_share", "threshold_for",
            "threshold_keeping"]

@@ -83,15 +83,14 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
     start = time.perf_counter()
     training = dataset.load(train)
     if calibrated:
-        from fusion.openset import calibrate, object_keys
+        from fusion.openset import calibrate, objects_per_class
 
-        keys = object_keys(training)
-        names = np.asarray(training.class_names, dtype=object)[training.labels]
-        short = {str(c): len(set(keys[names == c])) for c in np.unique(names) if len(set(keys[names == c])) < 3}
+        per_class = objects_per_class(training)
+        short = {c: n for c, n in per_class.items() if n < 3}
         if short:
             raise DatasetError(f"{store}: --calibrate needs at least 3 training objects per class (it holds objects "
                                f"out inside the training part); after the {split} split: {short}")
-        n_classes = len(np.unique(training.labels))
+        n_classes = len(per_class)
         model = calibrate(model, training, class_folds=max(2, min(4, n_classes)), open_set=n_classes >= 3,
                           random_state=random_state)
     else:

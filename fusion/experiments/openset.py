@@ -46,7 +46,8 @@ log = logging.getLogger(__name__)
 BOOTSTRAP = 1000
 
 
-def _class_index(model, batch) -> np.ndarray:
+def class_index(model, batch) -> np.ndarray:
+    """(S,) each sequence's class as an index into ``model.classes_``."""
     names = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)
     return np.searchsorted(np.asarray(model.classes_).astype(str), names)
 
@@ -77,7 +78,7 @@ def calibration_part(ctx: Context, objects) -> dict:
             batch = load("test")
             state = model.calibration_
             collected.setdefault(name, []).append({
-                "raw": model.predict_proba_uncalibrated(batch), "y": _class_index(model, batch), "state": state,
+                "raw": model.predict_proba_uncalibrated(batch), "y": class_index(model, batch), "state": state,
                 "obj": np.asarray(batch.object_names, dtype=object)[batch.object_ids]})
             fits.append({"classifier": DISPLAY.get(name, name), "fold": i + 1,
                          "temperature": round(state["temperature"], 4), "smoothing": round(state["smoothing"], 4),
@@ -233,4 +234,4 @@ def _auroc_cell(h: dict) -> str:
     return text + f"; @95 % test-known {100 * h['rejected_at_test_95']:.0f} %"
 
 
-__all__ = ["calibration_part", "calibration_table", "openset_part", "openset_table"]
+__all__ = ["VARIANTS", "calibration_part", "calibration_table", "class_index", "openset_part", "openset_table"]
