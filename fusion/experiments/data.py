@@ -110,10 +110,17 @@ def store_record(objects, contours: int, seed: int, strategies=("guided", "blind
 
 
 def _identity(spec) -> list:
-    """[path or catalogue item, label] (the record format of upright objects), plus the pose seed if any."""
-    source = spec.path if spec.path is not None else (
-        str(tuple(spec.catalogue)) if spec.catalogue is not None else spec.to_dict().get("loader"))
-    return [str(source), spec.label] + ([spec.rotation_seed] if spec.rotation_seed is not None else [])
+    """[path or catalogue item, label] (the record format of upright objects), plus the pose seed if any. An object
+    made by a loader is its name, function and arguments: the function alone is the same for a whole set of
+    loaded objects (say, every virtual capture), whose stores would otherwise share one name."""
+    if spec.path is not None:
+        source = str(spec.path)
+    elif spec.catalogue is not None:
+        source = str(tuple(spec.catalogue))
+    else:
+        identity = spec.to_dict()
+        source = f"{identity['name']} = {identity['loader']}{identity.get('loader_args', '')}"
+    return [source, spec.label] + ([spec.rotation_seed] if spec.rotation_seed is not None else [])
 
 
 def ensure_store(objects, folder: Path, *, strategies, contours: int, seed: int, sensor: FSRSensor | None = None,

@@ -224,6 +224,29 @@ def test_any_pose_gives_each_object_its_own_seeded_rotation():
     assert all(x.rotation_seed != y.rotation_seed for x, y in zip(a, other, strict=True))
 
 
+def _loaded_mug(seed: int):  # a loader for the store-record test (never called there)
+    raise AssertionError("not loaded")
+
+
+def test_objects_made_by_one_loader_get_stores_of_their_own():
+    """Two sets of loaded objects with the same function and labels but other arguments (other captures of the
+    same classes, say) are other data: their stores must not share a name; the same set gives the same record."""
+    import functools
+
+    from fusion.experiments.data import store_record
+    from tactile.dataset.objects import ObjectSpec
+
+    def objects(seeds, names=("mug/a", "mug/b")):
+        return [ObjectSpec(name=n, label="mug", loader=functools.partial(_loaded_mug, s)) for n, s in zip(names, seeds)]
+
+    first = store_record(objects((0, 1)), 10, 0)
+    assert store_record(objects((0, 1)), 10, 0) == first
+    assert store_record(objects((2, 3)), 10, 0) != first  # other arguments
+    assert store_record(objects((0, 1), ("mug/c", "mug/d")), 10, 0) != first  # other names
+    # Files and catalogue items keep the record they always had (cached stores keep their names).
+    assert store_record([("mug", 4)], 10, 0)["objects"] == [["('mug', 4)", "mug"]]
+
+
 def test_byte_identical_meshes_count_as_one_object(tmp_path):
     """Two files with the same bytes (SHREC's Fish/226 and 227) are one object: the later one is left out."""
     for name, text in (("226.off", "OFF\n# fish\n"), ("227.off", "OFF\n# fish\n"), ("228.off", "OFF\n# other\n")):
