@@ -3,8 +3,9 @@
 Several stores of the same objects (other sensors, probe counts or contour counts: the experiments' run-time
 part makes eight) would each compute every object's saliency again; :class:`InterestPointCache` keeps the
 points of each (mesh, method, seed, count) once. Its key is a digest of the loaded mesh (vertices, triangles,
-colours, transform, centering: another pose, scale or repair is another mesh), the method, seed and count, and the sources of the
-``perception`` package (points cached by other code are computed again). Entries are small ``.npy`` files read
+colours, transform, centering: another pose, scale or repair is another mesh), the method, seed and count, the sources of the
+``perception`` package and the versions of the libraries saliency uses (points cached by other code or another
+Open3D are computed again). Entries are small ``.npy`` files read
 without pickle; one that is damaged, of the wrong shape or not finite is ignored and recomputed.
 """
 
@@ -44,14 +45,28 @@ class KnownInterestPoints:
         return self.points[:n].copy()
 
 
+#: Libraries whose results saliency depends on (rendering and ray casting, filters, ranks, repairs): another
+#: version of one may move the interest points, so it is another cache key.
+SALIENCY_LIBRARIES = ("numpy", "scipy", "open3d", "pymeshlab")
+
+
 @functools.cache
 def code_version() -> str:
-    """A digest of the ``perception`` package's Python sources (read once per process)."""
+    """A digest of the ``perception`` package's Python sources and of the versions of
+    :data:`SALIENCY_LIBRARIES` (read once per process)."""
+    from importlib.metadata import PackageNotFoundError, version
+
     root = Path(__file__).resolve().parent
     h = hashlib.blake2b(digest_size=8)
     for path in sorted(root.rglob("*.py")):
         h.update(path.relative_to(root).as_posix().encode())
         h.update(path.read_bytes())
+    for library in SALIENCY_LIBRARIES:
+        try:
+            found = version(library)
+        except PackageNotFoundError:
+            found = "absent"
+        h.update(f"{library}={found}".encode())
     return h.hexdigest()
 
 
@@ -128,4 +143,4 @@ class InterestPointCache:
         return None if points is None else KnownInterestPoints(model, method, points)
 
 
-__all__ = ["MAX_ENTRY_BYTES", "InterestPointCache", "KnownInterestPoints", "code_version"]
+__all__ = ["MAX_ENTRY_BYTES", "SALIENCY_LIBRARIES", "InterestPointCache", "KnownInterestPoints", "code_version"]
