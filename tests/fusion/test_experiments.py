@@ -808,3 +808,54 @@ def test_attention_part_names_each_pose_to_the_folds(tmp_path, monkeypatch):
     attention.attention_rows(ctx, objects)
     assert asked and all(part == "attention" and stores == pose for part, stores, pose in asked)
     assert [pose for *_, pose in asked][:2] == ["upright", "any pose"]
+
+
+# ---------------------------------------------------------------------------- benchmarks.new_instances
+def test_new_instances_refuses_a_training_mesh_and_an_unknown_class(tmp_path, capsys):
+    from benchmarks import new_instances
+
+    train = mesh_folder(tmp_path / "train", per_class=2)
+    copy = tmp_path / "copy" / "box" / "again.off"
+    copy.parent.mkdir(parents=True)
+    copy.write_bytes((train / "box" / "box1.off").read_bytes())
+    assert new_instances.main(["--instances", str(copy.parents[1]), "--train", str(train), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "again.off" in err and "box1.off" in err and "byte for byte" in err
+    other = mesh_folder(tmp_path / "other", classes=("box", "mug"), per_class=1)
+    assert new_instances.main(["--instances", str(other), "--train", str(train), "--out", str(tmp_path / "o")]) == 2
+    assert "['mug'] are not in the training set" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # refused before anything was generated
+
+
+def test_new_instances_trains_once_and_tests_every_pose_and_strategy(tmp_path, monkeypatch):
+    """Every test object scored once per pose and strategy by a model that saw only the training meshes; the paired
+    differences agree with the accuracies (equal decisions per object, so a mean over objects is a mean over
+    decisions)."""
+    from benchmarks import new_instances
+    from fusion.experiments import models
+
+    fits: list = []
+    monkeypatch.setattr(models, "default_classifiers", lambda seed=0, **_: {"nm": recorder(fits)})
+    train = mesh_folder(tmp_path / "train", per_class=2)
+    test = tmp_path / "test"
+    for c in ("box", "can"):
+        for s in (7, 8):
+            write_off(make_object(c, s), test / c / f"{c}{s}.off")
+    result = new_instances.run(test, train, tmp_path / "o", contours=4, touches=2, classifiers=("nm",))
+    assert len(fits) == 1 and fits[0] == (2 * 4 * 4, {"box/box0", "box/box1", "can/can0", "can/can1"})
+    assert {(r["pose"], r["strategy"]) for r in result["rows"]} == {(p, s) for p in ("upright", "any") for s in
+                                                                    ("guided", "blind")}
+    assert all(r["objects"] == 4 and r["k1"]["n"] == 16 and r["k2"]["n"] == 4 * 2 * 10 for r in result["rows"])
+    by = {(r["pose"], r["strategy"], k): r[k]["value"] for r in result["rows"] for k in ("k1", "k2")}
+    for d in result["differences"]:
+        a, b = d["compare"].split(" (")[0].split(" - "), d["compare"].split("(")[1][:-1]
+        k = f"k{d['k']}"
+        if a == ["guided", "blind"]:
+            expected = by[(b, "guided", k)] - by[(b, "blind", k)]
+        else:
+            expected = by[("any", b, k)] - by[("upright", b, k)]
+        assert d["difference"] == pytest.approx(100 * expected) and d["n_objects"] == 4
+    # A second run scores from the cache: no model is fitted again.
+    again = new_instances.run(test, train, tmp_path / "o", contours=4, touches=2, classifiers=("nm",))
+    assert len(fits) == 1 and again["rows"] == result["rows"]
+    assert "| nm | any | guided |" in new_instances.report(result)
