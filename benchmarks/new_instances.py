@@ -58,15 +58,18 @@ def run(instances: Path, train_folder: Path, out: Path, *, contours: int = 24, t
 
     Raises:
         DatasetError: a bad folder, a test class the training set lacks, or a test mesh equal to a training one.
-        InvalidArgumentError: an unknown classifier or pose, or counts below 1 (touches below 2).
+        InvalidArgumentError: an unknown classifier or pose, a negative seed, or touches outside 2..contours.
     """
     from fusion.experiments.analysis import paired_difference, touches_score
     from fusion.experiments.data import any_pose, ensure_store, folder_objects
     from fusion.experiments.models import default_classifiers, digest, pick, train_and_predict
 
+    poses = tuple(dict.fromkeys(poses))
     unknown = [p for p in poses if p not in POSES]
     if unknown:
         raise InvalidArgumentError(f"unknown poses {unknown}; choose from {', '.join(POSES)}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise InvalidArgumentError(f"the seed must be an integer >= 0, got {seed!r}")
     if contours < touches or touches < 2:
         raise InvalidArgumentError(f"need 2 <= touches <= contours, got {touches} touches of {contours} contours")
     factories = pick(default_classifiers(seed), classifiers)
@@ -112,7 +115,7 @@ def run(instances: Path, train_folder: Path, out: Path, *, contours: int = 24, t
             for pose in poses:
                 differences.append({"classifier": name, "k": k, "compare": f"guided - blind ({pose})", **percent(
                     paired_difference(preds[(name, pose, "guided")], preds[(name, pose, "blind")], k, seed=seed))})
-            if len(poses) == 2:
+            if set(poses) == set(POSES):
                 for strategy in STRATEGIES:
                     differences.append({"classifier": name, "k": k, "compare": f"any - upright ({strategy})", **percent(
                         paired_difference(preds[(name, "any", strategy)], preds[(name, "upright", strategy)], k,

@@ -824,6 +824,8 @@ def test_new_instances_refuses_a_training_mesh_and_an_unknown_class(tmp_path, ca
     other = mesh_folder(tmp_path / "other", classes=("box", "mug"), per_class=1)
     assert new_instances.main(["--instances", str(other), "--train", str(train), "--out", str(tmp_path / "o")]) == 2
     assert "['mug'] are not in the training set" in capsys.readouterr().err
+    assert new_instances.main(["--instances", str(other), "--train", str(train), "--seed", "-1"]) == 2
+    assert "seed must be an integer >= 0, got -1" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # refused before anything was generated
 
 
@@ -856,6 +858,7 @@ def test_new_instances_trains_once_and_tests_every_pose_and_strategy(tmp_path, m
             expected = by[("any", b, k)] - by[("upright", b, k)]
         assert d["difference"] == pytest.approx(100 * expected) and d["n_objects"] == 4
     # A second run scores from the cache: no model is fitted again.
-    again = new_instances.run(test, train, tmp_path / "o", contours=4, touches=2, classifiers=("nm",))
+    again = new_instances.run(test, train, tmp_path / "o", contours=4, touches=2, classifiers=("nm",),
+                              poses=("upright", "any", "upright"))  # a pose named twice is tested once
     assert len(fits) == 1 and again["rows"] == result["rows"]
     assert "| nm | any | guided |" in new_instances.report(result)
