@@ -54,19 +54,14 @@ SALIENCY_LIBRARIES = ("numpy", "scipy", "open3d", "pymeshlab")
 def code_version() -> str:
     """A digest of the ``perception`` package's Python sources and of the versions of
     :data:`SALIENCY_LIBRARIES` (read once per process)."""
-    from importlib.metadata import PackageNotFoundError, version
+    from perception.runtime import versions
 
     root = Path(__file__).resolve().parent
     h = hashlib.blake2b(digest_size=8)
     for path in sorted(root.rglob("*.py")):
         h.update(path.relative_to(root).as_posix().encode())
         h.update(path.read_bytes())
-    for library in SALIENCY_LIBRARIES:
-        try:
-            found = version(library)
-        except PackageNotFoundError:
-            found = "absent"
-        h.update(f"{library}={found}".encode())
+    h.update(repr(sorted(versions(*SALIENCY_LIBRARIES).items())).encode())
     return h.hexdigest()
 
 

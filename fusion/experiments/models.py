@@ -178,15 +178,22 @@ def model_code_files(cls: type) -> list[Path]:
     return sorted(files.values())
 
 
+#: Libraries a classifier's fit and outputs depend on: a model cached under another version of one is trained again.
+MODEL_LIBRARIES = ("scipy", "scikit-learn", "torch", "PyWavelets")
+
+
 @functools.cache
 def model_code_version(cls: type) -> str:
     """A hash of the code of classifier class ``cls`` (the files of :func:`model_code_files`): a cached model
     trained by other code is trained again, while an edit to a module the classifier does not use (the demo,
-    the commands, the experiments, :data:`NOT_MODEL_CODE`) keeps cached models valid. Read once per process and
+    the commands, the experiments, :data:`NOT_MODEL_CODE`) keeps cached models valid. The versions of numpy and
+    :data:`MODEL_LIBRARIES` are part of it: another PyTorch or scikit-learn trains again. Read once per process and
     class: the code that runs is the code that was imported, whatever happens to the files during a long run."""
+    from perception.runtime import versions
+
     root = Path(__file__).resolve().parents[2]
     return digest(*[f"{p.relative_to(root) if p.is_relative_to(root) else p.name}:{_source_text(p)}"
-                    for p in model_code_files(cls)])
+                    for p in model_code_files(cls)], sorted(versions(*MODEL_LIBRARIES).items()))
 
 
 def describe(estimator: TactileClassifier) -> str:
@@ -328,5 +335,5 @@ def train_and_predict(name: str, factory: Factory, train, test, folder: Path, re
     return result
 
 
-__all__ = ["DISPLAY", "MODALITY_DISPLAY", "Predictions", "default_classifiers", "digest", "fit_cached", "pick",
-           "predict", "train_and_predict"]
+__all__ = ["DISPLAY", "MODALITY_DISPLAY", "MODEL_LIBRARIES", "Predictions", "default_classifiers", "digest",
+           "fit_cached", "pick", "predict", "train_and_predict"]

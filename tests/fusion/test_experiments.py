@@ -570,6 +570,16 @@ class TestModelCodeVersion:
 
         assert self._key_after_edit(monkeypatch, CNNClassifier, "fusion/cnn.py") != model_code_version(CNNClassifier)
 
+    def test_another_library_version_changes_the_key(self, monkeypatch):
+        from fusion.cnn import CNNClassifier
+        from fusion.experiments import models
+        from perception import runtime
+
+        now = models.model_code_version.__wrapped__(CNNClassifier)
+        real = runtime.version
+        monkeypatch.setattr(runtime, "version", lambda name: "0.0.1" if name == "torch" else real(name))
+        assert models.model_code_version.__wrapped__(CNNClassifier) != now
+
     def test_an_edit_to_another_classifier_keeps_the_key(self, monkeypatch):
         from fusion.conventional import ConventionalClassifier
         from fusion.experiments.models import model_code_version

@@ -86,19 +86,16 @@ def test_key_covers_everything_saliency_reads_and_the_code(mug, monkeypatch):
 def test_another_library_version_is_another_key(monkeypatch):
     """Open3D renders the views and casts the rays saliency reads: points cached under another version are
     computed again."""
-    import importlib.metadata
+    from perception import interest_cache, runtime
 
-    from perception import interest_cache
-
-    real = importlib.metadata.version
+    real = runtime.version
     interest_cache.code_version.cache_clear()
     try:
         before = interest_cache.code_version()
-        monkeypatch.setattr(importlib.metadata, "version",
-                            lambda name: "0.0.1" if name == "open3d" else real(name))
+        monkeypatch.setattr(runtime, "version", lambda name: "0.0.1" if name == "open3d" else real(name))
         interest_cache.code_version.cache_clear()
         assert interest_cache.code_version() != before
-        monkeypatch.setattr(importlib.metadata, "version", real)
+        monkeypatch.setattr(runtime, "version", real)
         interest_cache.code_version.cache_clear()
         assert interest_cache.code_version() == before
     finally:
