@@ -30,7 +30,6 @@ Stores and models are cached under ``--out`` (default: a temporary folder), so a
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 import tempfile
@@ -47,9 +46,10 @@ POSES = {"upright": "upright", "any": "any pose"}
 
 def seen_copies(train, test) -> list[tuple[Path, Path]]:
     """(test file, training file) pairs whose bytes are equal: test objects that are in fact training objects."""
-    digests = {hashlib.sha256(Path(p).read_bytes()).hexdigest(): Path(p) for p, _ in train}
-    return [(Path(p), digests[d]) for p, _ in test
-            if (d := hashlib.sha256(Path(p).read_bytes()).hexdigest()) in digests]
+    from fusion.experiments.data import mesh_digest
+
+    digests = {mesh_digest(p): Path(p) for p, _ in train}
+    return [(Path(p), digests[d]) for p, _ in test if (d := mesh_digest(p)) in digests]
 
 
 def run(instances: Path, train_folder: Path, out: Path, *, contours: int = 24, touches: int = 8,

@@ -56,12 +56,17 @@ def folder_objects(folder: str | Path, classes=None, per_class: int | None = Non
     return out
 
 
+def mesh_digest(path: str | Path) -> str:
+    """SHA-256 of a mesh file's bytes: equal digests, one object."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def unique_meshes(items: list[tuple[Path, str]]) -> list[tuple[Path, str]]:
     """``items`` without the files whose bytes (SHA-256) equal an earlier one's (logged as a warning)."""
     seen: dict[str, Path] = {}
     out = []
     for path, label in items:
-        key = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        key = mesh_digest(path)
         if key in seen:
             log.warning("%s is byte-identical to %s: counted as one object", path, seen[key])
             continue
@@ -174,4 +179,4 @@ def split_loader(ds, train, test, test_ds=None):
 
 
 __all__ = ["any_pose", "catalogue_objects", "ensure_store", "folder_objects", "load_models", "split_loader",
-           "store_record", "unique_meshes"]
+           "mesh_digest", "store_record", "unique_meshes"]

@@ -98,12 +98,19 @@ def save_batch(batch: SequenceBatch, path: str | Path, key: dict | None = None, 
     arrays = {a: getattr(batch, a) for a in _ARRAYS}
     if noise_seeds is not None:
         seeds = np.asarray(noise_seeds)
-        if seeds.shape != (len(batch),) or (seeds.size and seeds.dtype.kind not in "iu") or (
-                seeds.size and not ((seeds >= 0).all() and (seeds <= np.iinfo(np.int64).max).all())):
+        if not _valid_seeds(seeds, len(batch)):
             raise InvalidArgumentError(f"{path}: noise_seeds must be one integer in [0, 2**63) per sequence "
                                        f"({len(batch)}), got shape {seeds.shape} of {seeds.dtype}")
         arrays["noise_seeds"] = seeds.astype(np.int64)
     return write_cache(path, meta, arrays)
+
+
+def _valid_seeds(seeds: np.ndarray, n: int) -> bool:
+    """Whether ``seeds`` are ``n`` integers in [0, 2**63) (no seeds at all for an empty batch)."""
+    if seeds.shape != (n,):
+        return False
+    return not seeds.size or (seeds.dtype.kind in "iu" and bool((seeds >= 0).all())
+                              and bool((seeds <= np.iinfo(np.int64).max).all()))
 
 
 def _load(path: str | Path, key: dict | None) -> tuple[SequenceBatch, np.ndarray | None] | None:
@@ -130,8 +137,7 @@ def load_batch_with_seeds(path: str | Path, key: dict | None = None) -> tuple[Se
     if found is None:
         return None
     batch, seeds = found
-    usable = (seeds is not None and seeds.shape == (len(batch),) and seeds.dtype.kind in "iu" and (seeds >= 0).all()
-              and (seeds <= np.iinfo(np.int64).max).all())
+    usable = seeds is not None and seeds.dtype.kind in "iu" and _valid_seeds(seeds, len(batch))
     return (batch, seeds.astype(np.int64)) if usable else None
 
 
