@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +12,28 @@ import numpy as np
 
 from perception.errors import DatasetError
 from perception.geometry import ObjectModel, text_name
+
+
+def _stable_repr(value) -> str:
+    """``repr`` of a loader's arguments that names their content: arrays and meshes by shape and SHA-256 of their
+    bytes (numpy's repr elides the middle of a large array, so two different arrays would read the same),
+    tuples, lists and dicts element by element; anything else by its ``repr``. Plain values read as ``repr``."""
+    if isinstance(value, np.ndarray):
+        data = np.ascontiguousarray(value)
+        content = hashlib.sha256(data.view(np.uint8).tobytes() if data.dtype != object else repr(data.tolist()).encode())
+        return f"ndarray(shape={data.shape}, dtype={data.dtype}, sha256={content.hexdigest()})"
+    if isinstance(value, ObjectModel):
+        content = hashlib.sha256(np.ascontiguousarray(value.vertices, np.float64).tobytes())
+        content.update(np.ascontiguousarray(value.triangles, np.int64).tobytes())
+        return f"ObjectModel(name={value.name!r}, sha256={content.hexdigest()})"
+    if type(value) is tuple:
+        inner = ", ".join(_stable_repr(v) for v in value)
+        return f"({inner},)" if len(value) == 1 else f"({inner})"
+    if type(value) is list:
+        return "[" + ", ".join(_stable_repr(v) for v in value) + "]"
+    if type(value) is dict:
+        return "{" + ", ".join(f"{_stable_repr(k)}: {_stable_repr(v)}" for k, v in value.items()) + "}"
+    return repr(value)
 
 
 @dataclass(frozen=True)
@@ -88,7 +111,7 @@ class ObjectSpec:
             fn = getattr(self.loader, "func", self.loader)  # functools.partial -> its function
             out["loader"] = f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}"
             if hasattr(self.loader, "args"):
-                out["loader_args"] = repr((self.loader.args, self.loader.keywords))
+                out["loader_args"] = _stable_repr((self.loader.args, self.loader.keywords))
         if self.rotation_seed is not None:
             out["rotation_seed"] = int(self.rotation_seed)
         return out
