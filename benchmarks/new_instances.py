@@ -58,7 +58,8 @@ def run(instances: Path, train_folder: Path, out: Path, *, contours: int = 24, t
 
     Raises:
         DatasetError: a bad folder, a test class the training set lacks, or a test mesh equal to a training one.
-        InvalidArgumentError: an unknown classifier or pose, a negative seed, or touches outside 2..contours.
+        InvalidArgumentError: an unknown classifier or pose, a seed outside [0, 2**32 - 1], or touches outside
+            2..contours.
     """
     from fusion.experiments.analysis import paired_difference, touches_score
     from fusion.experiments.data import any_pose, ensure_store, folder_objects
@@ -68,8 +69,9 @@ def run(instances: Path, train_folder: Path, out: Path, *, contours: int = 24, t
     unknown = [p for p in poses if p not in POSES]
     if unknown:
         raise InvalidArgumentError(f"unknown poses {unknown}; choose from {', '.join(POSES)}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise InvalidArgumentError(f"the seed must be an integer >= 0, got {seed!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
+        # scikit-learn's estimators take seeds below 2**32 only
+        raise InvalidArgumentError(f"the seed must be an integer in [0, 2**32 - 1], got {seed!r}")
     if contours < touches or touches < 2:
         raise InvalidArgumentError(f"need 2 <= touches <= contours, got {touches} touches of {contours} contours")
     factories = pick(default_classifiers(seed), classifiers)
@@ -121,14 +123,17 @@ def run(instances: Path, train_folder: Path, out: Path, *, contours: int = 24, t
                         paired_difference(preds[(name, "any", strategy)], preds[(name, "upright", strategy)], k,
                                           seed=seed))})
     return {"machine": machine(), "train": str(train_folder), "instances": str(instances),
-            "train_objects": len(train), "test_objects": len(test), "contours": contours, "touches": touches,
+            "train_objects": len(train), "test_objects": len(test),
+            # objects that failed to load are logged and left out of the stores: report what was tested
+            "tested_objects": min((row["objects"] for row in rows), default=0), "contours": contours, "touches": touches,
             "seed": seed, "rows": rows, "differences": differences}
 
 
 def report(result: dict) -> str:
     k = result["touches"]
     lines = [f"new instances: trained on {result['train_objects']} objects of {result['train']}, tested on "
-             f"{result['test_objects']} of {result['instances']} ({result['contours']} contours per object and "
+             f"{result['tested_objects']} of the {result['test_objects']} objects of {result['instances']} "
+             f"({result['contours']} contours per object and "
              "strategy; intervals over objects)", "",
              f"| classifier | pose | strategy | K = 1 | K = {k} |", "|---|---|---|---|---|"]
 

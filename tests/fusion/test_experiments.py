@@ -570,15 +570,23 @@ class TestModelCodeVersion:
 
         assert self._key_after_edit(monkeypatch, CNNClassifier, "fusion/cnn.py") != model_code_version(CNNClassifier)
 
-    def test_another_library_version_changes_the_key(self, monkeypatch):
+    @pytest.mark.parametrize("library", ["numpy", "scipy", "scikit-learn", "torch", "PyWavelets"])
+    def test_another_library_version_changes_the_key(self, monkeypatch, library):
         from fusion.cnn import CNNClassifier
         from fusion.experiments import models
         from perception import runtime
 
         now = models.model_code_version.__wrapped__(CNNClassifier)
         real = runtime.version
-        monkeypatch.setattr(runtime, "version", lambda name: "0.0.1" if name == "torch" else real(name))
+        monkeypatch.setattr(runtime, "version", lambda name: "0.0.1" if name == library else real(name))
         assert models.model_code_version.__wrapped__(CNNClassifier) != now
+
+    def test_every_keyed_library_is_installed(self):
+        """A misspelt distribution name would read "not installed" forever and key nothing."""
+        from fusion.experiments.models import MODEL_LIBRARIES
+        from perception.runtime import versions
+
+        assert "not installed" not in versions(*MODEL_LIBRARIES).values()
 
     def test_an_edit_to_another_classifier_keeps_the_key(self, monkeypatch):
         from fusion.conventional import ConventionalClassifier
@@ -835,7 +843,9 @@ def test_new_instances_refuses_a_training_mesh_and_an_unknown_class(tmp_path, ca
     assert new_instances.main(["--instances", str(other), "--train", str(train), "--out", str(tmp_path / "o")]) == 2
     assert "['mug'] are not in the training set" in capsys.readouterr().err
     assert new_instances.main(["--instances", str(other), "--train", str(train), "--seed", "-1"]) == 2
-    assert "seed must be an integer >= 0, got -1" in capsys.readouterr().err
+    assert "seed must be an integer in [0, 2**32 - 1], got -1" in capsys.readouterr().err
+    assert new_instances.main(["--instances", str(other), "--train", str(train), "--seed", str(2**32)]) == 2
+    assert f"got {2**32}" in capsys.readouterr().err  # scikit-learn would fail on it after the stores were made
     assert not (tmp_path / "o").exists()  # refused before anything was generated
 
 
@@ -867,8 +877,29 @@ def test_new_instances_trains_once_and_tests_every_pose_and_strategy(tmp_path, m
         else:
             expected = by[("any", b, k)] - by[("upright", b, k)]
         assert d["difference"] == pytest.approx(100 * expected) and d["n_objects"] == 4
+    assert result["tested_objects"] == result["test_objects"] == 4
+    # The any-pose store holds the test meshes each in the pose any_pose draws from the seed; the upright one none.
+    from fusion.experiments.data import any_pose, folder_objects
+    from tactile.dataset import open_dataset
+
+    stored = []
+    for store in (tmp_path / "o" / "stores").glob("*.zarr"):
+        objects = open_dataset(store).attrs["settings"]["objects"]
+        stored.append(sorted(o.get("rotation_seed", -1) for o in objects))
+    drawn = sorted(spec.rotation_seed for spec in any_pose(folder_objects(test), 0))
+    assert sorted(stored) == sorted([[-1] * 4, [-1] * 4, drawn])  # training, upright test, any-pose test
     # A second run scores from the cache: no model is fitted again.
+    predicted: list = []
+    real_predict = models.predict
+    monkeypatch.setattr(models, "predict", lambda model, batch, *a: predicted.append(set(batch.object_names)) or
+                        real_predict(model, batch, *a))
     again = new_instances.run(test, train, tmp_path / "o", contours=4, touches=2, classifiers=("nm",),
                               poses=("upright", "any", "upright"))  # a pose named twice is tested once
-    assert len(fits) == 1 and again["rows"] == result["rows"]
+    assert len(fits) == 1 and again["rows"] == result["rows"] and not predicted
     assert "| nm | any | guided |" in new_instances.report(result)
+    # Other instances into the same folder: the model is reused, the predictions are made anew on them.
+    other = tmp_path / "other"
+    for c in ("box", "can"):
+        write_off(make_object(c, 9), other / c / f"{c}9.off")
+    new_instances.run(other, train, tmp_path / "o", contours=4, touches=2, classifiers=("nm",))
+    assert len(fits) == 1 and len(predicted) == 4 and all(names == {"box/box9", "can/can9"} for names in predicted)

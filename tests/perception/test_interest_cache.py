@@ -83,16 +83,17 @@ def test_key_covers_everything_saliency_reads_and_the_code(mug, monkeypatch):
     assert cache.key(mug, "multiview", 0, 10) != key
 
 
-def test_another_library_version_is_another_key(monkeypatch):
-    """Open3D renders the views and casts the rays saliency reads: points cached under another version are
-    computed again."""
+@pytest.mark.parametrize("library", ["numpy", "scipy", "open3d", "pymeshlab"])
+def test_another_library_version_is_another_key(monkeypatch, library):
+    """numpy, SciPy, Open3D (renders the views, casts the rays) and pymeshlab shape the interest points: points cached
+    under another version of any of them are computed again."""
     from perception import interest_cache, runtime
 
     real = runtime.version
     interest_cache.code_version.cache_clear()
     try:
         before = interest_cache.code_version()
-        monkeypatch.setattr(runtime, "version", lambda name: "0.0.1" if name == "open3d" else real(name))
+        monkeypatch.setattr(runtime, "version", lambda name: "0.0.1" if name == library else real(name))
         interest_cache.code_version.cache_clear()
         assert interest_cache.code_version() != before
         monkeypatch.setattr(runtime, "version", real)
@@ -100,6 +101,14 @@ def test_another_library_version_is_another_key(monkeypatch):
         assert interest_cache.code_version() == before
     finally:
         interest_cache.code_version.cache_clear()
+
+
+def test_every_keyed_library_is_installed():
+    """A misspelt distribution name would read "not installed" forever and key nothing."""
+    from perception.interest_cache import SALIENCY_LIBRARIES
+    from perception.runtime import versions
+
+    assert "not installed" not in versions(*SALIENCY_LIBRARIES).values()
 
 
 class _Boom:
