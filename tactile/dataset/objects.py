@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -14,26 +15,47 @@ from perception.errors import DatasetError
 from perception.geometry import ObjectModel, text_name
 
 
-def _stable_repr(value) -> str:
-    """``repr`` of a loader's arguments that names their content: arrays and meshes by shape and SHA-256 of their
-    bytes (numpy's repr elides the middle of a large array, so two different arrays would read the same),
-    tuples, lists and dicts element by element; anything else by its ``repr``. Plain values read as ``repr``."""
+def _stable_repr(value, where: str = "a loader argument", _open: frozenset = frozenset()) -> str:
+    """``repr`` of a loader's arguments that names their content: arrays by shape, dtype and SHA-256 of their bytes
+    (numpy's repr elides the middle of a large array, so two different arrays would read the same), dataclasses
+    (meshes among them) field by field, tuples, lists and dicts element by element; plain values by ``repr``.
+
+    Raises:
+        DatasetError: an argument whose ``repr`` elides its content ("...": a large tensor, say), which could not
+            tell two stores apart; ``where`` names the object in the message.
+    """
+    if value is None or isinstance(value, (str, bytes, bool, int, float, complex, np.generic)):
+        return repr(value)
+    if id(value) in _open:  # a container holding itself
+        return "..."
+    inner = _open | {id(value)}
     if isinstance(value, np.ndarray):
-        data = np.ascontiguousarray(value)
-        content = hashlib.sha256(data.view(np.uint8).tobytes() if data.dtype != object else repr(data.tolist()).encode())
-        return f"ndarray(shape={data.shape}, dtype={data.dtype}, sha256={content.hexdigest()})"
-    if isinstance(value, ObjectModel):
-        content = hashlib.sha256(np.ascontiguousarray(value.vertices, np.float64).tobytes())
-        content.update(np.ascontiguousarray(value.triangles, np.int64).tobytes())
-        return f"ObjectModel(name={value.name!r}, sha256={content.hexdigest()})"
-    if type(value) is tuple:
-        inner = ", ".join(_stable_repr(v) for v in value)
-        return f"({inner},)" if len(value) == 1 else f"({inner})"
-    if type(value) is list:
-        return "[" + ", ".join(_stable_repr(v) for v in value) + "]"
-    if type(value) is dict:
-        return "{" + ", ".join(f"{_stable_repr(k)}: {_stable_repr(v)}" for k, v in value.items()) + "}"
-    return repr(value)
+        head = f"{type(value).__name__}(shape={value.shape}, dtype={value.dtype}"
+        if value.dtype.hasobject:
+            return f"{head}, items={_stable_repr(value.ravel().tolist(), where, inner)})"
+        content = hashlib.sha256(np.ascontiguousarray(value).view(np.uint8).tobytes())
+        if isinstance(value, np.ma.MaskedArray):
+            content.update(np.ascontiguousarray(np.ma.getmaskarray(value)).tobytes())
+        return f"{head}, sha256={content.hexdigest()})"
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        fields = ", ".join(f"{f.name}={_stable_repr(getattr(value, f.name), where, inner)}"
+                           for f in dataclasses.fields(value))
+        return f"{type(value).__name__}({fields})"
+    if isinstance(value, (tuple, list)):
+        items = [_stable_repr(v, where, inner) for v in value]
+        if type(value) is list:
+            return "[" + ", ".join(items) + "]"
+        text = f"({', '.join(items)},)" if len(items) == 1 else f"({', '.join(items)})"
+        return text if type(value) is tuple else f"{type(value).__name__}{text}"
+    if isinstance(value, dict):
+        text = "{" + ", ".join(f"{_stable_repr(k, where, inner)}: {_stable_repr(v, where, inner)}"
+                               for k, v in value.items()) + "}"
+        return text if type(value) is dict else f"{type(value).__name__}({text})"
+    text = repr(value)
+    if "..." in text:
+        raise DatasetError(f"{where}: the loader argument {type(value).__name__} reads {text[:60]!r}..., eliding its "
+                           "content; pass it as a numpy array or plain values so that the store can be told apart")
+    return text
 
 
 @dataclass(frozen=True)
@@ -111,7 +133,7 @@ class ObjectSpec:
             fn = getattr(self.loader, "func", self.loader)  # functools.partial -> its function
             out["loader"] = f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}"
             if hasattr(self.loader, "args"):
-                out["loader_args"] = _stable_repr((self.loader.args, self.loader.keywords))
+                out["loader_args"] = _stable_repr((self.loader.args, self.loader.keywords), self.name)
         if self.rotation_seed is not None:
             out["rotation_seed"] = int(self.rotation_seed)
         return out

@@ -3,6 +3,8 @@ SIGKILL, failures recorded, settings checked, splits and the PyTorch view."""
 
 from __future__ import annotations
 
+import collections
+import dataclasses
 import functools
 import json
 import os
@@ -17,6 +19,7 @@ import pytest
 
 import perception.saliency as attention
 from perception.errors import DatasetError, InvalidArgumentError
+from perception.geometry import CENTERINGS
 from perception.shapes import make_object
 from tactile.dataset import ObjectSpec, contour_seed, frame_encoding, generate, open_dataset
 from tactile.dataset.store import decode_frames, encode_frames
@@ -493,8 +496,33 @@ def test_loader_identity_names_array_arguments_by_content():
     assert spec(a)["loader_args"].startswith("((ndarray(shape=(5000,), dtype=float64, sha256=")
     plain = ObjectSpec("mug/0", "mug", loader=functools.partial(_mug_with, (1, "x", [2.5]), k={"s": 3})).to_dict()
     assert plain["loader_args"] == repr((((1, "x", [2.5]),), {"k": {"s": 3}}))
-    # A mesh argument is its content, not its name and counts.
+    # A mesh argument is its content, not its name and counts: vertices, and every other field (the centering moves
+    # the centre the contour planes pass through).
     box, moved = make_object("box", 0), make_object("box", 0)
     moved.vertices[0] += 1e-3
     assert spec(box) != spec(moved)
     assert spec(box) == spec(make_object("box", 0))
+    other_centre = next(c for c in CENTERINGS if c != box.centering)
+    assert spec(box) != spec(dataclasses.replace(box, centering=other_centre))
+    # Arrays hidden in other containers, of other shapes, or with a mask are still read by content.
+    point = collections.namedtuple("Point", "data")
+    assert spec(point(a)) != spec(point(b)) and spec(point(a))["loader_args"].startswith("((Point(ndarray(")
+    assert spec(np.array([a, a[:3]], dtype=object)) != spec(np.array([b, a[:3]], dtype=object))
+    assert spec(np.array(3.0)) != spec(np.array([3.0]))
+    assert spec(np.ma.masked_array(a, mask=a > 0)) != spec(np.ma.masked_array(a, mask=b > 0))
+    looped: list = [1]
+    looped.append(looped)
+    assert spec(looped)["loader_args"] == "(([1, ...],), {})"
+
+
+class _Elided:  # an argument type whose repr hides its middle, as a large tensor's does
+    def __repr__(self) -> str:
+        return "tensor([0., 0., ..., 0.])"
+
+
+def test_loader_argument_read_only_in_part_is_refused():
+    spec = ObjectSpec("mug/0", "mug", loader=functools.partial(_mug_with, _Elided()))
+    with pytest.raises(DatasetError, match=r"mug/0: the loader argument _Elided reads .*eliding its content"):
+        spec.to_dict()
+    text = ObjectSpec("mug/0", "mug", loader=functools.partial(_mug_with, "wait...")).to_dict()["loader_args"]
+    assert text == repr((("wait...",), {}))  # a plain string may hold dots
