@@ -6,6 +6,7 @@ CNN / contourlet pipelines; the real ones are exercised by the lead's full runs.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import math
@@ -253,6 +254,26 @@ def test_byte_identical_meshes_count_as_one_object(tmp_path):
         (tmp_path / "Fish").mkdir(exist_ok=True)
         (tmp_path / "Fish" / name).write_text(text)
     assert [p.name for p, _ in folder_objects(tmp_path)] == ["226.off", "228.off"]
+    # Files equal in their first kilobyte and length but not after it are two objects.
+    head = "OFF\n#" + "x" * 1024
+    (tmp_path / "Fish" / "229.off").write_text(head + "a\n")
+    (tmp_path / "Fish" / "230.off").write_text(head + "b\n")
+    assert [p.name for p, _ in folder_objects(tmp_path)] == ["226.off", "228.off", "229.off", "230.off"]
+
+
+def test_store_identity_is_the_whole_path_and_any_pose_draws_from_seed_and_name(tmp_path):
+    """Same-named files of two folders are other objects (other stores); the any-pose rotation of an object is the
+    one :func:`tactile.dataset.store.contour_seed` gives for (seed, name, "pose", 0), so the poses of one seed are
+    fixed and another seed turns the objects otherwise."""
+    from fusion.experiments.data import store_record
+    from tactile.dataset.store import contour_seed
+
+    a, b = mesh_folder(tmp_path / "a", per_class=1), mesh_folder(tmp_path / "b", per_class=1)
+    record = functools.partial(store_record, strategies=("blind",), contours=2, seed=0)
+    assert record(folder_objects(a)) != record(folder_objects(b))
+    posed = any_pose(folder_objects(a), 5)
+    assert [o.rotation_seed for o in posed] == [contour_seed(5, o.name, "pose", 0) for o in posed]
+    assert all(x.rotation_seed != y.rotation_seed for x, y in zip(posed, any_pose(folder_objects(a), 6)))
 
 
 def test_sizes_refuse_bad_values():
