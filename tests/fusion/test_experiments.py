@@ -867,6 +867,8 @@ def test_new_instances_refuses_a_training_mesh_and_an_unknown_class(tmp_path, ca
     assert "seed must be an integer in [0, 2**32 - 1], got -1" in capsys.readouterr().err
     assert new_instances.main(["--instances", str(other), "--train", str(train), "--seed", str(2**32)]) == 2
     assert f"got {2**32}" in capsys.readouterr().err  # scikit-learn would fail on it after the stores were made
+    assert new_instances.main(["--instances", str(other), "--train", str(train), "--touches", "1"]) == 2
+    assert "need 2 <= touches <= contours, got 1 touches" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # refused before anything was generated
 
 
@@ -917,6 +919,7 @@ def test_new_instances_trains_once_and_tests_every_pose_and_strategy(tmp_path, m
     again = new_instances.run(test, train, tmp_path / "o", contours=4, touches=2, classifiers=("nm",),
                               poses=("upright", "any", "upright"))  # a pose named twice is tested once
     assert len(fits) == 1 and again["rows"] == result["rows"] and not predicted
+    assert again["differences"] == result["differences"]
     assert "| nm | any | guided |" in new_instances.report(result)
     # Other instances into the same folder: the model is reused, the predictions are made anew on them.
     other = tmp_path / "other"
