@@ -125,16 +125,15 @@ def run(instances: Path, train_folder: Path, out: Path, *, contours: int = 24, t
     return {"machine": machine(), "train": str(train_folder), "instances": str(instances),
             "train_objects": len(train), "test_objects": len(test),
             # objects that failed to load are logged and left out of the stores: report what was tested
-            "tested_objects": min((row["objects"] for row in rows), default=0), "contours": contours, "touches": touches,
-            "seed": seed, "rows": rows, "differences": differences}
+            "tested_objects": min((row["objects"] for row in rows), default=0),
+            "contours": contours, "touches": touches, "seed": seed, "rows": rows, "differences": differences}
 
 
 def report(result: dict) -> str:
     k = result["touches"]
-    lines = [f"new instances: trained on {result['train_objects']} objects of {result['train']}, tested on "
-             f"{result['tested_objects']} of the {result['test_objects']} objects of {result['instances']} "
-             f"({result['contours']} contours per object and "
-             "strategy; intervals over objects)", "",
+    lines = [(f"new instances: trained on {result['train_objects']} objects of {result['train']}, tested on "
+              f"{result['tested_objects']} of the {result['test_objects']} objects of {result['instances']} "
+              f"({result['contours']} contours per object and strategy; intervals over objects)"), "",
              f"| classifier | pose | strategy | K = 1 | K = {k} |", "|---|---|---|---|---|"]
 
     def cell(a: dict) -> str:

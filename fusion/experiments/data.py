@@ -178,5 +178,14 @@ def split_loader(ds, train, test, test_ds=None):
     return load
 
 
-__all__ = ["any_pose", "catalogue_objects", "ensure_store", "folder_objects", "load_models", "split_loader",
-           "mesh_digest", "store_record", "unique_meshes"]
+__all__ = [
+    "any_pose",
+    "catalogue_objects",
+    "ensure_store",
+    "folder_objects",
+    "load_models",
+    "mesh_digest",
+    "split_loader",
+    "store_record",
+    "unique_meshes",
+]

@@ -123,7 +123,12 @@ class ObjectSpec:
         return model
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able identity (stored in the dataset settings; resuming compares it)."""
+        """JSON-able identity (stored in the dataset settings; resuming compares it). A loader's arguments are written
+        by content (:func:`_stable_repr`).
+
+        Raises:
+            DatasetError: a loader argument whose ``repr`` elides its content.
+        """
         out: dict[str, Any] = {"name": self.name, "label": self.label}
         if self.path is not None:
             out["path"] = str(self.path)

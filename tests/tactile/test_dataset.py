@@ -490,7 +490,7 @@ def test_loader_identity_names_array_arguments_by_content():
     b = a.copy()
     b[2500] = 1.0
     assert repr(a) == repr(b)  # the trap
-    spec = lambda x: ObjectSpec("mug/0", "mug", loader=functools.partial(_mug_with, x)).to_dict()  # noqa: E731
+    spec = lambda x: ObjectSpec("mug/0", "mug", loader=functools.partial(_mug_with, x)).to_dict()
     assert spec(a) != spec(b)
     assert spec(a) == spec(a.copy())
     assert spec(a)["loader_args"].startswith("((ndarray(shape=(5000,), dtype=float64, sha256=")
