@@ -101,12 +101,13 @@ def read_cache(path: str | Path, field: str, key, read: Callable):
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             if not isinstance(meta, dict):
-                raise TypeError("its meta is not a JSON object")
+                raise DatasetError("its meta is not a JSON object")
             if key is not None and meta.get(field) != json.loads(json.dumps(key, default=str)):
                 log.info("%s was made with other settings; making it again", path)
                 return None
             return read(meta, data)
-    # A file cut short is BadZipFile; arrays that do not fit together (a damaged file) raise DatasetError in read.
+    # A file cut short is BadZipFile; a meta that is no JSON object and arrays that do not fit together (a damaged
+    # file) are DatasetError; a meta field of the wrong type makes read raise TypeError.
     except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, DatasetError) as exc:
         log.warning("%s is unreadable (%s); making it again", path, exc)
         return None
