@@ -3,14 +3,17 @@
 Every contour plane passes through the object centre and two points (normal (p1 - c) x (p2 - c)):
 
 - ``"blind"``: two distinct random vertices. Never computes saliency.
-- ``"guided"``: two distinct random points of the multiview saliency's interest points (the paper's method).
+- ``"guided"``: two distinct points of the multiview saliency's interest points (the paper's method).
 - ``"mesh"``, ``"iss"``: the same with the interest points of mesh saliency or ISS keypoints.
 - ``"pcl_harris"``, ``"pcl_iss"``: the same with PCL's Harris 3D or ISS 3D keypoints, strongest first
   (:data:`perception.saliency.PCL_METHODS`; they need the peer program that ``make peers`` builds, and
   raise :class:`~perception.errors.SaliencyError` naming it when it is absent).
 
-Interest points come from ``Saliency.interest_points(INTEREST_POOL)``. Draws whose points are near-collinear
-with the centre (:func:`tactile.contours.plane_through` refuses them) are re-drawn up to ``MAX_DRAWS`` times.
+Interest points come from ``Saliency.interest_points(INTEREST_POOL)``. The guided strategies take their pairs
+without repeats (:class:`PairOrder`): ten points give at most 45 planes, and 24 draws with repeats touched about
+one contour in four twice (a second touch of the same contour tells nothing new). Blind draws of two random vertices
+repeat a pair too rarely to matter; those whose points are near-collinear with the centre
+(:func:`tactile.contours.plane_through` refuses them) are re-drawn up to ``MAX_DRAWS`` times.
 Touching along the planes drawn here is :mod:`tactile.touching`.
 """
 
@@ -31,6 +34,12 @@ STRATEGIES: dict[str, str | None] = {"blind": None, "guided": "multiview", "mesh
 PAPER_STRATEGIES = ("guided", "blind")
 #: Number of interest points the guided strategies draw pairs from.
 INTEREST_POOL = 10
+#: How guided strategies draw their pairs; stores and model caches of guided contours record it (stores made
+#: when pairs were drawn with repeats lack it, so they are neither resumed nor reused with today's rows).
+GUIDED_PAIRS = "without repeats"
+#: Planes through the centre closer than this (degrees) are one contour to a guided strategy: 100 mm from the
+#: centre they lie within 1.7 mm, a tenth of the default 20 mm pad.
+SAME_PLANE_DEG = 1.0
 #: Draws per plane (near-collinear pairs) or per contour (planes that miss) before giving up.
 MAX_DRAWS = 100
 #: An object whose RMS distance from its best-fit plane is below this fraction of its size is flat.
@@ -40,6 +49,12 @@ FLAT_TOLERANCE = 1e-9
 def check_strategy(strategy: str) -> None:
     if strategy not in STRATEGIES:
         raise InvalidArgumentError(f"unknown sampling strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
+
+
+def pair_setting(strategies) -> dict:
+    """``{"guided_pairs": GUIDED_PAIRS}`` when a strategy draws interest-point pairs, else ``{}`` (blind stores keep
+    their identity)."""
+    return {"guided_pairs": GUIDED_PAIRS} if any(STRATEGIES.get(s) is not None for s in strategies) else {}
 
 
 def check_not_flat(model: ObjectModel) -> None:
@@ -83,6 +98,58 @@ def draw_plane(model: ObjectModel, points: np.ndarray, rng: np.random.Generator)
     )
 
 
+def pair_planes(model: ObjectModel, points: np.ndarray) -> list[Plane]:
+    """The distinct planes through ``model.center`` and a pair of ``points``: pairs in row-major order (i < j),
+    leaving out those near-collinear with the centre and those whose plane is within ``SAME_PLANE_DEG`` of an
+    earlier one (three points coplanar with the centre give one plane, not three)."""
+    planes: list[Plane] = []
+    normals = np.empty((0, 3))
+    cos_same = np.cos(np.radians(SAME_PLANE_DEG))
+    for i in range(len(points)):
+        for j in range(i + 1, len(points)):
+            try:
+                plane = plane_through(model.center, points[i], points[j])
+            except ContourError:
+                continue  # near-collinear with the centre: no plane
+            if (np.abs(normals @ plane.normal) < cos_same).all():
+                planes.append(plane)
+                normals = np.vstack((normals, plane.normal))
+    return planes
+
+
+class PairOrder:
+    """``planes`` (the usable pairs of a guided strategy) in a seeded order without repeats.
+
+    Position ``k`` is ``planes[perm_c[k % P]]``, where ``c = k // P`` and ``perm_c`` is the permutation drawn from
+    ``(seed, c)``: every plane comes once before any comes again, and position ``k`` depends only on ``(seed, k)``
+    (a store makes its rows independently).
+
+    Raises:
+        ContourError: ``planes`` is empty (``name`` says which object).
+        InvalidArgumentError: a seed that is not an integer in [0, 2**63).
+    """
+
+    def __init__(self, planes: list[Plane], seed: int, name: str = "object") -> None:
+        if not planes:
+            raise ContourError(f"{name}: no pair of its interest points gives a plane through the centre that cuts it")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
+            raise InvalidArgumentError(f"{name}: pair order seed must be an integer in [0, 2**63), got {seed!r}")
+        self.planes, self.seed = list(planes), int(seed)
+        self._cycles: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.planes)
+
+    def __getitem__(self, k: int) -> Plane:
+        if k < 0:
+            raise InvalidArgumentError(f"pair order positions start at 0, got {k}")
+        cycle, i = divmod(int(k), len(self.planes))
+        perm = self._cycles.get(cycle)
+        if perm is None:
+            perm = self._cycles[cycle] = np.random.default_rng([self.seed, cycle]).permutation(len(self.planes))
+        return self.planes[perm[i]]
+
+
 def sample_planes(
     model: ObjectModel,
     strategy: str = "blind",
@@ -91,14 +158,15 @@ def sample_planes(
     *,
     saliency: attention.Saliency | None = None,
 ) -> list[Plane]:
-    """``n`` contour planes through ``model.center`` chosen by ``strategy`` (see the module docstring).
+    """``n`` contour planes through ``model.center`` chosen by ``strategy`` (see the module docstring); guided
+    strategies repeat a plane only after all their pairs (of those not near-collinear) have been used.
 
     Args:
         saliency: a precomputed :class:`~perception.saliency.Saliency` of the strategy's method, to reuse.
 
     Raises:
         InvalidArgumentError: unknown strategy, n not an integer >= 1, a seed that is not a non-negative integer
-            or Generator. ContourError: only near-collinear draws.
+            or Generator. ContourError: only near-collinear draws or pairs.
         SaliencyError: ``saliency`` is of another method or object.
     """
     check_strategy(strategy)
@@ -108,7 +176,10 @@ def sample_planes(
         raise ContourError(f"{model.name}: need at least two vertices to draw planes")
     rng = np.random.default_rng(seed)
     points = candidates(model, strategy, saliency)
-    return [draw_plane(model, points, rng) for _ in range(n)]
+    if STRATEGIES[strategy] is None:
+        return [draw_plane(model, points, rng) for _ in range(n)]
+    order = PairOrder(pair_planes(model, points), int(rng.integers(2**63)), model.name)
+    return [order[k] for k in range(n)]
 
 
 def __getattr__(name: str):
@@ -120,5 +191,5 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["FLAT_TOLERANCE", "INTEREST_POOL", "MAX_DRAWS", "PAPER_STRATEGIES", "STRATEGIES", "candidates", "check_not_flat",
-           "check_strategy", "draw_plane", "sample_planes"]
+__all__ = ["FLAT_TOLERANCE", "GUIDED_PAIRS", "INTEREST_POOL", "MAX_DRAWS", "PAPER_STRATEGIES", "SAME_PLANE_DEG", "STRATEGIES", "PairOrder", "candidates",
+           "check_not_flat", "check_strategy", "draw_plane", "pair_planes", "pair_setting", "sample_planes"]

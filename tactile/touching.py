@@ -7,12 +7,14 @@ tactile sequences. Two seed schemes define the bytes, and both are kept exactly:
 
 - ``seeding="stream"`` (:func:`explore_object`, dataset stores): one generator from ``seed``; for each contour the
   planes are drawn from it (a plane that misses the object is re-drawn, up to ``MAX_DRAWS`` times), then the
-  contour's sensor-noise seed. Row k of a store is the first contour of this scheme seeded with
-  :func:`tactile.dataset.contour_seed` (seed, object, strategy, k).
+  contour's sensor-noise seed. Guided strategies instead draw one number first, the seed of their pair order
+  (:meth:`Toucher.pair_order`: pairs without repeats), and take its positions in turn. Row k of a store is the
+  first contour of this scheme seeded with :func:`tactile.dataset.contour_seed` (seed, object, strategy, k);
+  guided rows take position k of the object's pair order (:func:`tactile.dataset.pair_order_seed`).
 - ``seeding="object"`` (the experiments, ``visuotactile recognize``): three streams spawned from (seed, object
   name, strategy) (:func:`object_seed`): ``n + SPARE_PLANES`` planes drawn at once (those that miss are
-  skipped), the noise seeds indexed by plane, and the pose jitter. Every jitter or noise level touches the same
-  contours.
+  skipped; guided strategies take the first positions of a pair order seeded from that stream), the noise seeds
+  indexed by plane, and the pose jitter. Every jitter or noise level touches the same contours.
 
 Pose jitter of level ``j`` mm (:func:`jitter_contour`): each probe's pad centre moves by N(0, j) mm along the
 pad's two axes and its normal tilts by N(0, ``TILT_DEG_PER_MM`` * j) degrees about a random axis in the pad
@@ -117,9 +119,9 @@ class Planned:
 class Toucher:
     """One object touched by one strategy: its candidate points found once, each plane cut once.
 
-    Guided strategies draw pairs of ``INTEREST_POOL`` interest points, so a few hundred draws repeat the same 90
-    ordered pairs; a repeated plane is cut once (the draws from a generator are the same either way) and gives
-    the same :class:`~tactile.contours.Contour` object.
+    Guided strategies take the pairs of their ``INTEREST_POOL`` interest points without repeats
+    (:meth:`pair_order`: the pairs whose plane cuts the object, each once before any again); a plane asked for
+    again is cut once and gives the same :class:`~tactile.contours.Contour` object.
 
     Args:
         model: the object.
@@ -156,6 +158,31 @@ class Toucher:
         self.saliency = saliency
         self.points = sampling.candidates(model, strategy, saliency)
         self._cuts: dict[tuple[bytes, bytes], Contour | ContourError] = {}
+        self._pairs: list[Plane] | None = None
+
+    @property
+    def guided(self) -> bool:
+        """Whether the strategy draws from interest points (pairs without repeats) rather than random vertices."""
+        return sampling.STRATEGIES[self.strategy] is not None
+
+    def pair_order(self, seed: int) -> sampling.PairOrder:
+        """The pairs of interest points whose plane cuts the object, in the seeded order of
+        :class:`~tactile.sampling.PairOrder` (cut once per Toucher; guided strategies only).
+
+        Raises:
+            ContourError: no pair gives a plane that cuts the object.
+        """
+        if self._pairs is None:
+            usable = []
+            for plane in sampling.pair_planes(self.model, self.points):
+                try:
+                    self.cut(plane)
+                except ContourError as exc:
+                    log.debug("%s: leaving out a pair (%s)", self.model.name, exc)
+                    continue
+                usable.append(plane)
+            self._pairs = usable
+        return sampling.PairOrder(self._pairs, seed, self.model.name)
 
     def cut(self, plane) -> Contour:
         """The contour of ``plane`` (cut once per plane).
@@ -189,9 +216,19 @@ class Toucher:
                 log.debug("%s: re-drawing a plane (%s)", self.model.name, exc)
         raise ContourError(f"{self.model.name}: {sampling.MAX_DRAWS} planes in a row missed the object")
 
-    def stream(self, n: int, seed: int | np.random.Generator | None) -> Iterator[Planned]:
-        """``n`` contours of the "stream" scheme (module docstring), drawn lazily from one generator."""
+    def stream(self, n: int, seed: int | np.random.Generator | None, *, order_seed: int | None = None,
+               start: int = 0) -> Iterator[Planned]:
+        """``n`` contours of the "stream" scheme (module docstring), drawn lazily from one generator.
+
+        Guided strategies take positions ``start, start + 1, ...`` of the pair order seeded with ``order_seed``
+        (default: a number drawn from the generator first); a store passes the object's order seed and the row.
+        """
         rng = np.random.default_rng(seed)
+        if self.guided:
+            order = self.pair_order(int(rng.integers(2**63)) if order_seed is None else order_seed)
+            for k in range(start, start + n):
+                yield Planned(self.cut(order[k]), int(rng.integers(2**31 - 1)))
+            return
         for _ in range(n):
             contour = self.draw(rng)
             yield Planned(contour, int(rng.integers(2**31 - 1)))
@@ -203,7 +240,11 @@ class Toucher:
         """
         plane_seed, noise_seed, jitter_seed = object_seed(seed, self.model.name, self.strategy).spawn(3)
         plane_rng = np.random.default_rng(plane_seed)
-        planes = [sampling.draw_plane(self.model, self.points, plane_rng) for _ in range(n + SPARE_PLANES)]
+        if self.guided:
+            order = self.pair_order(int(plane_rng.integers(2**63)))
+            planes = [order[k] for k in range(n + SPARE_PLANES)]
+        else:
+            planes = [sampling.draw_plane(self.model, self.points, plane_rng) for _ in range(n + SPARE_PLANES)]
         noise_seeds = np.random.default_rng(noise_seed).integers(2**31 - 1, size=len(planes))
 
         def planned() -> Iterator[Planned]:

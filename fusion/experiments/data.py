@@ -110,8 +110,11 @@ def store_record(objects, contours: int, seed: int, strategies=("guided", "blind
     """What identifies a store's content (its name and the cache records of models trained on it use it)."""
     from tactile.dataset import object_specs
 
+    from tactile.sampling import pair_setting
+
     return {"objects": [_identity(spec) for spec in object_specs(objects)], "contours": contours, "seed": seed,
-            "strategies": list(strategies), "sensor": (sensor or FSRSensor()).spec(), "probes": probes}
+            "strategies": list(strategies), "sensor": (sensor or FSRSensor()).spec(), "probes": probes,
+            **pair_setting(strategies)}
 
 
 def _identity(spec) -> list:

@@ -10,7 +10,9 @@
     verify_store("out/small.zarr").damaged # {object: what is wrong}; generate re-explores those
 
 Sequence k of strategy s of object o is what ``explore_object(model, s, 1, sensor, probes,
-seed=contour_seed(seed, o, s, k))`` gives, frames within the encoding's quantisation step / 2. See
+seed=contour_seed(seed, o, s, k))`` gives (a guided strategy: with ``planes=[Toucher(model, s).pair_order(
+pair_order_seed(seed, o, s))[k]]``, its pairs without repeats), frames within the encoding's quantisation
+step / 2. See
 :mod:`tactile.dataset.store` for the layout, the frame encoding and the checksums that make damage an error.
 """
 
@@ -18,7 +20,7 @@ from tactile.dataset.generate import EXECUTORS, GenerationReport, generate
 from tactile.dataset.integrity import VerifyReport, verify_store
 from tactile.dataset.objects import ObjectSpec, object_specs
 from tactile.dataset.reader import TactileDataset, open_dataset
-from tactile.dataset.store import contour_seed, frame_encoding
+from tactile.dataset.store import contour_seed, frame_encoding, pair_order_seed
 
 __all__ = [
     "EXECUTORS",
@@ -31,5 +33,6 @@ __all__ = [
     "generate",
     "object_specs",
     "open_dataset",
+    "pair_order_seed",
     "verify_store",
 ]

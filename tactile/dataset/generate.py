@@ -226,6 +226,7 @@ def generate(
         "sensor": sensor_spec,
         "seed": seed,
         "encoding": frame_encoding(sensor_spec),
+        **sampling.pair_setting(strategies),
     }
     out = Path(out).resolve()
     with store_lock(out):  # one writer at a time: a second run on this store is refused

@@ -4,7 +4,8 @@ Layout of ``STORE/`` (one row per sequence; the rows of object ``o``, strategy `
 ``(o * n_strategies + s) * contours_per_object + k``, so every object owns a contiguous block):
 
 - ``zarr.json``: group attributes under ``"visuotactile_dataset"``: ``settings`` (what must match to
-  resume: objects, strategies, contours per object, probes, sensor spec, seed, encoding), and
+  resume: objects, strategies, contours per object, probes, sensor spec, seed, encoding, and with a guided
+  strategy how its pairs are drawn, ``guided_pairs``), and
   ``package_version``, ``command``, ``created`` (recorded, not compared).
 - ``frames`` (rows, P, R, C) uint16: quantised readings, ``value = code * scale`` with ``scale`` in
   ``settings["encoding"]``. Sharded, one shard per (object, strategy) block, one inner chunk per
@@ -145,6 +146,15 @@ def contour_seed(seed: int, object_name: str, strategy: str, contour: int) -> in
     It does not depend on the object's position in the list, the worker or the executor.
     """
     state = np.random.SeedSequence([int(seed), _key(object_name), _key(strategy), int(contour)])
+    high, low = state.generate_state(2, np.uint32)
+    return int((int(high) << 32 | int(low)) >> 1)
+
+
+def pair_order_seed(seed: int, object_name: str, strategy: str) -> int:
+    """The seed of one object's pair order for a guided strategy (:meth:`tactile.touching.Toucher.pair_order`):
+    guided row k takes position k of it, so an object's guided rows repeat a plane only after all its usable
+    pairs. From (seed, object, strategy) only: a non-negative 63-bit int."""
+    state = np.random.SeedSequence([int(seed), _key(object_name), _key(strategy), _key("pair order")])
     high, low = state.generate_state(2, np.uint32)
     return int((int(high) << 32 | int(low)) >> 1)
 
@@ -520,6 +530,7 @@ __all__ = [
     "check_settings",
     "chunk_files",
     "contour_seed",
+    "pair_order_seed",
     "create_store",
     "decode_frames",
     "encode_frames",

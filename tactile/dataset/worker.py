@@ -1,10 +1,12 @@
 """Exploring one object into its rows of a store: what every worker (local process or Ray task) runs.
 
 Sequence k of strategy s of an object is, by construction, what
-``touch(model, s, 1, sensor, probes, seed=contour_seed(seed, name, s, k), saliency=...)`` returns: the
-"stream" seed scheme of :mod:`tactile.touching`, run by one :class:`~tactile.touching.Toucher` per strategy.
-All contours of one strategy are drawn first (a plane drawn again is cut once: guided strategies draw pairs
-of 10 interest points, so 950 draws hold at most 90 distinct planes), then pressed in large batches
+``touch(model, s, 1, sensor, probes, seed=contour_seed(seed, name, s, k), saliency=...)`` returns (the
+"stream" seed scheme of :mod:`tactile.touching`, run by one :class:`~tactile.touching.Toucher` per strategy);
+for a guided strategy the same call with ``planes=[toucher.pair_order(pair_order_seed(seed, name, s))[k]]``
+(row k takes position k of the object's pair order: pairs without repeats). All contours of one strategy are
+drawn first (a plane drawn again is cut once: 10 interest points give at most 45 planes, so 950 guided rows
+take each about 21 times), then pressed in large batches
 (:meth:`~tactile.sensor.FSRSensor.press_contours`: one adaptive pass, each contour read out with its own seed,
 the same frames as one press per contour). When the sensor has no noise and no dead taxels its read-out does
 not use the seed, so a repeated contour is pressed once.
@@ -32,6 +34,7 @@ from tactile.dataset.store import (
     encode_frames,
     layout_of,
     open_for_writing,
+    pair_order_seed,
     update_digest,
     write_record,
 )
@@ -112,6 +115,7 @@ def explore_into_store(
                 cache.put(model, method, 0, toucher.points)
             saliencies[method] = toucher.saliency
             interest[strategy] = toucher.points.tolist()
+        order_seed = pair_order_seed(seed, spec.name, strategy) if toucher.guided else None
         rows = layout.rows(index, s)
         n = layout.contours
         out = {
@@ -124,7 +128,7 @@ def explore_into_store(
         contours = []
         for k in range(n):
             cseed = contour_seed(seed, spec.name, strategy, k)
-            (planned,) = toucher.stream(1, cseed)
+            (planned,) = toucher.stream(1, cseed, order_seed=order_seed, start=k)
             contour, nseed = planned.contour, planned.noise_seed
             contours.append(contour)
             out["contour_seeds"][k], out["noise_seeds"][k] = cseed, nseed

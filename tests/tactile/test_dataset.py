@@ -21,10 +21,11 @@ import perception.saliency as attention
 from perception.errors import DatasetError, InvalidArgumentError
 from perception.geometry import CENTERINGS
 from perception.shapes import make_object
-from tactile.dataset import ObjectSpec, contour_seed, frame_encoding, generate, open_dataset
+from tactile.dataset import ObjectSpec, contour_seed, frame_encoding, generate, open_dataset, pair_order_seed
 from tactile.dataset.store import decode_frames, encode_frames
 from tactile.sampling import explore_object
 from tactile.sensor import FSRSensor
+from tactile.touching import Toucher
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Small and fast: 16 x 16 taxels, 10 probes, blind contours on catalogue objects.
@@ -54,6 +55,18 @@ def store_files(path: Path) -> dict[str, object]:
         else:
             files[rel] = file.read_bytes()
     return files
+
+
+def expected_row(model, strategy, seed, k, sensor, probes, sal=None):
+    """Row k of ``strategy`` in a store of ``seed``, as the module docstring of tactile.dataset says: explore_object
+    with the row's contour seed; a guided strategy along position k of the object's pair order."""
+    planes = None
+    if strategy != "blind":
+        order = Toucher(model, strategy, probes=probes, saliency=sal).pair_order(pair_order_seed(seed, model.name,
+                                                                                                 strategy))
+        planes = [order[k]]
+    return explore_object(model, strategy, 1, sensor, probes, seed=contour_seed(seed, model.name, strategy, k),
+                          saliency=sal, planes=planes)[0]
 
 
 def refuse_saliency(*args, **kwargs):
@@ -121,8 +134,7 @@ def test_frames_read_back_equal_explore_object(guided_store):
             for k, i in enumerate(rows):
                 seed = contour_seed(3, f"{name}/{obj}", strategy, k)
                 assert ds.contour_seeds[i] == seed
-                expected = explore_object(model, strategy, 1, FSRSensor(), 25, seed=seed,
-                                          saliency=sal if strategy == "guided" else None)[0]
+                expected = expected_row(model, strategy, 3, k, FSRSensor(), 25, sal if strategy == "guided" else None)
                 assert ds.noise_seeds[i] == expected.seed
                 assert np.abs(batch.frames[i] - expected.frames).max() <= ds.max_frame_error * (1 + 1e-6)
                 for attr in ("normals", "positions", "tangents", "pad_sides_mm"):
@@ -216,6 +228,25 @@ def test_other_settings_on_an_existing_store_are_refused(blind_store, change, me
     with pytest.raises(DatasetError, match="other settings") as info:
         generate(BLIND_OBJECTS, blind_store, workers=1, **{**BLIND, **change})
     assert message in str(info.value) and str(blind_store) in str(info.value)
+
+
+def test_a_guided_store_drawn_with_repeats_is_not_resumed(tmp_path, blind_store):
+    """Stores of guided contours record how their pairs were drawn; one made before pairs were drawn without
+    repeats (no such setting) is refused, naming the setting, rather than resumed with rows of another kind."""
+    from tactile.dataset.store import ATTRS_KEY
+
+    assert "guided_pairs" not in json.loads((blind_store / "zarr.json").read_text())["attributes"][ATTRS_KEY][
+        "settings"]  # blind stores keep their identity
+    out = tmp_path / "s"
+    args = {"strategies": "guided", "contours_per_object": 2, "sensor": FSRSensor(rows=4, cols=4), "probes": 4,
+            "workers": 1, "progress": False}
+    generate([("box", 1)], out, **args)
+    meta = json.loads((out / "zarr.json").read_text())
+    assert meta["attributes"][ATTRS_KEY]["settings"]["guided_pairs"] == "without repeats"
+    del meta["attributes"][ATTRS_KEY]["settings"]["guided_pairs"]
+    (out / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(DatasetError, match="guided_pairs: None in the store, 'without repeats' asked"):
+        generate([("box", 1)], out, **args)
 
 
 def test_other_objects_on_an_existing_store_are_refused(blind_store):
@@ -383,21 +414,26 @@ def test_torch_dataset_reads_the_same_sequences(blind_store):
     np.testing.assert_array_equal(copy[2][0].numpy(), batch.frames[2])
 
 
-def test_repeated_guided_contours_are_stored_as_pressed_alone(tmp_path):
-    # 60 guided draws from 10 interest points (90 ordered pairs) repeat planes; a repeat is cut and pressed
-    # once in the worker. Every row must still be what explore_object gives for its own seed.
+def test_guided_rows_take_every_pair_once_before_any_again(tmp_path):
+    # 60 guided rows from 10 interest points (at most 45 planes): the first cycle holds each usable pair once,
+    # the rest repeat planes, and a repeat is cut and pressed once in the worker. Every row must still be what
+    # the documented call gives for it.
     sensor = FSRSensor(rows=8, cols=8)
     generate([("box", 4)], tmp_path / "s", strategies="guided", contours_per_object=60, sensor=sensor, probes=6,
              seed=2, workers=1, progress=False)
     ds = open_dataset(tmp_path / "s")
     batch = ds.load()
-    distinct = np.unique(batch.plane_normals, axis=0)
-    assert len(distinct) < 60  # the case under test: some planes were drawn more than once
     model = make_object("box", 4)
     sal = attention.saliency(model, "multiview")
+    usable = len(Toucher(model, "guided", probes=6, saliency=sal).pair_order(0))
+    assert usable < 60  # the case under test (17 here: box corners coplanar with the centre share planes)
+    # Planes identified up to sign (a pair gives one plane whatever its order).
+    signs = np.sign(batch.plane_normals[np.arange(60), np.abs(batch.plane_normals).argmax(1)])
+    planes = np.round(batch.plane_normals * signs[:, None], 9)
+    assert len(np.unique(planes[:usable], axis=0)) == usable  # no repeat within the first cycle
+    assert len(np.unique(planes, axis=0)) == usable  # and nothing new after it
     for k in range(60):
-        expected = explore_object(model, "guided", 1, sensor, 6, seed=contour_seed(2, "box/4", "guided", k),
-                                  saliency=sal)[0]
+        expected = expected_row(model, "guided", 2, k, sensor, 6, sal)
         assert np.abs(batch.frames[k] - expected.frames).max() <= ds.max_frame_error * (1 + 1e-6)
         np.testing.assert_array_equal(batch.pad_sides_mm[k], expected.pad_sides_mm.astype(np.float32))
 

@@ -175,3 +175,78 @@ def test_toucher_cuts_a_repeated_plane_once_and_draws_the_same(monkeypatch):
     for a, b in zip(plain, cached):
         np.testing.assert_array_equal(a.positions, b.positions)
         np.testing.assert_array_equal(a.normals, b.normals)
+
+
+# ---------------------------------------------------------------------------- guided pairs without repeats
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def test_pair_planes_are_the_distinct_planes_of_the_pairs():
+    # Centre at the origin; four points: a, b, c in the z = 0 plane (coplanar with the centre: one plane for their
+    # three pairs), d on the z axis (planes a-d, b-d, c-d: normals a x z, b x z, c x z), and e = -a (collinear
+    # with a and the centre: a-e gives no plane, and b-e, c-e, d-e lie in the planes of b-a, c-a, d-a).
+    model = ObjectModel(np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1]]) * 40,
+                        np.array([[0, 1, 2], [0, 2, 4], [1, 3, 2], [3, 4, 2], [0, 1, 5], [0, 5, 4], [1, 3, 5],
+                                  [3, 4, 5]]), name="octahedron")
+    assert np.allclose(model.center, 0)
+    a, b, c, d = [40, 0, 0], [0, 40, 0], [-30, 30, 0], [0, 0, 40]
+    points = np.array([a, b, c, d, [-40, 0, 0]], dtype=np.float64)
+    planes = sampling.pair_planes(model, points)
+    expected = [[0, 0, 1], np.cross(a, d), np.cross(b, d), np.cross(c, d)]
+    assert len(planes) == 4
+    for plane, normal in zip(planes, expected, strict=True):
+        assert abs(abs(plane.normal @ _unit(normal)) - 1) < 1e-12
+        np.testing.assert_array_equal(plane.point, model.center)
+    # Within SAME_PLANE_DEG of an earlier plane is the same plane; just beyond it is another. Pairs of a, b and
+    # x = b tilted about the x axis: a-b is z = 0, a-x that plane tilted (merged or not), b-x the x = 0 plane.
+    tilt = np.radians(sampling.SAME_PLANE_DEG)
+    for factor, count in ((0.9, 2), (1.1, 3)):
+        x = [0, 40 * np.cos(factor * tilt), 40 * np.sin(factor * tilt)]
+        assert len(sampling.pair_planes(model, np.array([a, b, x], dtype=np.float64))) == count
+
+
+def test_pair_order_takes_every_plane_once_per_cycle():
+    model = make_object("can", 1)
+    points = model.vertices[np.random.default_rng(0).choice(model.n_vertices, 6, replace=False)]
+    planes = sampling.pair_planes(model, points)
+    order = sampling.PairOrder(planes, 123, "can/1")
+    n = len(order)
+    assert n == len(planes) > 5
+    for cycle in range(3):
+        ids = [id(order[k]) for k in range(cycle * n, (cycle + 1) * n)]
+        assert sorted(ids) == sorted(id(p) for p in planes)
+    # Position k depends on (seed, k) only: a fresh order gives the same planes in any reading order.
+    fresh = sampling.PairOrder(planes, 123)
+    assert [id(fresh[k]) for k in (2 * n + 1, 0, n)] == [id(order[k]) for k in (2 * n + 1, 0, n)]
+    # Another seed, another order; the cycles differ from each other.
+    other = sampling.PairOrder(planes, 124)
+    assert [id(other[k]) for k in range(n)] != [id(order[k]) for k in range(n)]
+    assert [id(order[k]) for k in range(n)] != [id(order[k]) for k in range(n, 2 * n)]
+    with pytest.raises(ContourError, match="can/1"):
+        sampling.PairOrder([], 0, "can/1")
+    for bad in (-1, 2**63, 1.5, True):
+        with pytest.raises(InvalidArgumentError, match="seed"):
+            sampling.PairOrder(planes, bad)
+    with pytest.raises(InvalidArgumentError, match="positions"):
+        order[-1]
+
+
+@pytest.mark.parametrize("seeding", ["stream", "object"])
+def test_guided_touches_repeat_no_plane_until_all_are_used(seeding):
+    model = make_object("mug", 3)
+    sal = attention.saliency(model, "multiview")
+    usable = Toucher(model, "guided", probes=6, saliency=sal).pair_order(0).planes
+    contours: list = []
+    explore_object(model, "guided", len(usable) + 3, FSRSensor(rows=4, cols=4), 6, seed=9, saliency=sal,
+                   seeding=seeding, contours=contours)
+    normals = np.array([c.plane.normal for c in contours])
+    same = np.abs(normals @ normals.T) > np.cos(np.radians(sampling.SAME_PLANE_DEG))
+    first = same[: len(usable), : len(usable)]
+    assert (first == np.eye(len(usable), dtype=bool)).all()  # the first cycle: each usable plane once
+    assert same[len(usable):, : len(usable)].sum(axis=1).tolist() == [1, 1, 1]  # then repeats begin
+    # sample_planes (no cutting) does the same with the pairs that are not near-collinear.
+    planes = sample_planes(model, "guided", 20, seed=3, saliency=sal)
+    n = np.array([p.normal for p in planes])
+    assert (np.abs(n @ n.T) > np.cos(np.radians(sampling.SAME_PLANE_DEG))).sum() == 20
