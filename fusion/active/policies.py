@@ -230,6 +230,12 @@ class Policy:
     def _propose(self, state: ActiveState) -> Plane:
         entry = self._entry(state)
         toucher = entry["toucher"]
+        if toucher.guided:  # the guided strategy's pairs without repeats, in the order seeded by (seed, visual model)
+            order = entry.get("order")
+            if order is None:
+                order = entry["order"] = toucher.pair_order(int(self._rng(entry, 2**31 + 1).integers(2**63)))
+            untouched = (order[k] for k in range(len(order)) if not any(same_plane(order[k], p) for p in state.planes))
+            return next(untouched, order[len(state.planes)])  # every pair touched: the next cycle
         rng = self._rng(entry, state.step)
         for _ in range(sampling.MAX_DRAWS):
             plane = toucher.draw(rng)
@@ -246,7 +252,8 @@ class RandomPolicy(Policy):
 
 
 class SaliencyPolicy(Policy):
-    """The paper's: a plane through the visual model's centre and two of its multiview interest points."""
+    """The paper's: a plane through the visual model's centre and two of its multiview interest points, the pairs
+    taken in a seeded order without repeats (:meth:`tactile.touching.Toucher.pair_order`), skipping planes touched."""
 
     name, strategy = "saliency", "guided"
 

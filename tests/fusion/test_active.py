@@ -205,3 +205,33 @@ def test_episode_figure(objects, tmp_path):
     episode = run_episode(mug, visual, OrientationClassifier(), make_policy("random"), max_touches=2)
     path = plot_episode(episode, mug, tmp_path / "episode.png", label="a")
     assert path.is_file() and path.stat().st_size > 10_000
+
+
+def test_saliency_policy_takes_every_interest_pair_once_before_any_again(objects):
+    """The saliency policy's contours are the guided strategy's pairs without repeats: as many distinct planes as
+    the visual model has usable pairs, then the cycle starts again; the order is the policy seed's."""
+    from tactile.touching import Toucher
+
+    _, _, visual = objects
+    state = ActiveState(visual, ConstantClassifier())
+    usable = Toucher(visual, "guided", probes=state.probes, saliency_seed=4).pair_order(0).planes  # the policy's
+    policy = make_policy("saliency", 4)
+    for _ in range(len(usable) + 2):
+        state = ActiveState(visual, state.classifier, planes=[*state.planes, policy.propose(state)],
+                            probabilities=[*state.probabilities, np.array([1 / 3] * 3)])
+    planes = state.planes
+    assert all(any(same_plane(p, u) for u in usable) for p in planes)
+    first = planes[: len(usable)]
+    assert all(not same_plane(a, b) for i, a in enumerate(first) for b in first[i + 1:])  # each once
+    # Another seed, another order (the first five proposals of each policy as it goes).
+    def proposals(policy, n=5):
+        state = ActiveState(visual, ConstantClassifier())
+        for _ in range(n):
+            state = ActiveState(visual, state.classifier, planes=[*state.planes, policy.propose(state)],
+                                probabilities=[*state.probabilities, np.array([1 / 3] * 3)])
+        return state.planes
+
+    assert len(usable) > 5
+    mine, other = proposals(make_policy("saliency", 4)), proposals(make_policy("saliency", 5))
+    assert all(same_plane(a, b) for a, b in zip(mine, planes[:5]))  # same seed, same order
+    assert not all(same_plane(a, b) for a, b in zip(mine, other))
