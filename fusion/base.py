@@ -87,6 +87,21 @@ def as_batch(X) -> SequenceBatch:
 RENAMED_PARAMS = {"seed": "random_state"}
 
 
+def class_indices(classes, names) -> np.ndarray:
+    """(N,) the index of each of ``names`` in ``classes`` (sorted class names, as a model's ``classes_``).
+
+    Raises:
+        DatasetError: a name that is not one of the classes (the first few named).
+    """
+    classes, names = np.asarray(classes).astype(str), np.asarray(names).astype(str)
+    index = np.searchsorted(classes, names)
+    unknown = (index >= len(classes)) | (classes[np.minimum(index, len(classes) - 1)] != names)
+    if unknown.any():
+        raise DatasetError(f"labels {sorted(set(names[unknown].tolist()))[:5]} are not among the classes "
+                           f"{classes.tolist()}")
+    return index
+
+
 def renamed_seed(options: dict, random_state, where: str):
     """``random_state``, or the value of a ``seed`` keyword in ``options`` (the name before scikit-learn's), with a
     DeprecationWarning; ``options`` must hold nothing else.
@@ -150,7 +165,7 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         self.sensor_spec_ = dict(batch.sensor_spec)
         self.n_probes_ = batch.n_probes
         self.grid_ = batch.grid
-        y_index = np.searchsorted(self.classes_.astype(str), names.astype(str))
+        y_index = class_indices(self.classes_, names)
         self._fit(batch, y_index)
         from fusion.leakage import KEY, sequence_fingerprints
 
@@ -472,5 +487,5 @@ def _load_pickle(path: Path) -> TactileClassifier:
     return content["model"]
 
 
-__all__ = ["READOUT_SETTINGS", "RENAMED_PARAMS", "TactileClassifier", "as_batch", "class_name", "is_fitted_name", "library_versions",
+__all__ = ["READOUT_SETTINGS", "RENAMED_PARAMS", "TactileClassifier", "as_batch", "class_indices", "class_name", "is_fitted_name", "library_versions",
            "load_model", "set_fitted"]

@@ -298,7 +298,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, max_touche
         DatasetError: bad data, a class with fewer objects than ``cv``, too few classes for ``class_folds``.
         InvalidArgumentError: bad settings, or a distance score for a model without a feature space.
     """
-    from fusion.base import as_batch
+    from fusion.base import as_batch, class_indices
 
     for name, value, low in (("cv", cv, 2), ("class_folds", class_folds, 2), ("max_touches", max_touches, 1),
                              ("neighbors", neighbors, 1)):
@@ -314,7 +314,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, max_touche
     classes = np.array(sorted(set(names.tolist())), dtype=object)
     if len(classes) < 2:
         raise DatasetError("calibrate: the training data has one class; need at least two")
-    yi = np.searchsorted(classes.astype(str), names)
+    yi = class_indices(classes, names)
     keys = object_keys(batch)
     short = {c: n for c, n in objects_per_class(batch, names).items() if n < cv}
     if short:
@@ -408,7 +408,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, max_touche
     # 3. the reference features of the model fitted on all the data.
     if open_set and has_space:  # kept even when the probability won: the distance scores stay available
         ref = embedding(model, batch, inner.features)
-        state |= {"reference": ref, "reference_labels": np.searchsorted(model.classes_.astype(str), names)}
+        state |= {"reference": ref, "reference_labels": class_indices(model.classes_, names)}
     model.calibration_ = state
     return model
 

@@ -109,7 +109,6 @@ def store_record(objects, contours: int, seed: int, strategies=("guided", "blind
                  probes: int = 25) -> dict:
     """What identifies a store's content (its name and the cache records of models trained on it use it)."""
     from tactile.dataset import object_specs
-
     from tactile.sampling import pair_setting
 
     return {"objects": [_identity(spec) for spec in object_specs(objects)], "contours": contours, "seed": seed,

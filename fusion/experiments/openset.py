@@ -22,6 +22,7 @@ import logging
 
 import numpy as np
 
+from fusion.base import class_indices
 from fusion.calibration import ece_interval, ece_noise_floor, plot_reliability, reliability
 from fusion.decide import fuse_touches, touch_groups
 from fusion.experiments.context import Context
@@ -48,8 +49,7 @@ BOOTSTRAP = 1000
 
 def class_index(model, batch) -> np.ndarray:
     """(S,) each sequence's class as an index into ``model.classes_``."""
-    names = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)
-    return np.searchsorted(np.asarray(model.classes_).astype(str), names)
+    return class_indices(model.classes_, np.asarray(batch.class_names, dtype=object)[batch.labels])
 
 
 #: The calibration part's variants: label -> how K touches' uncalibrated probabilities are fused.

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fusion.base import TactileClassifier, load_model
+from fusion.base import TactileClassifier, class_indices, load_model
 from perception.errors import DatasetError, ModelFileError, ModelMismatchError
 from tactile.sensor import FSRSensor
 from tests.fusion._synthetic import circle_batch
@@ -112,3 +112,12 @@ class TestNotFitted:
         with pytest.raises(NotFittedError) as info:
             model.predict_proba(batch)
         assert isinstance(info.value, VisuotactileError) and isinstance(info.value, ValueError)
+
+
+def test_class_indices_finds_each_name_and_refuses_strangers():
+    classes = np.array(["bottle", "cup", "mug"], dtype=object)
+    assert class_indices(classes, ["mug", "bottle", "mug", "cup"]).tolist() == [2, 0, 2, 1]
+    # Names that sort between, before or after the classes are not classes (searchsorted alone would index them).
+    for stranger in ("can", "apple", "zebra"):
+        with pytest.raises(DatasetError, match=stranger):
+            class_indices(classes, ["cup", stranger])
