@@ -19,6 +19,8 @@ Touching along the planes drawn here is :mod:`tactile.touching`.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from perception import saliency as attention
@@ -52,9 +54,16 @@ def check_strategy(strategy: str) -> None:
 
 
 def pair_setting(strategies) -> dict:
-    """``{"guided_pairs": GUIDED_PAIRS}`` when a strategy draws interest-point pairs, else ``{}`` (blind stores keep
-    their identity)."""
-    return {"guided_pairs": GUIDED_PAIRS} if any(STRATEGIES.get(s) is not None for s in strategies) else {}
+    """``{"guided_pairs": GUIDED_PAIRS}`` when a strategy (one name or several) draws interest-point pairs, else
+    ``{}`` (blind stores keep their identity).
+
+    Raises:
+        InvalidArgumentError: an unknown strategy.
+    """
+    strategies = (strategies,) if isinstance(strategies, str) else tuple(strategies)
+    for strategy in strategies:
+        check_strategy(strategy)
+    return {"guided_pairs": GUIDED_PAIRS} if any(STRATEGIES[s] is not None for s in strategies) else {}
 
 
 def check_not_flat(model: ObjectModel) -> None:
@@ -122,27 +131,31 @@ class PairOrder:
 
     Position ``k`` is ``planes[perm_c[k % P]]``, where ``c = k // P`` and ``perm_c`` is the permutation drawn from
     ``(seed, c)``: every plane comes once before any comes again, and position ``k`` depends only on ``(seed, k)``
-    (a store makes its rows independently).
+    (a store makes its rows independently). Positions go on for ever; iterating gives the first cycle.
 
     Raises:
         ContourError: ``planes`` is empty (``name`` says which object).
-        InvalidArgumentError: a seed that is not an integer in [0, 2**63).
+        InvalidArgumentError: a seed that is not an integer in [0, 2**63); a position that is not an integer >= 0.
     """
 
     def __init__(self, planes: list[Plane], seed: int, name: str = "object") -> None:
+        planes = [] if planes is None else list(planes)
         if not planes:
             raise ContourError(f"{name}: no pair of its interest points gives a plane through the centre that cuts it")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
             raise InvalidArgumentError(f"{name}: pair order seed must be an integer in [0, 2**63), got {seed!r}")
-        self.planes, self.seed = list(planes), int(seed)
+        self.planes, self.seed, self.name = planes, int(seed), name
         self._cycles: dict[int, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self.planes)
 
+    def __iter__(self) -> Iterator[Plane]:
+        return (self[k] for k in range(len(self.planes)))
+
     def __getitem__(self, k: int) -> Plane:
-        if k < 0:
-            raise InvalidArgumentError(f"pair order positions start at 0, got {k}")
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
+            raise InvalidArgumentError(f"{self.name}: pair order positions are integers >= 0, got {k!r}")
         cycle, i = divmod(int(k), len(self.planes))
         perm = self._cycles.get(cycle)
         if perm is None:

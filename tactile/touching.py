@@ -171,7 +171,11 @@ class Toucher:
 
         Raises:
             ContourError: no pair gives a plane that cuts the object.
+            InvalidArgumentError: a blind strategy (its candidates are every vertex: pairs are drawn, not listed).
         """
+        if not self.guided:
+            raise InvalidArgumentError(f"{self.model.name}: the {self.strategy!r} strategy draws random vertex pairs; "
+                                       "only guided strategies have a pair order")
         if self._pairs is None:
             usable = []
             for plane in sampling.pair_planes(self.model, self.points):
@@ -223,6 +227,8 @@ class Toucher:
         Guided strategies take positions ``start, start + 1, ...`` of the pair order seeded with ``order_seed``
         (default: a number drawn from the generator first); a store passes the object's order seed and the row.
         """
+        if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
+            raise InvalidArgumentError(f"{self.model.name}: stream start must be an integer >= 0, got {start!r}")
         rng = np.random.default_rng(seed)
         if self.guided:
             order = self.pair_order(int(rng.integers(2**63)) if order_seed is None else order_seed)

@@ -111,8 +111,9 @@ def store_record(objects, contours: int, seed: int, strategies=("guided", "blind
     from tactile.dataset import object_specs
     from tactile.sampling import pair_setting
 
+    strategies = [strategies] if isinstance(strategies, str) else list(strategies)
     return {"objects": [_identity(spec) for spec in object_specs(objects)], "contours": contours, "seed": seed,
-            "strategies": list(strategies), "sensor": (sensor or FSRSensor()).spec(), "probes": probes,
+            "strategies": strategies, "sensor": (sensor or FSRSensor()).spec(), "probes": probes,
             **pair_setting(strategies)}
 
 

@@ -248,6 +248,19 @@ def test_objects_made_by_one_loader_get_stores_of_their_own():
     assert store_record([("mug", 4)], 10, 0)["objects"] == [["('mug', 4)", "mug"]]
 
 
+def test_store_records_of_guided_contours_say_how_their_pairs_are_drawn():
+    """Models cached from stores whose guided pairs were drawn with repeats must not be reused: the record of any
+    store with a guided strategy (mixed with blind or not) names how pairs are drawn; blind-only records keep theirs."""
+    from fusion.experiments.data import store_record
+
+    assert "guided_pairs" not in store_record([("mug", 4)], 10, 0, strategies=("blind",))
+    for strategies in (("guided",), ("guided", "blind"), ("blind", "mesh")):
+        assert store_record([("mug", 4)], 10, 0, strategies=strategies)["guided_pairs"] == "without repeats"
+    # One strategy named as a string is that strategy (as generate reads it), not its letters.
+    assert store_record([("mug", 4)], 10, 0, strategies="guided") == store_record([("mug", 4)], 10, 0,
+                                                                                   strategies=("guided",))
+
+
 def test_byte_identical_meshes_count_as_one_object(tmp_path):
     """Two files with the same bytes (SHREC's Fish/226 and 227) are one object: the later one is left out."""
     for name, text in (("226.off", "OFF\n# fish\n"), ("227.off", "OFF\n# fish\n"), ("228.off", "OFF\n# other\n")):

@@ -562,3 +562,35 @@ def test_loader_argument_read_only_in_part_is_refused():
         spec.to_dict()
     text = ObjectSpec("mug/0", "mug", loader=functools.partial(_mug_with, "wait...")).to_dict()["loader_args"]
     assert text == repr((("wait...",), {}))  # a plain string may hold dots
+
+
+def test_pair_order_seed_is_kept_exactly_and_in_range():
+    # The rows of a guided store follow it: a resumed store made by another version must take the same order.
+    assert pair_order_seed(0, "box/4", "guided") == 8137818715169992083
+    assert pair_order_seed(7, "mug/0", "mesh") == 5468676966731091621
+    seeds = [pair_order_seed(s, f"obj/{i}", m) for s in (0, 1, 2**40) for i in range(40) for m in ("guided", "mesh")]
+    assert all(isinstance(x, int) and 0 <= x < 2**63 for x in seeds) and len(set(seeds)) == len(seeds)
+
+
+def test_every_guided_strategy_of_a_mixed_store_takes_its_own_pair_order(tmp_path, guided_store):
+    """A store of blind and guided strategies records how the guided pairs are drawn, and the rows of every guided
+    strategy (not only "guided") take the pair order of (seed, object, that strategy)."""
+    from tactile.dataset.store import ATTRS_KEY
+
+    settings = json.loads((guided_store / "zarr.json").read_text())["attributes"][ATTRS_KEY]["settings"]
+    assert settings["guided_pairs"] == "without repeats"  # ("guided", "blind")
+    sensor = FSRSensor(rows=4, cols=4)
+    generate([("box", 4)], tmp_path / "s", strategies=("blind", "mesh"), contours_per_object=4, sensor=sensor,
+             probes=4, seed=5, workers=1, progress=False)
+    ds = open_dataset(tmp_path / "s")
+    settings = json.loads((tmp_path / "s" / "zarr.json").read_text())["attributes"][ATTRS_KEY]["settings"]
+    assert settings["guided_pairs"] == "without repeats"
+    batch = ds.load()
+    model = make_object("box", 4)
+    sal = attention.saliency(model, "mesh")
+    rows = np.flatnonzero(ds.sequence_strategies == "mesh")
+    assert len(rows) == 4
+    for k, i in enumerate(rows):
+        expected = expected_row(model, "mesh", 5, k, sensor, 4, sal)
+        assert abs(abs(batch.plane_normals[i] @ expected.plane.normal) - 1) < 1e-9, k
+        assert np.abs(batch.frames[i] - expected.frames).max() <= ds.max_frame_error * (1 + 1e-6)

@@ -250,3 +250,116 @@ def test_guided_touches_repeat_no_plane_until_all_are_used(seeding):
     planes = sample_planes(model, "guided", 20, seed=3, saliency=sal)
     n = np.array([p.normal for p in planes])
     assert (np.abs(n @ n.T) > np.cos(np.radians(sampling.SAME_PLANE_DEG))).sum() == 20
+
+
+# ------------------------------------------------------------- guided pairs: what the tests above leave open
+def _octahedron() -> ObjectModel:
+    return ObjectModel(np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1]]) * 40,
+                       np.array([[0, 1, 2], [0, 2, 4], [1, 3, 2], [3, 4, 2], [0, 1, 5], [0, 5, 4], [1, 3, 5],
+                                 [3, 4, 5]]), name="octahedron")
+
+
+def test_planes_within_one_degree_are_one_plane():
+    # The threshold is one degree (the module's promise: 1.7 mm at 100 mm), in literal degrees, so that a change
+    # of SAME_PLANE_DEG (which the test above reads back) is seen. a-b is z = 0, a-x that plane tilted by deg.
+    model = _octahedron()
+    a, b = [40, 0, 0], [0, 40, 0]
+    for deg, count in ((0.5, 2), (0.95, 2), (1.05, 3), (2.0, 3), (5.0, 3)):
+        x = [0, 40 * np.cos(np.radians(deg)), 40 * np.sin(np.radians(deg))]
+        assert len(sampling.pair_planes(model, np.array([a, b, x], dtype=np.float64))) == count, deg
+
+
+def test_pair_order_is_the_documented_permutation():
+    # Position k is planes[perm_c[k % P]], perm_c the permutation of default_rng([seed, c]), c = k // P: stores
+    # resumed by another version take the same rows only if this is kept exactly.
+    model = make_object("can", 1)
+    points = model.vertices[np.random.default_rng(0).choice(model.n_vertices, 6, replace=False)]
+    planes = sampling.pair_planes(model, points)
+    n = len(planes)
+    for seed in (0, 2**40 + 7, 2**63 - 1):
+        order = sampling.PairOrder(planes, seed)
+        for k in range(3 * n):
+            assert order[k] is planes[np.random.default_rng([seed, k // n]).permutation(n)[k % n]], (seed, k)
+
+
+@pytest.fixture(scope="module")
+def mug_guided():
+    model = make_object("mug", 3)
+    return model, attention.saliency(model, "multiview")
+
+
+def test_guided_sample_planes_take_every_pair_from_the_first_and_follow_the_seed(mug_guided):
+    model, sal = mug_guided
+    pairs = sampling.pair_planes(model, sampling.candidates(model, "guided", sal))
+    n = len(pairs)
+
+    def keys(planes):
+        return [min(p.normal.tobytes(), (-p.normal).tobytes()) for p in planes]
+
+    runs = {seed: sample_planes(model, "guided", n + 2, seed=seed, saliency=sal) for seed in (0, 1, 2)}
+    for planes in runs.values():
+        assert sorted(keys(planes[:n])) == sorted(keys(pairs))  # the first n: every pair once
+    assert keys(sample_planes(model, "guided", n + 2, seed=1, saliency=sal)) == keys(runs[1])  # same seed, same
+    assert len({tuple(keys(p[:5])) for p in runs.values()}) == 3  # another seed, another order
+
+
+def test_pair_order_leaves_out_pairs_whose_plane_misses(mug_guided, monkeypatch):
+    model, sal = mug_guided
+    toucher = Toucher(model, "guided", probes=6, saliency=sal)
+    pairs = sampling.pair_planes(model, toucher.points)
+    missing = {pairs[0].normal.tobytes(), pairs[3].normal.tobytes()}
+    real_cut = toucher.cut
+
+    def cut(plane):
+        if np.asarray(plane.normal).tobytes() in missing:
+            raise ContourError(f"{model.name}: the plane misses")
+        return real_cut(plane)
+
+    monkeypatch.setattr(toucher, "cut", cut)
+    order = toucher.pair_order(5)
+    assert len(order) == len(pairs) - 2
+    assert not any(p.normal.tobytes() in missing for p in order.planes)
+    touched = [p.contour.plane.normal.tobytes() for p in toucher.stream(len(pairs) + 3, 1)]
+    assert not missing & set(touched)
+
+
+def test_guided_object_seeding_follows_the_seed(mug_guided):
+    model, sal = mug_guided
+    toucher = Toucher(model, "guided", probes=6, saliency=sal)
+
+    def normals(seed):
+        return [p.contour.plane.normal.tobytes() for p in toucher.by_object(8, seed)[0]]
+
+    assert normals(0) == normals(0)
+    assert len({tuple(normals(seed)) for seed in (0, 1, 2)}) == 3
+
+
+def test_pair_order_refuses_what_is_not_a_position_and_iterates_one_cycle():
+    model = make_object("can", 1)
+    planes = sampling.pair_planes(model, model.vertices[[0, 40, 80, 120]])
+    order = sampling.PairOrder(np.array(planes, dtype=object), 3, "can/1")  # any sequence of planes
+    assert len(list(order)) == len(planes) and all(any(p is q for q in planes) for p in order)
+    assert planes[0] in order  # membership ends (one cycle)
+    assert order[np.int64(2)] is order[2]
+    for bad in (-1, 1.5, True, None, "a", float("nan"), float("inf"), slice(0, 2)):
+        with pytest.raises(InvalidArgumentError, match="can/1"):
+            order[bad]
+    with pytest.raises(ContourError, match="can/1"):
+        sampling.PairOrder(None, 0, "can/1")
+
+
+def test_only_guided_strategies_have_a_pair_order(monkeypatch):
+    model = make_object("mug", 3)
+    monkeypatch.setattr(sampling, "pair_planes", lambda *a: pytest.fail("listed every vertex pair"))
+    with pytest.raises(InvalidArgumentError, match="mug/3.*blind"):
+        Toucher(model, "blind", probes=6).pair_order(0)
+    toucher = Toucher(model, "blind", probes=6)
+    with pytest.raises(InvalidArgumentError, match="start"):
+        next(toucher.stream(1, 0, start=1.5))
+
+
+def test_pair_setting_reads_one_name_or_several_and_refuses_unknown_ones():
+    assert sampling.pair_setting("guided") == sampling.pair_setting(["blind", "mesh"]) == {"guided_pairs": "without repeats"}
+    assert sampling.pair_setting("blind") == sampling.pair_setting(("blind",)) == {}
+    with pytest.raises(InvalidArgumentError, match="bogus"):
+        sampling.pair_setting(["blind", "bogus"])
