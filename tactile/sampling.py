@@ -145,7 +145,7 @@ class PairOrder:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
             raise InvalidArgumentError(f"{name}: pair order seed must be an integer in [0, 2**63), got {seed!r}")
         self.planes, self.seed, self.name = planes, int(seed), name
-        self._cycles: dict[int, np.ndarray] = {}
+        self._cycle: tuple[int, np.ndarray] = (-1, np.empty(0, np.int64))  # the last cycle's permutation
 
     def __len__(self) -> int:
         return len(self.planes)
@@ -157,10 +157,9 @@ class PairOrder:
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
             raise InvalidArgumentError(f"{self.name}: pair order positions are integers >= 0, got {k!r}")
         cycle, i = divmod(int(k), len(self.planes))
-        perm = self._cycles.get(cycle)
-        if perm is None:
-            perm = self._cycles[cycle] = np.random.default_rng([self.seed, cycle]).permutation(len(self.planes))
-        return self.planes[perm[i]]
+        if self._cycle[0] != cycle:  # positions are mostly read in order: one cycle kept, memory stays bounded
+            self._cycle = (cycle, np.random.default_rng([self.seed, cycle]).permutation(len(self.planes)))
+        return self.planes[self._cycle[1][i]]
 
 
 def sample_planes(
