@@ -53,6 +53,11 @@ def check_strategy(strategy: str) -> None:
         raise InvalidArgumentError(f"unknown sampling strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
 
 
+def is_guided(strategy: str) -> bool:
+    """Whether ``strategy`` draws its pairs from interest points (without repeats) rather than random vertices."""
+    return STRATEGIES[strategy] is not None
+
+
 def pair_setting(strategies) -> dict:
     """``{"guided_pairs": GUIDED_PAIRS}`` when a strategy (one name or several) draws interest-point pairs, else
     ``{}`` (blind stores keep their identity).
@@ -63,7 +68,7 @@ def pair_setting(strategies) -> dict:
     strategies = (strategies,) if isinstance(strategies, str) else tuple(strategies)
     for strategy in strategies:
         check_strategy(strategy)
-    return {"guided_pairs": GUIDED_PAIRS} if any(STRATEGIES[s] is not None for s in strategies) else {}
+    return {"guided_pairs": GUIDED_PAIRS} if any(is_guided(s) for s in strategies) else {}
 
 
 def check_not_flat(model: ObjectModel) -> None:
@@ -188,7 +193,7 @@ def sample_planes(
         raise ContourError(f"{model.name}: need at least two vertices to draw planes")
     rng = np.random.default_rng(seed)
     points = candidates(model, strategy, saliency)
-    if STRATEGIES[strategy] is None:
+    if not is_guided(strategy):
         return [draw_plane(model, points, rng) for _ in range(n)]
     order = PairOrder(pair_planes(model, points), int(rng.integers(2**63)), model.name)
     return [order[k] for k in range(n)]
@@ -204,4 +209,4 @@ def __getattr__(name: str):
 
 
 __all__ = ["FLAT_TOLERANCE", "GUIDED_PAIRS", "INTEREST_POOL", "MAX_DRAWS", "PAPER_STRATEGIES", "SAME_PLANE_DEG", "STRATEGIES", "PairOrder", "candidates",
-           "check_not_flat", "check_strategy", "draw_plane", "pair_planes", "pair_setting", "sample_planes"]
+           "check_not_flat", "check_strategy", "draw_plane", "is_guided", "pair_planes", "pair_setting", "sample_planes"]

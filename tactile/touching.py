@@ -162,8 +162,8 @@ class Toucher:
 
     @property
     def guided(self) -> bool:
-        """Whether the strategy draws from interest points (pairs without repeats) rather than random vertices."""
-        return sampling.STRATEGIES[self.strategy] is not None
+        """Whether the strategy draws from interest points (:func:`tactile.sampling.is_guided`)."""
+        return sampling.is_guided(self.strategy)
 
     def pair_order(self, seed: int) -> sampling.PairOrder:
         """The pairs of interest points whose plane cuts the object, in the seeded order of
