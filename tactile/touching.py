@@ -242,13 +242,14 @@ class Toucher:
     def by_object(self, n: int, seed: int) -> tuple[Iterator[Planned], np.random.Generator]:
         """``n`` contours of the "object" scheme (module docstring) and the generator of its pose jitter.
 
-        The iterator raises ContourError when fewer than ``n`` of the ``n + SPARE_PLANES`` planes cut the object.
+        The iterator raises ContourError when fewer than ``n`` of the ``n + SPARE_PLANES`` blind planes cut the
+        object (a guided pair order holds only planes that cut: its first ``n`` positions are taken).
         """
         plane_seed, noise_seed, jitter_seed = object_seed(seed, self.model.name, self.strategy).spawn(3)
         plane_rng = np.random.default_rng(plane_seed)
         if self.guided:
             order = self.pair_order(int(plane_rng.integers(2**63)))
-            planes = [order[k] for k in range(n + SPARE_PLANES)]
+            planes = [order[k] for k in range(n)]
         else:
             planes = [sampling.draw_plane(self.model, self.points, plane_rng) for _ in range(n + SPARE_PLANES)]
         noise_seeds = np.random.default_rng(noise_seed).integers(2**31 - 1, size=len(planes))
