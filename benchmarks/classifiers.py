@@ -136,8 +136,9 @@ def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | 
     model = CNNClassifier(epochs=1, val_fraction=0.0, threads=threads, progress=False, random_state=seed)
     model.fit(batch)
     paper_epoch_s = {k: h["epoch_seconds"] * PAPER_TRAIN / n for k, h in model.history_.items()}
-    capped = CNNClassifier().epochs_for(PAPER_TRAIN)  # 50 epochs, or fewer under the default step cap
-    epochs = {k: min((epochs_run or {}).get(k) or 50, capped) for k in paper_epoch_s}
+    default = CNNClassifier()
+    capped = default.epochs_for(PAPER_TRAIN)  # the default epochs, or fewer under the step cap
+    epochs = {k: min((epochs_run or {}).get(k) or default.epochs, capped) for k in paper_epoch_s}
     total_s = sum(paper_epoch_s[k] * epochs[k] for k in paper_epoch_s)
     return {"sequences": n, "paper_epoch_s": paper_epoch_s, "epochs": epochs, "projected_train_min": total_s / 60}
 
