@@ -302,6 +302,15 @@ def test_steps_per_epoch_counts_the_batches_the_loop_runs(n_train, batch_size, s
     assert CNNClassifier(batch_size=batch_size)._steps_per_epoch(n_train) == steps
 
 
+@pytest.mark.parametrize("n_train,epochs", [(18240, 18), (4752, 67), (3168, 100), (2112, 100), (64, 100)])
+def test_default_recipe_epochs_by_training_set_size(n_train, epochs):
+    # Default: 100 epochs of batches of 64, at most 5,000 steps. The paper protocol's training part (18,240
+    # sequences: 285 steps an epoch) stops after ceil(5000 / 285) = 18 epochs, as it did with 50; new_instances'
+    # training set (99 objects x 48 = 4,752: 74 batches + 16, 75 steps) after ceil(5000 / 75) = 67; an
+    # unseen-objects fold (66 x 48 = 3,168: 49 batches + 32, 50 steps) and smaller sets train all 100.
+    assert CNNClassifier().epochs_for(n_train) == epochs
+
+
 @pytest.fixture
 def step_rates(monkeypatch) -> list[float]:
     """The learning rate of every AdamW step taken while the test runs, in order."""
