@@ -117,7 +117,8 @@ def conventional_rows(train, test, args) -> list[dict]:
 def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | None) -> dict:
     """One epoch of each net on ``n`` synthetic 25 x 32 x 32 sequences, scaled to the paper's 18,240 and
     multiplied by the epochs each net would run on those 18,240: the epochs it ran in the benchmark's fit
-    (``epochs_run``; 50 without one), cut to what the default step cap (``CNNClassifier.max_steps``) allows."""
+    (``epochs_run``; the default ``CNNClassifier.epochs`` without one), cut to what the default step cap
+    (``CNNClassifier.max_steps``) allows."""
     from fusion.cnn import CNNClassifier
     from tactile.explore import SequenceBatch
     from tactile.sensor import FSRSensor

@@ -311,6 +311,16 @@ def test_default_recipe_epochs_by_training_set_size(n_train, epochs):
     assert CNNClassifier().epochs_for(n_train) == epochs
 
 
+def test_epoch_projection_takes_the_default_epochs_cut_at_the_step_cap():
+    # The paper's 18,240 training sequences: 285 steps an epoch, so the 5,000-step cap allows ceil(5000 / 285) = 18
+    # of the default 100 epochs; a net that ran fewer in the benchmark's fit is projected with those.
+    from benchmarks.classifiers import epoch_projection
+
+    assert epoch_projection(16, None, 0, 1)["epochs"] == {"cutaneous": 18, "kinesthetic": 18}
+    assert epoch_projection(16, {"cutaneous": 30, "kinesthetic": 12}, 0, 1)["epochs"] == {"cutaneous": 18,
+                                                                                       "kinesthetic": 12}
+
+
 @pytest.fixture
 def step_rates(monkeypatch) -> list[float]:
     """The learning rate of every AdamW step taken while the test runs, in order."""

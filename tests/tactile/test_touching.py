@@ -87,6 +87,38 @@ class TestObjectSeeding:
             _assert_same(b, want)
         assert [c.plane.normal.tolist() for c in contours] == [p.normal.tolist() for p in planes[:3]]
 
+    def test_blind_skips_planes_that_miss_and_keeps_each_plane_s_noise_seed(self, box, monkeypatch):
+        """Blind planes that miss are skipped: the contours are planes 1, 3, 4 of the 3 + SPARE_PLANES drawn and
+        their noise seeds are those planes' seeds (indexed by plane); when too few cut, ContourError says so."""
+        from perception.errors import ContourError
+
+        plane_seed, noise_seed, _ = np.random.SeedSequence(
+            [7, zlib.crc32(box.name.encode()), zlib.crc32(b"blind")]).spawn(3)
+        rng = np.random.default_rng(plane_seed)
+        planes = [_plane(box, rng) for _ in range(3 + SPARE_PLANES)]
+        seeds = np.random.default_rng(noise_seed).integers(2**31 - 1, size=len(planes))
+        toucher = Toucher(box, "blind", probes=10)
+        cut = toucher.cut
+
+        def missing(*which):
+            gone = {planes[i].normal.tobytes() for i in which}
+
+            def fake(plane):
+                if plane.normal.tobytes() in gone:
+                    raise ContourError("misses")
+                return cut(plane)
+            return fake
+
+        monkeypatch.setattr(toucher, "cut", missing(0, 2))
+        planned, _ = toucher.by_object(3, 7)
+        planned = list(planned)
+        assert [p.contour.plane.normal.tolist() for p in planned] == [planes[i].normal.tolist() for i in (1, 3, 4)]
+        assert [p.noise_seed for p in planned] == [int(seeds[i]) for i in (1, 3, 4)]
+        monkeypatch.setattr(toucher, "cut", missing(0, *range(2, len(planes))))
+        planned, _ = toucher.by_object(3, 7)
+        with pytest.raises(ContourError, match="only 1 of 3"):
+            list(planned)
+
     def test_jitter_moves_the_press_not_the_plan(self, box):
         """Jittered touches press elsewhere but record the planned poses of the same contours."""
         clean = touch(box, "blind", 3, SENSOR, 10, 7, seeding="object")
