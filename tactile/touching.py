@@ -35,6 +35,7 @@ import numpy as np
 from perception import saliency as attention
 from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
+from perception.limits import check_bytes
 from perception.runtime import progress_bar
 from perception.validate import check_count, check_seed
 from tactile import sampling
@@ -314,7 +315,8 @@ def touch(
 
     Raises:
         InvalidArgumentError: unknown strategy or seeding, n_contours not an integer >= 1, probes not an
-            integer >= 2, a bad seed, a negative or non-finite jitter.
+            integer >= 2, a bad seed, a negative or non-finite jitter, or sequences that would not fit the memory
+            limit (:mod:`perception.limits`).
         ContourError: a flat object, too many planes that miss the object, or a given plane that misses it.
         SaliencyError: ``saliency`` is of another method or object.
 
@@ -340,6 +342,11 @@ def touch(
     sensor = sensor or FSRSensor()
     toucher = Toucher(model, strategy, probes=probes, saliency=saliency,
                       saliency_seed=seed if seeding == "object" else 0, timing=timing)
+    # The sequences are returned together: refuse before touching what memory cannot hold (float32 frames and
+    # ten float32 values of pose and pad per probe).
+    check_bytes(n_contours * toucher.probes * (sensor.rows * sensor.cols * 4 + 40),
+                f"{model.name}: touching {n_contours} contours ({toucher.probes} probes, {sensor.rows} x "
+                f"{sensor.cols} taxels)")
     if planes is not None:
         if len(planes) != n_contours:
             raise InvalidArgumentError(f"{model.name}: {len(planes)} planes given for n_contours={n_contours}")

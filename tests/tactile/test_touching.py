@@ -134,6 +134,16 @@ class TestArguments:
         with pytest.raises(InvalidArgumentError, match="seeding"):
             touch(box, "blind", 1, seeding="sometimes")
 
+    def test_more_sequences_than_memory_holds_are_refused_before_touching(self, box, monkeypatch):
+        # 1,100 contours x 25 probes x (32 x 32 x 4 + 40) bytes = 113,740,000 B = 108.5 MiB, above a 100 MiB limit;
+        # 1,000 (98.6 MiB) would fit.
+        monkeypatch.setenv("VISUOTACTILE_MAX_MEMORY_MB", "100")
+        with pytest.raises(InvalidArgumentError, match=r"touching 1100 contours.*108 MB.*limit of 100 MB"):
+            touch(box, "blind", 1100, FSRSensor(), 25, 0)
+        from perception.limits import check_bytes
+
+        assert check_bytes(1000 * 25 * (32 * 32 * 4 + 40), "1000 contours") == 103_400_000
+
     def test_stream_jitter_leaves_the_contours(self, box):
         """Jitter in the stream scheme has its own generator: the planned contours do not move."""
         clean = touch(box, "blind", 2, SENSOR, 10, 3)
