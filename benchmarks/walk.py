@@ -14,7 +14,7 @@ It prints the project modules in the order they were first entered, each with it
   floor are the floor's own business);
 - an upward call: a perception or tactile module calling into a higher floor.
 
-Two modules are shared by design and listed apart (:data:`SHARED`). A module's ``__getattr__`` (PEP 562: the
+Three modules are shared by design and listed apart (:data:`SHARED`). A module's ``__getattr__`` (PEP 562: the
 lookup of a name kept there for old imports, e.g. ``perception.geometry.load_object``) does not count as entering
 it; the function found is what runs, in its own module.
 
@@ -40,6 +40,8 @@ SHARED = {
     "perception.errors": "the exception hierarchy every package raises (DESIGN.md section 6)",
     "perception.runtime": "the one progress switch (set by the command line, read by every loop) and the "
                           "version and machine information models and stores record",
+    "perception.limits": "the size limits every floor checks before it allocates from a count it was given "
+                         "(untrusted files, command-line counts, touch counts)",
 }
 
 
