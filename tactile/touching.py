@@ -340,13 +340,13 @@ def touch(
     if jitter_mm < 0 or not np.isfinite(jitter_mm):
         raise InvalidArgumentError(f"pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
     sensor = sensor or FSRSensor()
+    probes = check_count(probes, "probes", model.name, minimum=2)
+    # The sequences are returned together: refuse, before any saliency or touch, what memory cannot hold (float32
+    # frames and ten float32 values of pose and pad per probe).
+    check_bytes(n_contours * probes * (sensor.rows * sensor.cols * 4 + 40),
+                f"{model.name}: touching {n_contours} contours ({probes} probes, {sensor.rows} x {sensor.cols} taxels)")
     toucher = Toucher(model, strategy, probes=probes, saliency=saliency,
                       saliency_seed=seed if seeding == "object" else 0, timing=timing)
-    # The sequences are returned together: refuse before touching what memory cannot hold (float32 frames and
-    # ten float32 values of pose and pad per probe).
-    check_bytes(n_contours * toucher.probes * (sensor.rows * sensor.cols * 4 + 40),
-                f"{model.name}: touching {n_contours} contours ({toucher.probes} probes, {sensor.rows} x "
-                f"{sensor.cols} taxels)")
     if planes is not None:
         if len(planes) != n_contours:
             raise InvalidArgumentError(f"{model.name}: {len(planes)} planes given for n_contours={n_contours}")
