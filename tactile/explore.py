@@ -13,6 +13,12 @@ from tactile.contours import Contour, Plane
 from tactile.sensor import FSRSensor
 
 
+def sequence_nbytes(probes: int, rows: int, cols: int, taxel_bytes: int = 4) -> int:
+    """Bytes of one tactile sequence in memory: ``taxel_bytes`` per taxel of each frame (float32 frames: 4) and the
+    ten float32 pose values of each probe (normal, position and tangent, 3 each, and the pad side)."""
+    return int(probes) * (int(rows) * int(cols) * int(taxel_bytes) + 4 * 10)
+
+
 @dataclass(eq=False)
 class TactileSequence:
     """What one contour exploration records.
@@ -195,4 +201,4 @@ class SequenceBatch:
         )
 
 
-__all__ = ["SequenceBatch", "TactileSequence", "explore"]
+__all__ = ["SequenceBatch", "TactileSequence", "explore", "sequence_nbytes"]

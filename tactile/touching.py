@@ -40,7 +40,7 @@ from perception.runtime import progress_bar
 from perception.validate import check_count, check_seed
 from tactile import sampling
 from tactile.contours import Contour, Plane, make_contour
-from tactile.explore import TactileSequence
+from tactile.explore import TactileSequence, sequence_nbytes
 from tactile.sensor import FSRSensor
 
 log = logging.getLogger(__name__)
@@ -341,9 +341,8 @@ def touch(
         raise InvalidArgumentError(f"pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
     sensor = sensor or FSRSensor()
     probes = check_count(probes, "probes", model.name, minimum=2)
-    # The sequences are returned together: refuse, before any saliency or touch, what memory cannot hold (float32
-    # frames and ten float32 values of pose and pad per probe).
-    check_bytes(n_contours * probes * (sensor.rows * sensor.cols * 4 + 40),
+    # The sequences are returned together: refuse, before any saliency or touch, what memory cannot hold.
+    check_bytes(n_contours * sequence_nbytes(probes, sensor.rows, sensor.cols),
                 f"{model.name}: touching {n_contours} contours ({probes} probes, {sensor.rows} x {sensor.cols} taxels)")
     toucher = Toucher(model, strategy, probes=probes, saliency=saliency,
                       saliency_seed=seed if seeding == "object" else 0, timing=timing)

@@ -24,7 +24,7 @@ from tactile.dataset.store import (
     read_rows,
     rows_per_file,
 )
-from tactile.explore import SequenceBatch
+from tactile.explore import SequenceBatch, sequence_nbytes
 
 log = logging.getLogger(__name__)
 
@@ -286,7 +286,7 @@ class TactileDataset:
         """Refuse (DatasetError) to materialise ``n`` sequences above the memory limit (:mod:`perception.limits`)."""
         from perception.limits import check_bytes
 
-        per = self.probes * (self.grid[0] * self.grid[1] * 6 + 4 * 10) + 64  # uint16 codes + float32, probe arrays
+        per = sequence_nbytes(self.probes, *self.grid, taxel_bytes=6) + 64  # uint16 codes + float32 frames
         check_bytes(n * per, f"{self.path}: reading {n} sequences ({self.probes} probes x {self.grid[0]} x "
                              f"{self.grid[1]} taxels)", DatasetError)
 
