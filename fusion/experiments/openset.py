@@ -170,9 +170,10 @@ def openset_part(ctx: Context, objects) -> dict:
                 groups = touch_groups(ids, k, seed=ctx.seed)
                 s = group_scores(proba, groups, cal, distances)
                 unknown_g = is_unknown[groups[:, 0]]
-                p = pooled.setdefault((name, k), {"unknown": [], "obj": [], "chosen": [], "threshold": [],
+                p = pooled.setdefault((name, k), {"unknown": [], "obj": [], "label": [], "chosen": [], "threshold": [],
                                                   **{n: [] for n in SCORES}})
                 p["unknown"].append(unknown_g)
+                p["label"].append(np.asarray(batch.class_names, dtype=object)[batch.labels][groups[:, 0]])
                 p["obj"].append(np.array([f"{r}:{o}" for o in obj[groups[:, 0]]], dtype=object))
                 p["chosen"].append(s[cal["score"]])
                 p["threshold"].append(np.full(len(groups), threshold_for(model, k)))
@@ -207,8 +208,25 @@ def openset_part(ctx: Context, objects) -> dict:
                                             unknown_s - thresholds[unknown], obj[unknown],
                                             lambda a, b: float(np.mean(a >= 0)), ctx.seed)
                 row |= {"known_kept_low": lo, "known_kept_high": hi}
+                # which unknown classes pass for known ones (e.g. a bird for an airplane)
+                label = np.concatenate(p["label"])[unknown]
+                below = unknown_s < thresholds[unknown]
+                row["rejected_by_class"] = {str(c): float(np.mean(below[label == c])) for c in sorted(set(label))}
             rows.append(row)
     return {"rows": rows, "rotations": rotations, "left_out": left_out, "strategy": strategy}
+
+
+def rejected_by_class_lines(rows: list[dict]) -> list[str]:
+    """One line per classifier: the share of each left-out class's objects answered "unknown" at the thresholds
+    fitted on training data, at the largest K (the chosen score)."""
+    lines = []
+    for name in dict.fromkeys(r["classifier"] for r in rows):
+        chosen = [r for r in rows if r["classifier"] == name and "rejected_by_class" in r]
+        if chosen:
+            last = max(chosen, key=lambda r: r["k"])
+            shares = ", ".join(f"{c} {100 * v:.0f} %" for c, v in last["rejected_by_class"].items())
+            lines.append(f"{name}, K = {last['k']}, unknown answered 'unknown' by left-out class: {shares}.")
+    return lines
 
 
 def calibration_table(rows: list[dict]) -> list[dict]:
@@ -234,4 +252,5 @@ def _auroc_cell(h: dict) -> str:
     return text + f"; @95 % test-known {100 * h['rejected_at_test_95']:.0f} %"
 
 
-__all__ = ["VARIANTS", "calibration_part", "calibration_table", "class_index", "openset_part", "openset_table"]
+__all__ = ["VARIANTS", "calibration_part", "calibration_table", "class_index", "openset_part", "openset_table",
+           "rejected_by_class_lines"]

@@ -196,7 +196,7 @@ def render(results: dict) -> str:
 
 def _calibration_lines(results: dict) -> list[str]:
     """The calibration and open-set sections (:mod:`fusion.experiments.openset`), when they ran."""
-    from fusion.experiments.openset import calibration_table, openset_table
+    from fusion.experiments.openset import calibration_table, openset_table, rejected_by_class_lines
 
     lines = []
     cal = results.get("calibration")
@@ -218,6 +218,9 @@ def _calibration_lines(results: dict) -> list[str]:
                    "ones answered unknown at the thresholds fitted on training data (leaving classes out inside "
                    "it); '@95 % test-known': unknown rejected at the threshold keeping 95 % of the test's known."),
                   "", markdown_table(openset_table(ops["rows"])), ""]
+        by_class = rejected_by_class_lines(ops["rows"])
+        if by_class:
+            lines += [" ".join(by_class), ""]
     return lines
 
 

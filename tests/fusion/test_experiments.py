@@ -811,6 +811,9 @@ def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
     assert {(r["n_unknown"], r["n_known"]) for r in rows if r["k"] == 1} == {(288, 144)}
     chosen = [r for r in rows if r["score"] == "chosen"]
     assert all(0 <= r["known_kept"] <= 1 and 0 <= r["unknown_rejected"] <= 1 for r in chosen)
+    for r in chosen:  # every class is left out once, with as many decisions as any other: the shares average out
+        assert sorted(r["rejected_by_class"]) == sorted(classes)
+        assert np.mean(list(r["rejected_by_class"].values())) == pytest.approx(r["unknown_rejected"])
     picked = {r["score"] for r in results["openset"]["rotations"]}
     if len(picked) == 1:  # every rotation chose one score: the "chosen" rows are that score's
         (name,) = picked
@@ -837,6 +840,10 @@ def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
     shares = {r["k"]: (r["known_kept"], r["unknown_rejected"]) for r in results["openset"]["rows"]
               if r["score"] == "chosen"}
     assert shares == {1: (1.0, 0.0), 2: (0.0, 1.0)}
+    by_class = {r["k"]: r["rejected_by_class"] for r in results["openset"]["rows"] if r["score"] == "chosen"}
+    assert by_class == {1: dict.fromkeys(sorted(OPEN_SET_CLASSES), 0.0), 2: dict.fromkeys(sorted(OPEN_SET_CLASSES), 1.0)}
+    report = (tmp_path / "report" / "report.md").read_text()
+    assert "em, K = 2, unknown answered 'unknown' by left-out class: bottle 100 %, bowl 100 %" in report
 
 
 def test_attention_part_names_each_pose_to_the_folds(tmp_path, monkeypatch):
