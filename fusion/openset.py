@@ -318,6 +318,9 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                              ("max_touches", max_touches, 1), ("neighbors", neighbors, 1)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise InvalidArgumentError(f"calibrate: {name} must be an integer >= {low}, got {value!r}")
+    # Python ints from here: a small numpy integer would overflow in the fold arithmetic
+    cv, class_folds, holdout, max_touches, neighbors = (int(v) for v in (cv, class_folds, holdout, max_touches,
+                                                                        neighbors))
     if max_touches > MAX_TOUCHES:
         raise InvalidArgumentError(f"calibrate: max_touches {max_touches} is above {MAX_TOUCHES}")
     keep = _check_keep(keep)
@@ -387,6 +390,9 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
         for j, out in enumerate(left_out):
             unknown = np.isin(yi, out)
             held_known = ~unknown & (held_folds == j % holdout)
+            if not held_known.any():  # its threshold would rest on the other folds' few objects, or on none
+                raise DatasetError(f"calibrate: leave-classes-out fold {j + 1} of {class_folds} holds out no known "
+                                   f"object (one in {holdout} of the objects); lower holdout or add objects")
             train = np.flatnonzero(~unknown & ~held_known)
             test = np.flatnonzero(unknown | held_known)
             log.info("calibrate: leave-classes-out fold %d of %d (%s out)", j + 1, class_folds,
@@ -407,9 +413,6 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                     for name in SCORES:
                         if name in s:
                             store.setdefault((name, k), []).append(s[name])
-        if not any((n, 1) in known_scores for n in SCORES):
-            raise DatasetError(f"calibrate: the leave-classes-out folds held out no known object (one in {holdout} "
-                               "of each class's objects); add objects or lower holdout")
         available = [n for n in SCORES if (n, 1) in known_scores]
         aurocs = {n: [auroc(np.concatenate(known_scores[(n, k)]), np.concatenate(unknown_scores[(n, k)]))
                       if (n, k) in known_scores and (n, k) in unknown_scores else float("nan")

@@ -198,7 +198,8 @@ def openset_part(ctx: Context, objects) -> dict:
             if n == "chosen":
                 thresholds = np.concatenate(p["threshold"])
                 known_kept = float(np.mean(known_s >= thresholds[~unknown]))
-                rejected = float(np.mean(unknown_s < thresholds[unknown]))
+                below = unknown_s < thresholds[unknown]  # answered "unknown"
+                rejected = float(np.mean(below))
                 row |= {"known_kept": known_kept, "unknown_rejected": rejected}
                 lo, hi = _objects_bootstrap(known_s - thresholds[~unknown], obj[~unknown],
                                             unknown_s - thresholds[unknown], obj[unknown],
@@ -210,7 +211,6 @@ def openset_part(ctx: Context, objects) -> dict:
                 row |= {"known_kept_low": lo, "known_kept_high": hi}
                 # which unknown classes pass for known ones (e.g. a bird for an airplane)
                 label = np.concatenate(p["label"])[unknown]
-                below = unknown_s < thresholds[unknown]
                 row["rejected_by_class"] = {str(c): float(np.mean(below[label == c])) for c in sorted(set(label))}
             rows.append(row)
     return {"rows": rows, "rotations": rotations, "left_out": left_out, "strategy": strategy}

@@ -830,9 +830,16 @@ def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
 
     def threshold(model, k):
         asked.append(k)
-        return -np.inf if k == 1 else np.inf
+        return 0.0 if k == 1 else np.inf
+
+    real = experiment.group_scores
+
+    def tied(*args, **kwargs):  # every score exactly 0: at K = 1 each decision sits on its threshold, and is kept
+        s = real(*args, **kwargs)
+        return {n: np.zeros(len(v)) if n in experiment.SCORES else v for n, v in s.items()}
 
     monkeypatch.setattr(experiment, "threshold_for", threshold)
+    monkeypatch.setattr(experiment, "group_scores", tied)
     data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
     results = reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
                         parts=("openset",), workers=2, progress=False)

@@ -157,17 +157,19 @@ class TestCalibrate:
     def test_threshold_keeps_the_asked_share_of_new_known_objects(self):
         """The final model is trained on every object, the leave-classes-out folds' models on fewer, so new known
         objects fit the final one better than the folds' held-out ones fit theirs: holding out a third of the known
-        objects, the threshold keeps more than the asked 95 %; holding out a fifth (the default), about 95 %.
-        Averaged over 20 training draws (15 objects per class each, tested on 60 new ones per class)."""
+        objects, the threshold keeps more than the asked 95 % of new known objects; holding out a fifth (the
+        default), close to 95 %. Averaged over 40 training draws (15 objects per class each, tested on 60 new ones
+        per class; seeds 41-80 give 95.6 and 96.4 %, the same gap)."""
         kept = {3: [], 5: []}
-        for seed in range(1, 21):
-            new = toy_batch(KNOWN, objects_per_class=60, seed=100 + seed)
+        for seed in range(1, 41):
+            new = toy_batch(KNOWN, objects_per_class=60, seed=1000 + seed)
             for holdout, shares in kept.items():
+                asked = {} if holdout == 5 else {"holdout": holdout}  # the default holds out a fifth
                 model = calibrate(MeanClassifier(), toy_batch(KNOWN, objects_per_class=15, seed=seed), class_folds=2,
-                                  holdout=holdout, max_touches=1)
+                                  max_touches=1, **asked)
                 shares.append(np.mean(model.predict(new, reject=True) != UNKNOWN))
-        assert abs(np.mean(kept[5]) - 0.95) <= 0.01
-        assert np.mean(kept[3]) >= np.mean(kept[5]) + 0.01
+        assert abs(np.mean(kept[5]) - 0.95) <= 0.01  # 95.6 %
+        assert np.mean(kept[3]) >= np.mean(kept[5]) + 0.005  # 96.6 %
 
     def test_refuses_too_few_objects_for_the_folds(self):
         with pytest.raises(DatasetError, match="fewer objects"):
@@ -176,6 +178,21 @@ class TestCalibrate:
             calibrate(MeanClassifier(), toy_batch(KNOWN[:3]), class_folds=2)  # one class would train
         with pytest.raises(InvalidArgumentError, match="holdout"):
             calibrate(MeanClassifier(), toy_batch(KNOWN), holdout=1)
+
+    @pytest.mark.parametrize("holdout", [16, 10**9])
+    def test_refuses_a_holdout_that_leaves_a_fold_without_known_objects(self, holdout):
+        """16 objects: one in 16 (or 10**9) is the first class's first object alone; the fold that leaves that class
+        out would hold out no known object, and the thresholds would rest on one object of the other fold."""
+        with pytest.raises(DatasetError, match="holds out no known object"):
+            calibrate(MeanClassifier(), toy_batch(KNOWN, seed=1), class_folds=2, holdout=holdout)
+
+    def test_small_numpy_integers_give_the_same_state(self):
+        """np.int8 fold counts on 132 objects: the fold arithmetic must not overflow (it ran in int8)."""
+        batch = toy_batch(KNOWN, objects_per_class=33, seed=3)
+        plain = calibrate(MeanClassifier(), batch, class_folds=2, max_touches=2)
+        small = calibrate(MeanClassifier(), batch, cv=np.int8(3), class_folds=np.int8(2), holdout=np.int8(5),
+                          max_touches=np.int8(2))
+        assert small.calibration_["thresholds"].tobytes() == plain.calibration_["thresholds"].tobytes()
 
 
 class TestModelFile:
