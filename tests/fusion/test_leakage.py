@@ -131,7 +131,8 @@ class TestUnseenObjectSplits:
 
 class TestNoiseExperimentFrames:
     @pytest.fixture(scope="class")
-    def touched(self):
+    @classmethod
+    def touched(cls):
         from fusion.experiments.robustness import _sensor_and_jitter
         from fusion.experiments.touch import touch_objects
         from perception.shapes import make_object
