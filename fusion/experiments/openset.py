@@ -156,7 +156,8 @@ def openset_part(ctx: Context, objects) -> dict:
             model = calibrate(factory(), load("train"), max_touches=max(ks), random_state=ctx.seed)
             batch = load("test")
             proba, distances = per_touch(model, batch)
-            is_unknown = np.isin(np.asarray(batch.class_names, dtype=object)[batch.labels], left_out[r])
+            label = np.asarray(batch.class_names, dtype=object)[batch.labels]
+            is_unknown = np.isin(label, left_out[r])
             obj = np.asarray(batch.object_names, dtype=object)[batch.object_ids]
             _, ids = np.unique(obj, return_inverse=True)
             cal = model.calibration_
@@ -173,7 +174,7 @@ def openset_part(ctx: Context, objects) -> dict:
                 p = pooled.setdefault((name, k), {"unknown": [], "obj": [], "label": [], "chosen": [], "threshold": [],
                                                   **{n: [] for n in SCORES}})
                 p["unknown"].append(unknown_g)
-                p["label"].append(np.asarray(batch.class_names, dtype=object)[batch.labels][groups[:, 0]])
+                p["label"].append(label[groups[:, 0]])
                 p["obj"].append(np.array([f"{r}:{o}" for o in obj[groups[:, 0]]], dtype=object))
                 p["chosen"].append(s[cal["score"]])
                 p["threshold"].append(np.full(len(groups), threshold_for(model, k)))
@@ -210,8 +211,9 @@ def openset_part(ctx: Context, objects) -> dict:
                                             lambda a, b: float(np.mean(a >= 0)), ctx.seed)
                 row |= {"known_kept_low": lo, "known_kept_high": hi}
                 # which unknown classes pass for known ones (e.g. a bird for an airplane)
-                label = np.concatenate(p["label"])[unknown]
-                row["rejected_by_class"] = {str(c): float(np.mean(below[label == c])) for c in sorted(set(label))}
+                unknown_label = np.concatenate(p["label"])[unknown]
+                row["rejected_by_class"] = {str(c): float(np.mean(below[unknown_label == c]))
+                                            for c in sorted(set(unknown_label))}
             rows.append(row)
     return {"rows": rows, "rotations": rotations, "left_out": left_out, "strategy": strategy}
 
