@@ -200,5 +200,35 @@ class SequenceBatch:
             sensor_spec=dict(sensor_spec or {}),
         )
 
+    @classmethod
+    def concatenate(cls, batches: Sequence[SequenceBatch]) -> SequenceBatch:
+        """The sequences of ``batches`` in order, as one batch. They must share the class list, the sensor spec and
+        the sequence shape; object lists are joined (an object named in several batches keeps one id).
+
+        Raises:
+            DatasetError: no batches, or batches that differ in classes, sensor or shape.
+        """
+        if not batches:
+            raise DatasetError("SequenceBatch.concatenate: no batches given")
+        first = batches[0]
+        for k, b in enumerate(batches[1:], 1):
+            if b.class_names != first.class_names:
+                raise DatasetError(f"SequenceBatch.concatenate: batch {k} has classes {list(b.class_names)}, "
+                                   f"batch 0 {list(first.class_names)}")
+            if b.sensor_spec != first.sensor_spec:
+                raise DatasetError(f"SequenceBatch.concatenate: batch {k} was recorded by another sensor")
+            if b.frames.shape[1:] != first.frames.shape[1:]:
+                raise DatasetError(f"SequenceBatch.concatenate: batch {k} has sequences of shape {b.frames.shape[1:]}, "
+                                   f"batch 0 {first.frames.shape[1:]}")
+        names = list(dict.fromkeys(n for b in batches for n in b.object_names))
+        index = {n: i for i, n in enumerate(names)}
+        ids = [np.array([index[n] for n in b.object_names], dtype=np.int64)[b.object_ids] if len(b) else
+               np.zeros(0, np.int64) for b in batches]
+        join = lambda attr: np.concatenate([getattr(b, attr) for b in batches])
+        return cls(frames=join("frames"), normals=join("normals"), positions=join("positions"),
+                   tangents=join("tangents"), pad_sides_mm=join("pad_sides_mm"), plane_points=join("plane_points"),
+                   plane_normals=join("plane_normals"), labels=join("labels"), object_ids=np.concatenate(ids),
+                   class_names=first.class_names, object_names=tuple(names), sensor_spec=dict(first.sensor_spec))
+
 
 __all__ = ["SequenceBatch", "TactileSequence", "explore", "sequence_nbytes"]

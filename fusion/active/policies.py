@@ -50,6 +50,8 @@ from tactile.touching import Toucher, touch
 log = logging.getLogger(__name__)
 
 POLICIES = ("random", "saliency", "information")
+#: Taubin steps the information policy smooths its visual model with before simulating touches (:func:`smoothed`).
+SMOOTH_ITERATIONS = 10
 
 
 @dataclass
@@ -270,7 +272,7 @@ class InformationPolicy(Policy):
     name, strategy = "information", "blind"
 
     def __init__(self, seed: int = 0, *, candidates: int = 24, variants: int = 2, jitter_mm: float = 1.0,
-                 smooth_iterations: int = 10, visual_weight: float = 1.0, cache_size: int = 8) -> None:
+                 smooth_iterations: int = SMOOTH_ITERATIONS, visual_weight: float = 1.0, cache_size: int = 8) -> None:
         super().__init__(seed, cache_size=cache_size)
         for label, value, low in (("candidates", candidates, 1), ("variants", variants, 1),
                                   ("smooth_iterations", smooth_iterations, 0)):
@@ -382,6 +384,6 @@ def noisy_copy(model: ObjectModel, noise_mm: float = 1.0, seed: int = 0, *, name
     return ObjectModel(model.vertices + shift, model.triangles, name=name or f"{model.name}@visual", label=None)
 
 
-__all__ = ["POLICIES", "ActiveState", "InformationPolicy", "Policy", "RandomPolicy", "SaliencyPolicy",
+__all__ = ["POLICIES", "SMOOTH_ITERATIONS", "ActiveState", "InformationPolicy", "Policy", "RandomPolicy", "SaliencyPolicy",
            "information_gain", "make_policy", "noisy_copy", "plan_scores", "same_plane", "smoothed",
            "visual_belief", "visual_key"]

@@ -20,9 +20,12 @@ import time
 import numpy as np
 
 from fusion.active import ActiveState, make_policy, noisy_copy, run_episode
+from fusion.active.policies import SMOOTH_ITERATIONS
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
 from perception.errors import InvalidArgumentError, InvalidMeshError
+from tactile.explore import SequenceBatch
+from tactile.sensor import FSRSensor
 
 log = logging.getLogger(__name__)
 
@@ -96,9 +99,35 @@ def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
     return visual, capture.truth
 
 
+def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, smooth_iterations: int):
+    """Touches on the camera's view of each training object (``names``, in their poses): ``contours`` blind contours
+    of its virtual OAK-D reconstruction (:func:`camera_models`, the same capture a test object gets), smoothed as
+    the information policy smooths what it plans on, labelled with the object's class. What a robot trained for
+    the camera in the loop also learns from: how the objects it knows read when touched *on what the camera saw*.
+    Objects whose capture finds nothing are left out (as at test time)."""
+    from fusion.active.policies import smoothed
+    from perception.geometry import ObjectModel
+    from tactile.touching import touch
+
+    batches = []
+    for name in names:
+        try:
+            seen, _ = camera_models(ctx, specs[name], specs[name].load(), ctx.seed)
+        except InvalidMeshError as exc:
+            log.warning("active: no capture of training object %s (%s)", name, exc)
+            continue
+        surface = smoothed(seen, smooth_iterations)
+        labelled = ObjectModel(surface.vertices, surface.triangles, name=f"{name}@capture", label=specs[name].label)
+        sequences = touch(labelled, "blind", contours, sensor, probes, seed=ctx.seed)
+        batches.append(SequenceBatch.from_sequences(sequences, class_names=store.class_names,
+                                                    sensor_spec=store.sensor_spec))
+    return SequenceBatch.concatenate(batches)
+
+
 def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("random", "saliency", "information"),
                     max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
-                    visual: str = "noisy", per_fold: int | None = None, progress: bool = False) -> dict:
+                    visual: str = "noisy", per_fold: int | None = None, train_on_captures: bool = False,
+                    progress: bool = False) -> dict:
     """Run every policy on every test object of the grouped folds; returns per-object records (JSON-able).
 
     ``visual``: what the policies plan on: ``"noisy"`` (the mesh in its pose with N(0, ``noise_mm``) mm along
@@ -114,6 +143,8 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
 
     if visual not in VISUALS:
         raise InvalidArgumentError(f"active: visual must be one of {', '.join(VISUALS)}, got {visual!r}")
+    if train_on_captures and visual != "camera":
+        raise InvalidArgumentError("active: train_on_captures needs the camera in the loop (visual='camera')")
 
     sizes = ctx.sizes
     ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
@@ -124,9 +155,18 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)
     rows, failures = [], []
     for i, (train, test) in enumerate(folds):
-        model, _fit_s = fit_cached(factory, lambda t=train: ds.load(t), ctx.path("models", "active", f"fold{i + 1}",
-                                                                                f"{classifier}.vtm"),
-                                  {"part": "active", "store": record, "train": [int(x) for x in train]})
+        fit_record = {"part": "active", "store": record, "train": [int(x) for x in train]}
+        load = lambda t=train: ds.load(t)
+        file = f"{classifier}.vtm"
+        if train_on_captures:
+            trained = sorted({ds.object_names[j] for j in np.unique(ds.object_ids[train])})
+            sensor, probes = FSRSensor.from_spec(ds.sensor_spec), ds.probes
+            load = lambda t=train, n=trained, s=sensor, p=probes: SequenceBatch.concatenate(
+                [ds.load(t), capture_batch(ctx, n, specs, ds, s, p, sizes.unseen_contours, SMOOTH_ITERATIONS)])
+            fit_record["captures"] = {"views": CAMERA_VIEWS, "contours": sizes.unseen_contours,
+                                      "smoothing": SMOOTH_ITERATIONS, "objects": trained}
+            file = f"{classifier}-captures.vtm"
+        model, _fit_s = fit_cached(factory, load, ctx.path("models", "active", f"fold{i + 1}", file), fit_record)
         names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
         if per_fold is not None:
             names = names[:int(per_fold)]
@@ -160,7 +200,8 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
             log.info("active fold %d: %s (%s) %s", i + 1, name, true.label,
                      {p: r["decisions"][-1] for p, r in row["policies"].items()})
     return {"objects": rows, "classifier": classifier, "noise_mm": noise_mm, "candidates": candidates,
-            "variants": variants, "max_touches": max_touches, "visual": visual, "capture_failures": failures}
+            "variants": variants, "max_touches": max_touches, "visual": visual, "capture_failures": failures,
+            "train_on_captures": bool(train_on_captures)}
 
 
 def _correct(rows, policy: str) -> np.ndarray:
@@ -224,15 +265,21 @@ def summarize(result: dict, seed: int = 0) -> dict:
     return {"curve": curve, "differences": differences, "touches_to_90": reach, "stopping": stopping,
             "timing": timing, "n_objects": len(rows), "classifier": result["classifier"],
             "noise_mm": result["noise_mm"], "candidates": result["candidates"], "variants": result["variants"],
-            "visual": result.get("visual", "noisy"), "touches_to_random_max": to_random,
+            "visual": result.get("visual", "noisy"), "train_on_captures": result.get("train_on_captures", False),
+            "touches_to_random_max": to_random,
             "visual_only_accuracy": visual_only}
+
+
+def part_suffix(visual: str, train_on_captures: bool) -> str:
+    """What tells a run's files apart: "" (noisy copies), "_camera", "_camera_captures" (trained on captures too)."""
+    return ("" if visual == "noisy" else f"_{visual}") + ("_captures" if train_on_captures else "")
 
 
 def active_part(ctx, objects, **options) -> dict:
     """The ``active`` part (cached in the report folder): :func:`summarize` of :func:`active_episodes`."""
     record = {"objects": [str(o) for o in objects], "sizes": ctx.sizes.to_dict(), "seed": ctx.seed,
               "options": {k: v for k, v in options.items() if k != "progress"}}
-    name = "active" if options.get("visual", "noisy") == "noisy" else f"active_{options['visual']}"
+    name = "active" + part_suffix(options.get("visual", "noisy"), options.get("train_on_captures", False))
     result = ctx.cached_part(name, record, lambda: active_episodes(ctx, objects, **options))
     return {**summarize(result, ctx.seed), "episodes": f"parts/{name}.json"}
 
@@ -241,6 +288,8 @@ def render_markdown(summary: dict) -> str:
     """The part's section of the report."""
     seen = ("virtual OAK-D reconstruction" if summary.get("visual") == "camera"
             else f"mesh + {summary['noise_mm']} mm noise")
+    if summary.get("train_on_captures"):
+        seen += ", classifier also trained on touches of the training objects' reconstructions"
     lines = [(f"## Active touch (unseen objects, any pose, {summary['n_objects']} objects, "
              f"{summary['classifier']}, visual model: {seen}, "
              f"information: {summary['candidates']} candidates x {summary['variants']} variants)"), "",
@@ -273,8 +322,8 @@ def render_markdown(summary: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["TARGET", "THRESHOLDS", "active_episodes", "active_part", "paired_over_objects", "render_markdown",
-           "summarize"]
+__all__ = ["TARGET", "THRESHOLDS", "active_episodes", "active_part", "capture_batch", "paired_over_objects",
+           "part_suffix", "render_markdown", "summarize"]
 
 
 def main(argv=None) -> dict:
@@ -308,6 +357,9 @@ def main(argv=None) -> dict:
                         help="only the first N test objects of each fold, class by class in turn")
     parser.add_argument("--visual", choices=VISUALS, default="noisy",
                         help="plan on a noisy copy of the mesh or on a virtual OAK-D capture's reconstruction")
+    parser.add_argument("--train-on-captures", action="store_true",
+                        help="with --visual camera: the classifier also learns from touches on the training objects' "
+                             "reconstructions")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sizes = QUICK if args.quick else FULL
@@ -317,11 +369,11 @@ def main(argv=None) -> dict:
     summary = active_part(ctx, objects, classifier=args.classifier, max_touches=args.max_touches,
                           noise_mm=args.noise_mm, candidates=args.candidates, variants=args.variants,
                           policies=tuple(p for p in args.policies.split(",") if p), visual=args.visual,
-                          per_fold=args.per_fold)
+                          per_fold=args.per_fold, train_on_captures=args.train_on_captures)
     summary |= {"command": "python -m fusion.experiments.active " + " ".join(argv if argv is not None else
                                                                             __import__("sys").argv[1:]),
                 "machine": machine_line(), "seconds": round(time.perf_counter() - start, 1)}
-    suffix = "" if args.visual == "noisy" else f"_{args.visual}"
+    suffix = part_suffix(args.visual, args.train_on_captures)
     write_text(Path(args.out) / f"results{suffix}.json", json.dumps(summary, indent=2, default=str))
     write_text(Path(args.out) / f"report{suffix}.md", f"`{summary['command']}` ({summary['machine']}, "
                f"{summary['seconds']} s)\n\n" + render_markdown(summary))

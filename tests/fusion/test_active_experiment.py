@@ -89,3 +89,43 @@ def test_reproduce_runs_the_active_part(tmp_path):
     assert {(r["policy"], r["k"]) for r in summary["curve"]} == {(p, k) for p in ("random", "information")
                                                                    for k in (1, 2)}
     assert "## Active touch" in (tmp_path / "report" / "report.md").read_text()
+
+
+def test_capture_batch_touches_what_the_camera_saw(tmp_path, monkeypatch):
+    """Training touches for the camera in the loop lie on each training object's reconstruction (smoothed as the
+    planner smooths), not on its mesh; they carry the object's class; an object the camera cannot see is left out."""
+    from types import SimpleNamespace
+
+    import fusion.experiments.active as active
+    from fusion.active.policies import smoothed
+    from fusion.experiments.config import QUICK
+    from fusion.experiments.context import Context
+    from perception.errors import InvalidMeshError
+    from tactile.dataset import ObjectSpec
+    from tactile.sensor import FSRSensor
+
+    ctx = Context(tmp_path, 0, QUICK, {}, progress=False)
+    specs = {name: ObjectSpec(name, label, catalogue=(label, 0)) for name, label in
+             (("mug/0", "mug"), ("box/0", "box"), ("can/0", "can"))}
+    sensor = FSRSensor(rows=8, cols=8)
+    store = SimpleNamespace(class_names=("box", "can", "mug"), sensor_spec=sensor.spec())
+    real = active.camera_models
+
+    def camera(ctx, spec, true, seed):
+        if spec.name == "can/0":
+            raise InvalidMeshError("can/0: no object on the table")
+        return real(ctx, spec, true, seed)
+
+    monkeypatch.setattr(active, "camera_models", camera)
+    batch = active.capture_batch(ctx, ["mug/0", "box/0", "can/0"], specs, store, sensor, 8, 3, 2)
+    assert len(batch) == 6 and batch.object_names == ("mug/0@capture", "box/0@capture")
+    assert [batch.class_names[k] for k in batch.labels] == ["mug"] * 3 + ["box"] * 3
+    for k, name in enumerate(("mug/0", "box/0")):
+        seen, true = real(ctx, specs[name], specs[name].load(), 0)  # cached: the same capture
+        rows = batch.object_ids == k
+        points = batch.positions[rows].reshape(-1, 3).astype(np.float64)  # the table's frame, mm
+        surface = smoothed(seen, 2)
+        on_seen = surface.scene.compute_distance(surface.to_scene(points).astype(np.float32)).numpy()
+        on_true = true.scene.compute_distance(true.to_scene(points).astype(np.float32)).numpy()
+        assert on_seen.max() < 1e-3  # probes sit on the surface the camera saw
+        assert on_true.max() > 0.1  # ... which is not the object's own surface

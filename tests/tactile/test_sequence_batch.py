@@ -42,3 +42,38 @@ def test_unknown_labels_and_mixed_shapes_are_refused(sequences):
     batch = SequenceBatch.from_sequences(sequences)
     with pytest.raises(DatasetError, match="normals must have shape"):
         SequenceBatch(**{**batch.__dict__, "normals": batch.normals[:, :3]})
+
+
+def test_concatenate_joins_sequences_and_object_lists(sequences):
+    spec = FSRSensor(rows=8, cols=8).spec()
+    classes = ["ball", "box"]
+    first = SequenceBatch.from_sequences(sequences[:2], class_names=classes, sensor_spec=spec)
+    second = SequenceBatch.from_sequences([sequences[2], sequences[0]], class_names=classes, sensor_spec=spec)
+    joined = SequenceBatch.concatenate([first, second])
+    assert len(joined) == 4 and joined.class_names == ("ball", "box")
+    # s1 appears in both batches: one name, one id; s3 is new and numbered after the first batch's objects.
+    assert joined.object_names == ("s1", "s2", "s3") and list(joined.object_ids) == [0, 1, 2, 0]
+    assert list(joined.labels) == [0, 0, 1, 0]
+    for row, seq in zip(range(4), [sequences[0], sequences[1], sequences[2], sequences[0]]):
+        np.testing.assert_array_equal(joined.frames[row], seq.frames)
+        np.testing.assert_array_equal(joined.plane_points[row], seq.plane.point)
+    assert joined.sensor_spec == spec
+
+
+def test_concatenate_refuses_batches_that_do_not_match(sequences):
+    spec = FSRSensor(rows=8, cols=8).spec()
+    batch = SequenceBatch.from_sequences(sequences, class_names=["ball", "box"], sensor_spec=spec)
+    with pytest.raises(DatasetError, match="no batches"):
+        SequenceBatch.concatenate([])
+    with pytest.raises(DatasetError, match="classes"):
+        SequenceBatch.concatenate([batch, SequenceBatch.from_sequences(sequences, class_names=["box", "ball"],
+                                                                       sensor_spec=spec)])
+    with pytest.raises(DatasetError, match="another sensor"):
+        SequenceBatch.concatenate([batch, SequenceBatch.from_sequences(sequences, class_names=["ball", "box"],
+                                                                       sensor_spec=FSRSensor(rows=8, cols=8,
+                                                                                             noise_std=0.1).spec())])
+    with pytest.raises(DatasetError, match="shape"):
+        SequenceBatch.concatenate([batch, SequenceBatch(
+            **{**batch.__dict__, "frames": batch.frames[:, :5], "normals": batch.normals[:, :5],
+               "positions": batch.positions[:, :5], "tangents": batch.tangents[:, :5],
+               "pad_sides_mm": batch.pad_sides_mm[:, :5]})])
