@@ -127,7 +127,7 @@ def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, 
 def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("random", "saliency", "information"),
                     max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
                     visual: str = "noisy", per_fold: int | None = None, train_on_captures: bool = False,
-                    progress: bool = False) -> dict:
+                    episodes: int = 1, progress: bool = False) -> dict:
     """Run every policy on every test object of the grouped folds; returns per-object records (JSON-able).
 
     ``visual``: what the policies plan on: ``"noisy"`` (the mesh in its pose with N(0, ``noise_mm``) mm along
@@ -135,8 +135,13 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
     mesh is touched where it stands on the table). ``per_fold``: only the first N test objects of each fold, taken
     class by class in turn (a balanced subset; camera captures take 20-80 s each on 2 cores). An object whose
     capture cannot be reconstructed (no object found on the table) is left out and listed in
-    ``capture_failures``.
+    ``capture_failures``. ``episodes``: episodes per object and policy, episode e seeding the policies' draws (the
+    random planes, the information policy's candidates, the saliency pair order) and the sensor noise with seed + e;
+    an object's accuracy is then its mean over them: a policy's expected accuracy on that object, which one draw
+    estimates with a spread of several points on 100 objects (a lucky or unlucky set of random planes).
     """
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise InvalidArgumentError(f"active: episodes must be an integer >= 1, got {episodes!r}")
     from fusion.active.policies import InformationPolicy, visual_belief
     from fusion.experiments.data import any_pose
     from tactile.dataset import object_specs
@@ -170,9 +175,10 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
         names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
         if per_fold is not None:
             names = names[:int(per_fold)]
-        policy_objs = {name: make_policy(name, ctx.seed, **({"candidates": candidates, "variants": variants}
-                                                             if name == "information" else {}))
-                       for name in policies}
+        # One set of policies per episode: episode e seeds the policies' draws and the sensor noise with seed + e.
+        policy_runs = [{name: make_policy(name, ctx.seed + e, **({"candidates": candidates, "variants": variants}
+                                                                 if name == "information" else {}))
+                        for name in policies} for e in range(episodes)]
         for n, name in enumerate(names):
             true = specs[name].load()
             if visual == "camera":
@@ -185,28 +191,39 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
             else:
                 seen = noisy_copy(true, noise_mm, seed=ctx.seed + n + 1000 * i)
             row = {"object": name, "label": true.label, "fold": i + 1, "policies": {}}
-            for pname, policy in policy_objs.items():
-                start = time.perf_counter()
-                ep = run_episode(true, seen, model, policy, max_touches=max_touches, seed=ctx.seed)
-                if isinstance(policy, InformationPolicy):  # what the camera's view alone would decide
-                    outcomes = policy.simulated(ActiveState(seen, model))[1]
-                    row["visual_decision"] = ep.classes[int(np.argmax(visual_belief([], outcomes)))]
-                row["policies"][pname] = {
-                    "decisions": ep.decisions(), "posteriors": ep.posteriors.round(6).tolist(),
-                    "planning_s": ep.planning_s.tolist(), "touching_s": ep.touching_s.tolist(),
-                    "classifying_s": ep.classifying_s.tolist(), "missed": int(ep.missed.sum()),
-                    "classes": ep.classes, "seconds": time.perf_counter() - start}
+            for pname in policies:
+                runs = []
+                for e, run_policies in enumerate(policy_runs):
+                    policy = run_policies[pname]
+                    start = time.perf_counter()
+                    ep = run_episode(true, seen, model, policy, max_touches=max_touches, seed=ctx.seed + e)
+                    if e == 0 and isinstance(policy, InformationPolicy):  # what the camera's view alone would decide
+                        outcomes = policy.simulated(ActiveState(seen, model))[1]
+                        row["visual_decision"] = ep.classes[int(np.argmax(visual_belief([], outcomes)))]
+                    runs.append({
+                        "decisions": ep.decisions(), "posteriors": ep.posteriors.round(6).tolist(),
+                        "planning_s": ep.planning_s.tolist(), "touching_s": ep.touching_s.tolist(),
+                        "classifying_s": ep.classifying_s.tolist(), "missed": int(ep.missed.sum()),
+                        "classes": ep.classes, "seconds": time.perf_counter() - start})
+                row["policies"][pname] = {**runs[0], **({"more_runs": runs[1:]} if len(runs) > 1 else {})}
             rows.append(row)
             log.info("active fold %d: %s (%s) %s", i + 1, name, true.label,
                      {p: r["decisions"][-1] for p, r in row["policies"].items()})
     return {"objects": rows, "classifier": classifier, "noise_mm": noise_mm, "candidates": candidates,
             "variants": variants, "max_touches": max_touches, "visual": visual, "capture_failures": failures,
-            "train_on_captures": bool(train_on_captures)}
+            "train_on_captures": bool(train_on_captures), "episodes": int(episodes)}
+
+
+def _runs(row: dict, policy: str) -> list[dict]:
+    """The episodes of ``policy`` on one object (the first, then any more, :func:`active_episodes`' ``episodes``)."""
+    first = row["policies"][policy]
+    return [first, *first.get("more_runs", [])]
 
 
 def _correct(rows, policy: str) -> np.ndarray:
-    """(objects, K) 1 where the decision after K touches is right."""
-    return np.array([[d == r["label"] for d in r["policies"][policy]["decisions"]] for r in rows], dtype=np.float64)
+    """(objects, K) the share of an object's episodes whose decision after K touches is right (0 or 1 for one)."""
+    return np.array([np.mean([[d == r["label"] for d in run["decisions"]] for run in _runs(r, policy)], axis=0)
+                     for r in rows], dtype=np.float64)
 
 
 def summarize(result: dict, seed: int = 0) -> dict:
@@ -217,36 +234,38 @@ def summarize(result: dict, seed: int = 0) -> dict:
     ks = range(1, result["max_touches"] + 1)
     groups = np.arange(len(rows))
     curve, differences, reach, stopping, timing, accs_by_policy = [], [], {}, [], [], {}
+    random_right = _correct(rows, "random") if "random" in policies else None
     for p in policies:
+        # Every episode is one decision, grouped by its object (the bootstrap resamples objects).
+        runs = [(r["label"], g, run) for r, g in zip(rows, groups) for run in _runs(r, p)]
+        labels = np.array([label for label, _, _ in runs], dtype=object)
+        run_groups = np.array([g for _, g, _ in runs])
         right = _correct(rows, p)
         accs = []
         for k in ks:
-            labels = np.array([r["label"] for r in rows], dtype=object)
-            predicted = np.where(right[:, k - 1] > 0, labels, "__wrong__")
-            acc = accuracy(labels, predicted, groups=groups, n_boot=BOOTSTRAP, seed=seed).to_dict()
+            predicted = np.array([run["decisions"][k - 1] for _, _, run in runs], dtype=object)
+            acc = accuracy(labels, predicted, groups=run_groups, n_boot=BOOTSTRAP, seed=seed).to_dict()
             curve.append({"policy": p, "k": k, "accuracy": acc})
             accs.append(acc["value"])
             if p != "random" and "random" in policies:
-                differences.append({"policy": p, "k": k, **paired_over_objects(right[:, k - 1],
-                                                                               _correct(rows, "random")[:, k - 1],
+                differences.append({"policy": p, "k": k, **paired_over_objects(right[:, k - 1], random_right[:, k - 1],
                                                                                seed)})
         hit = [k for k, a in zip(ks, accs) if a >= TARGET]
         reach[p] = hit[0] if hit else None
         accs_by_policy[p] = accs
         for threshold in THRESHOLDS:
             used, good = [], []
-            for r in rows:
-                pol = r["policies"][p]
-                post = np.asarray(pol["posteriors"])
+            for label, _, run in runs:
+                post = np.asarray(run["posteriors"])
                 reached = np.flatnonzero(post.max(axis=1) >= threshold)
                 k = int(reached[0]) + 1 if len(reached) else len(post)
                 used.append(k)
-                good.append(pol["decisions"][k - 1] == r["label"])
+                good.append(run["decisions"][k - 1] == label)
             stopping.append({"policy": p, "threshold": threshold, "accuracy": float(np.mean(good)),
                              "mean_touches": float(np.mean(used))})
-        plan = np.array([r["policies"][p]["planning_s"] for r in rows])
-        touch_s = np.array([r["policies"][p]["touching_s"] for r in rows])
-        clf_s = np.array([r["policies"][p]["classifying_s"] for r in rows])
+        plan = np.array([run["planning_s"] for _, _, run in runs])
+        touch_s = np.array([run["touching_s"] for _, _, run in runs])
+        clf_s = np.array([run["classifying_s"] for _, _, run in runs])
         step = plan + touch_s + clf_s
         timing.append({"policy": p, "planning_first_s": float(np.median(plan[:, 0])),
                        "planning_later_s": float(np.median(plan[:, 1:])) if plan.shape[1] > 1 else 0.0,
@@ -266,6 +285,7 @@ def summarize(result: dict, seed: int = 0) -> dict:
             "timing": timing, "n_objects": len(rows), "classifier": result["classifier"],
             "noise_mm": result["noise_mm"], "candidates": result["candidates"], "variants": result["variants"],
             "visual": result.get("visual", "noisy"), "train_on_captures": result.get("train_on_captures", False),
+            "episodes": result.get("episodes", 1),
             "touches_to_random_max": to_random,
             "visual_only_accuracy": visual_only}
 
@@ -292,7 +312,9 @@ def render_markdown(summary: dict) -> str:
         seen += ", classifier also trained on touches of the training objects' reconstructions"
     lines = [(f"## Active touch (unseen objects, any pose, {summary['n_objects']} objects, "
              f"{summary['classifier']}, visual model: {seen}, "
-             f"information: {summary['candidates']} candidates x {summary['variants']} variants)"), "",
+             f"information: {summary['candidates']} candidates x {summary['variants']} variants"
+             + (f", {summary['episodes']} episodes per object and policy" if summary.get("episodes", 1) > 1 else "")
+             + ")"), "",
              "Accuracy after K touches (95 % bootstrap over objects):", "",
              "| policy | " + " | ".join(f"K={k}" for k in sorted({r['k'] for r in summary["curve"]})) + " | K for 90 % |",
              "|---|" + "---|" * (len({r['k'] for r in summary["curve"]}) + 1)]
@@ -357,6 +379,8 @@ def main(argv=None) -> dict:
                         help="only the first N test objects of each fold, class by class in turn")
     parser.add_argument("--visual", choices=VISUALS, default="noisy",
                         help="plan on a noisy copy of the mesh or on a virtual OAK-D capture's reconstruction")
+    parser.add_argument("--episodes", type=int, default=1,
+                        help="episodes per object and policy, each seeded anew (accuracy = their mean per object)")
     parser.add_argument("--train-on-captures", action="store_true",
                         help="with --visual camera: the classifier also learns from touches on the training objects' "
                              "reconstructions")
@@ -369,7 +393,8 @@ def main(argv=None) -> dict:
     summary = active_part(ctx, objects, classifier=args.classifier, max_touches=args.max_touches,
                           noise_mm=args.noise_mm, candidates=args.candidates, variants=args.variants,
                           policies=tuple(p for p in args.policies.split(",") if p), visual=args.visual,
-                          per_fold=args.per_fold, train_on_captures=args.train_on_captures)
+                          per_fold=args.per_fold, train_on_captures=args.train_on_captures,
+                          episodes=args.episodes)
     summary |= {"command": "python -m fusion.experiments.active " + " ".join(argv if argv is not None else
                                                                             __import__("sys").argv[1:]),
                 "machine": machine_line(), "seconds": round(time.perf_counter() - start, 1)}

@@ -129,3 +129,27 @@ def test_capture_batch_touches_what_the_camera_saw(tmp_path, monkeypatch):
         on_true = true.scene.compute_distance(true.to_scene(points).astype(np.float32)).numpy()
         assert on_seen.max() < 1e-3  # probes sit on the surface the camera saw
         assert on_true.max() > 0.1  # ... which is not the object's own surface
+
+
+def test_summary_averages_the_episodes_of_each_object():
+    """With several episodes per object, an object's accuracy is the share of its episodes that are right, the
+    paired difference pairs those shares, and the stopping rule counts every episode."""
+    result = episodes()
+    for i, row in enumerate(result["objects"]):
+        # A second random episode per object: right after 2 touches on o5..o9 instead of o0..o4, and after 1 on o0.
+        row["policies"]["random"]["more_runs"] = [_policy(["a" if i == 0 else "b", "a" if i >= 5 else "b"],
+                                                          [0.95 if i == 0 else 0.6, 0.8])]
+    result["episodes"] = 2
+    summary = summarize(result)
+    acc = {(r["policy"], r["k"]): r["accuracy"] for r in summary["curve"]}
+    assert acc[("random", 1)]["value"] == pytest.approx(0.05) and acc[("random", 2)]["value"] == pytest.approx(0.5)
+    assert acc[("random", 2)]["n"] == 20  # every episode is one decision ...
+    # ... but the interval resamples objects: each object's two episodes give 1/2 at K = 2, so it cannot move.
+    assert acc[("random", 2)]["low"] == acc[("random", 2)]["high"] == pytest.approx(0.5)
+    diff = {d["k"]: d for d in summary["differences"]}
+    assert diff[1]["difference"] == pytest.approx(0.9 - 0.05) and diff[2]["difference"] == pytest.approx(0.5)
+    stop = {(s["policy"], s["threshold"]): s for s in summary["stopping"]}
+    # Threshold 0.9: o0's second random episode stops after 1 touch (right); the other 19 episodes use both.
+    assert stop[("random", 0.9)]["mean_touches"] == pytest.approx(39 / 20)
+    assert stop[("random", 0.9)]["accuracy"] == pytest.approx(11 / 20)
+    assert summary["episodes"] == 2 and "2 episodes per object" in render_markdown(summary)
