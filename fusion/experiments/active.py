@@ -285,7 +285,7 @@ def summarize(result: dict, seed: int = 0) -> dict:
             "timing": timing, "n_objects": len(rows), "classifier": result["classifier"],
             "noise_mm": result["noise_mm"], "candidates": result["candidates"], "variants": result["variants"],
             "visual": result.get("visual", "noisy"), "train_on_captures": result.get("train_on_captures", False),
-            "episodes": result.get("episodes", 1),
+            "episodes_per_object": result.get("episodes", 1),
             "touches_to_random_max": to_random,
             "visual_only_accuracy": visual_only}
 
@@ -313,7 +313,8 @@ def render_markdown(summary: dict) -> str:
     lines = [(f"## Active touch (unseen objects, any pose, {summary['n_objects']} objects, "
              f"{summary['classifier']}, visual model: {seen}, "
              f"information: {summary['candidates']} candidates x {summary['variants']} variants"
-             + (f", {summary['episodes']} episodes per object and policy" if summary.get("episodes", 1) > 1 else "")
+             + (f", {summary['episodes_per_object']} episodes per object and policy"
+                if summary.get("episodes_per_object", 1) > 1 else "")
              + ")"), "",
              "Accuracy after K touches (95 % bootstrap over objects):", "",
              "| policy | " + " | ".join(f"K={k}" for k in sorted({r['k'] for r in summary["curve"]})) + " | K for 90 % |",

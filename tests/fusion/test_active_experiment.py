@@ -152,4 +152,6 @@ def test_summary_averages_the_episodes_of_each_object():
     # Threshold 0.9: o0's second random episode stops after 1 touch (right); the other 19 episodes use both.
     assert stop[("random", 0.9)]["mean_touches"] == pytest.approx(39 / 20)
     assert stop[("random", 0.9)]["accuracy"] == pytest.approx(11 / 20)
-    assert summary["episodes"] == 2 and "2 episodes per object" in render_markdown(summary)
+    assert summary["episodes_per_object"] == 2 and "2 episodes per object" in render_markdown(summary)
+    # active_part adds the path of the episodes file under "episodes": the report still renders.
+    assert "2 episodes per object" in render_markdown({**summary, "episodes": "parts/active.json"})
