@@ -3,9 +3,11 @@
 Grouped k-fold by object over the unseen-objects store (the ``unseen`` part's objects, contours and folds; one
 classifier per fold trained on every training sequence, both strategies). Each test object is turned by its
 seeded random pose (:func:`fusion.experiments.data.any_pose`); its visual model is a noisy copy of that mesh
-(vertices moved along their normals by N(0, ``noise_mm``) mm, seeded per object). Every policy runs one episode
-of ``max(ks)`` touches per object (planning on the visual model, touching the true mesh), so the decision after
-K touches is the episode's first K touches fused by the log rule. Reported: accuracy against K with 95 %
+(vertices moved along their normals by N(0, ``noise_mm``) mm, seeded per object) or, with the camera in the loop, a
+virtual OAK-D reconstruction (:func:`camera_models`). Every policy runs ``episodes`` episodes of ``max(ks)`` touches
+per object (planning on the visual model, touching the true mesh; each episode seeded anew), so the decision after
+K touches is an episode's first K touches fused by the log rule and an object's accuracy the share of its episodes
+that decide right. Reported: accuracy against K with 95 %
 bootstrap intervals over objects, paired differences (policy - random) bootstrapped over objects, the touches
 needed to reach 90 %, the stopping rule at a posterior threshold (accuracy, touches used), and wall seconds per
 decision step (planning, touching, classifying; the first step of the information policy includes simulating its
