@@ -96,8 +96,8 @@ def test_capture_batch_touches_what_the_camera_saw(tmp_path, monkeypatch):
     planner smooths), not on its mesh; they carry the object's class; an object the camera cannot see is left out."""
     from types import SimpleNamespace
 
-    import fusion.experiments.active as active
     from fusion.active.policies import smoothed
+    from fusion.experiments import active
     from fusion.experiments.config import QUICK
     from fusion.experiments.context import Context
     from perception.errors import InvalidMeshError
