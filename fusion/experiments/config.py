@@ -100,10 +100,11 @@ class Sizes:
     active_variants: int = 2
     active_noise_mm: float = 1.0
     active_visual: str = "noisy"
+    active_episodes: int = 5
 
     def __post_init__(self) -> None:
         for name in ("paper_classes", "objects_per_class", "paper_contours", "unseen_contours", "noise_contours",
-                     "attention_contours", "runtime_contours"):
+                     "attention_contours", "runtime_contours", "active_episodes"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise InvalidArgumentError(f"Sizes.{name} must be a positive integer, got {value!r}")
@@ -137,11 +138,11 @@ class Sizes:
 
     def active_options(self) -> dict:
         """The keyword arguments of :func:`fusion.experiments.active.active_part` (the ``active_*`` sizes: its
-        policies, touch budget, information-policy candidates x variants, the visual model's noise, and what the
-        policies plan on, "noisy" or "camera")."""
+        policies, touch budget, information-policy candidates x variants, the visual model's noise, what the
+        policies plan on, "noisy" or "camera", and the episodes per object and policy)."""
         return {"policies": tuple(self.active_policies), "max_touches": self.active_touches,
                 "candidates": self.active_candidates, "variants": self.active_variants,
-                "noise_mm": self.active_noise_mm, "visual": self.active_visual}
+                "noise_mm": self.active_noise_mm, "visual": self.active_visual, "episodes": self.active_episodes}
 
 
 #: The full run (target: within 30 minutes on 2 cores).
@@ -164,4 +165,5 @@ QUICK = Sizes(
     active_policies=("random", "information"),
     active_candidates=12,
     active_variants=1,
+    active_episodes=1,
 )
