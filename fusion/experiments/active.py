@@ -292,16 +292,19 @@ def summarize(result: dict, seed: int = 0) -> dict:
             "visual_only_accuracy": visual_only}
 
 
-def part_suffix(visual: str, train_on_captures: bool) -> str:
-    """What tells a run's files apart: "" (noisy copies), "_camera", "_camera_captures" (trained on captures too)."""
-    return ("" if visual == "noisy" else f"_{visual}") + ("_captures" if train_on_captures else "")
+def part_suffix(visual: str, train_on_captures: bool, classifier: str | None = None) -> str:
+    """What tells a run's files apart: "" (noisy copies, the default classifier), "_camera", "_camera_captures"
+    (trained on captures too), then "_<classifier>" when one is named."""
+    return (("" if visual == "noisy" else f"_{visual}") + ("_captures" if train_on_captures else "")
+            + (f"_{classifier}" if classifier else ""))
 
 
 def active_part(ctx, objects, **options) -> dict:
     """The ``active`` part (cached in the report folder): :func:`summarize` of :func:`active_episodes`."""
     record = {"objects": [str(o) for o in objects], "sizes": ctx.sizes.to_dict(), "seed": ctx.seed,
               "options": {k: v for k, v in options.items() if k != "progress"}}
-    name = "active" + part_suffix(options.get("visual", "noisy"), options.get("train_on_captures", False))
+    name = "active" + part_suffix(options.get("visual", "noisy"), options.get("train_on_captures", False),
+                                  options.get("classifier"))
     result = ctx.cached_part(name, record, lambda: active_episodes(ctx, objects, **options))
     return {**summarize(result, ctx.seed), "episodes": f"parts/{name}.json"}
 
@@ -370,7 +373,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--data", required=True)
     parser.add_argument("--out", required=True)
     parser.add_argument("--quick", action="store_true", help="QUICK sizes (4 objects per class, 16 contours)")
-    parser.add_argument("--classifier", default="svm")
+    parser.add_argument("--classifier", default=None, help="svm, knn or cnn (default: svm)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-touches", type=int, default=8)
     parser.add_argument("--noise-mm", type=float, default=1.0)
@@ -401,7 +404,7 @@ def main(argv=None) -> dict:
     summary |= {"command": "python -m fusion.experiments.active " + " ".join(argv if argv is not None else
                                                                             __import__("sys").argv[1:]),
                 "machine": machine_line(), "seconds": round(time.perf_counter() - start, 1)}
-    suffix = part_suffix(args.visual, args.train_on_captures)
+    suffix = part_suffix(args.visual, args.train_on_captures, args.classifier)
     write_text(Path(args.out) / f"results{suffix}.json", json.dumps(summary, indent=2, default=str))
     write_text(Path(args.out) / f"report{suffix}.md", f"`{summary['command']}` ({summary['machine']}, "
                f"{summary['seconds']} s)\n\n" + render_markdown(summary))

@@ -155,3 +155,12 @@ def test_summary_averages_the_episodes_of_each_object():
     assert summary["episodes_per_object"] == 2 and "2 episodes per object" in render_markdown(summary)
     # active_part adds the path of the episodes file under "episodes": the report still renders.
     assert "2 episodes per object" in render_markdown({**summary, "episodes": "parts/active.json"})
+
+
+def test_part_names_tell_runs_apart():
+    from fusion.experiments.active import part_suffix
+
+    names = {part_suffix(v, c, k) for v in ("noisy", "camera") for c in (False, True) for k in (None, "cnn", "knn")
+             if not (c and v == "noisy")}
+    assert len(names) == 9  # every run its own files: no run's cached episodes overwrite another's
+    assert part_suffix("noisy", False) == "" and part_suffix("camera", True, "cnn") == "_camera_captures_cnn"
