@@ -206,10 +206,19 @@ class SequenceBatch:
         the sequence shape; object lists are joined (an object named in several batches keeps one id).
 
         Raises:
-            DatasetError: no batches, or batches that differ in classes, sensor or shape.
+            DatasetError: no batches, something that is not a batch, object ids outside a batch's object list, or
+                batches that differ in classes, sensor or shape.
         """
+        if not isinstance(batches, (list, tuple)):
+            raise DatasetError(f"SequenceBatch.concatenate: give a list of batches, got a {type(batches).__name__}")
         if not batches:
             raise DatasetError("SequenceBatch.concatenate: no batches given")
+        for k, b in enumerate(batches):
+            if not isinstance(b, SequenceBatch):
+                raise DatasetError(f"SequenceBatch.concatenate: item {k} is a {type(b).__name__}, not a SequenceBatch")
+            if len(b) and not (0 <= b.object_ids.min() and b.object_ids.max() < len(b.object_names)):
+                raise DatasetError(f"SequenceBatch.concatenate: batch {k} has object ids outside its "
+                                   f"{len(b.object_names)} object names")
         first = batches[0]
         for k, b in enumerate(batches[1:], 1):
             if b.class_names != first.class_names:
@@ -224,7 +233,9 @@ class SequenceBatch:
         index = {n: i for i, n in enumerate(names)}
         ids = [np.array([index[n] for n in b.object_names], dtype=np.int64)[b.object_ids] if len(b) else
                np.zeros(0, np.int64) for b in batches]
-        join = lambda attr: np.concatenate([getattr(b, attr) for b in batches])
+        # In the first batch's dtypes (the contract's: float32 frames), so a float64 batch does not double the memory.
+        join = lambda attr: np.concatenate([getattr(b, attr) for b in batches]).astype(getattr(first, attr).dtype,
+                                                                                         copy=False)
         return cls(frames=join("frames"), normals=join("normals"), positions=join("positions"),
                    tangents=join("tangents"), pad_sides_mm=join("pad_sides_mm"), plane_points=join("plane_points"),
                    plane_normals=join("plane_normals"), labels=join("labels"), object_ids=np.concatenate(ids),

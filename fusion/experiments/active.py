@@ -25,7 +25,7 @@ from fusion.active import ActiveState, make_policy, noisy_copy, run_episode
 from fusion.active.policies import SMOOTH_ITERATIONS
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
-from perception.errors import InvalidArgumentError, InvalidMeshError
+from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 
@@ -113,16 +113,23 @@ def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, 
 
     batches = []
     for name in names:
+        if name not in specs:
+            raise DatasetError(f"active: training object {name!r} is not among the objects of this run")
         try:
             seen, _ = camera_models(ctx, specs[name], specs[name].load(), ctx.seed)
         except InvalidMeshError as exc:
             log.warning("active: no capture of training object %s (%s)", name, exc)
             continue
         surface = smoothed(seen, smooth_iterations)
-        labelled = ObjectModel(surface.vertices, surface.triangles, name=f"{name}@capture", label=specs[name].label)
+        # Named as the object itself: its touches and its capture's are one object to every grouped split (a
+        # model search that trained on one and validated on the other would be fooled by the same object).
+        labelled = ObjectModel(surface.vertices, surface.triangles, name=name, label=specs[name].label)
         sequences = touch(labelled, "blind", contours, sensor, probes, seed=ctx.seed)
         batches.append(SequenceBatch.from_sequences(sequences, class_names=store.class_names,
                                                     sensor_spec=store.sensor_spec))
+    if not batches:
+        raise DatasetError(f"active: none of the {len(names)} training objects' captures could be reconstructed; "
+                           "train on the meshes alone (without train_on_captures)")
     return SequenceBatch.concatenate(batches)
 
 
@@ -144,6 +151,12 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
     """
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise InvalidArgumentError(f"active: episodes must be an integer >= 1, got {episodes!r}")
+    if isinstance(max_touches, bool) or not isinstance(max_touches, (int, np.integer)) or max_touches < 1:
+        raise InvalidArgumentError(f"active: max_touches must be an integer >= 1, got {max_touches!r}")
+    from perception.limits import check_count
+
+    check_count("touches", int(episodes) * int(max_touches),
+                f"active: {episodes} episodes x {max_touches} touches per object and policy")
     from fusion.active.policies import InformationPolicy, visual_belief
     from fusion.experiments.data import any_pose
     from tactile.dataset import object_specs

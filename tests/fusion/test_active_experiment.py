@@ -118,7 +118,7 @@ def test_capture_batch_touches_what_the_camera_saw(tmp_path, monkeypatch):
 
     monkeypatch.setattr(active, "camera_models", camera)
     batch = active.capture_batch(ctx, ["mug/0", "box/0", "can/0"], specs, store, sensor, 8, 3, 2)
-    assert len(batch) == 6 and batch.object_names == ("mug/0@capture", "box/0@capture")
+    assert len(batch) == 6 and batch.object_names == ("mug/0", "box/0")  # named as their objects
     assert [batch.class_names[k] for k in batch.labels] == ["mug"] * 3 + ["box"] * 3
     for k, name in enumerate(("mug/0", "box/0")):
         seen, true = real(ctx, specs[name], specs[name].load(), 0)  # cached: the same capture
@@ -164,3 +164,173 @@ def test_part_names_tell_runs_apart():
              if not (c and v == "noisy")}
     assert len(names) == 9  # every run its own files: no run's cached episodes overwrite another's
     assert part_suffix("noisy", False) == "" and part_suffix("camera", True, "cnn") == "_camera_captures_cnn"
+
+
+# ------------------------------------------------------------------ episodes and captures through active_episodes
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """(context factory, objects) over 2 classes x 3 tiny meshes with the NearestMean stand-in classifiers."""
+    from fusion.experiments.context import Context
+    from fusion.experiments.data import folder_objects
+    from tests.fusion.test_experiments import STANDINS, TINY, mesh_folder
+
+    root = tmp_path_factory.mktemp("active_tiny")
+    objects = folder_objects(mesh_folder(root / "meshes"), None, None)
+    return (lambda out, seed=5, classifiers=STANDINS: Context(root / out, seed, TINY, classifiers, progress=False)), objects
+
+
+def test_active_episodes_seeds_episode_e_with_seed_plus_e(tiny, monkeypatch):
+    """episodes=3: three runs per object and policy, the policies and the sensor noise of episode e seeded with
+    seed + e; episode 0 is exactly the one-episode run, and the camera-alone decision comes from episode 0."""
+    from fusion.experiments import active
+
+    context, objects = tiny
+    made, ran = [], []
+    real_make, real_run = active.make_policy, active.run_episode
+
+    def make(name, seed, **kw):
+        made.append((name, seed))
+        return real_make(name, seed, **kw)
+
+    def run(*args, seed, **kw):
+        ran.append(seed)
+        return real_run(*args, seed=seed, **kw)
+
+    monkeypatch.setattr(active, "make_policy", make)
+    monkeypatch.setattr(active, "run_episode", run)
+    ctx = context("seeds")
+    options = {"policies": ("random", "information"), "max_touches": 2, "candidates": 3, "variants": 1,
+               "per_fold": 1}
+    three = active.active_episodes(ctx, objects, episodes=3, **options)
+    assert three["episodes"] == 3
+    assert set(made) == {(p, 5 + e) for p in ("random", "information") for e in range(3)}
+    assert sorted(set(ran)) == [5, 6, 7]
+    for row in three["objects"]:
+        for p in ("random", "information"):
+            assert len(active._runs(row, p)) == 3
+    assert any(run["posteriors"] != active._runs(row, "random")[0]["posteriors"]
+               for row in three["objects"] for run in active._runs(row, "random")[1:])
+    one = active.active_episodes(ctx, objects, episodes=1, **options)
+    assert [r["object"] for r in one["objects"]] == [r["object"] for r in three["objects"]]
+    for a, b in zip(one["objects"], three["objects"]):
+        assert "more_runs" not in a["policies"]["random"]
+        assert a["visual_decision"] == b["visual_decision"]
+        for p in ("random", "information"):
+            assert a["policies"][p]["posteriors"] == b["policies"][p]["posteriors"]
+
+
+@pytest.mark.parametrize("bad", [0, -1, 2.5, "2", True, None, np.int64(0), 10**12])
+def test_active_episodes_refuses_bad_episodes_before_any_work(bad):
+    """Refused before the context is touched (ctx=None would fail otherwise); a count beyond the touch limit too."""
+    from fusion.experiments import active
+
+    with pytest.raises(InvalidArgumentError, match="episodes"):
+        active.active_episodes(None, [], episodes=bad)
+
+
+def test_active_episodes_refuses_captures_without_the_camera():
+    from fusion.experiments import active
+
+    with pytest.raises(InvalidArgumentError, match="camera"):
+        active.active_episodes(None, [], visual="noisy", train_on_captures=True)
+
+
+def test_train_on_captures_learns_from_the_training_objects_captures_only(tiny, monkeypatch):
+    """Each fold's classifier is trained on the store's training sequences plus touches on the captures of exactly
+    the fold's training objects (never a test object), each capture counted as its own object (one group for every
+    grouped split); the model is cached apart from the mesh-only one and trained again when what the captures are
+    made with changes."""
+    from fusion.active import noisy_copy
+    from fusion.experiments import active
+    from tests.fusion.test_experiments import recorder
+
+    context, objects = tiny
+    fits, captured = [], []
+
+    def camera(ctx, spec, true, seed, views=active.CAMERA_VIEWS):  # a fast stand-in for the OAK-D capture
+        return noisy_copy(true, 1.0, seed=seed), true
+
+    real_capture = active.capture_batch
+
+    def capture(ctx, names, *args):
+        captured.append(list(names))
+        return real_capture(ctx, names, *args)
+
+    monkeypatch.setattr(active, "camera_models", camera)
+    monkeypatch.setattr(active, "capture_batch", capture)
+    ctx = context("captures", classifiers={"nm": recorder(fits)})
+    options = {"policies": ("random",), "max_touches": 1, "per_fold": 1, "visual": "camera"}
+    plain = active.active_episodes(ctx, objects, **options)
+    n_plain = len(fits)
+    assert n_plain == 3 and not captured and plain["train_on_captures"] is False
+    result = active.active_episodes(ctx, objects, train_on_captures=True, **options)
+    assert result["train_on_captures"] is True
+    assert len(fits) == 2 * n_plain  # a model of its own: the mesh-only models are not reused
+    ds, _ = ctx.store(objects, strategies=ctx.sizes.strategies, contours=ctx.sizes.unseen_contours)
+    folds = ds.kfold_by_object(ctx.sizes.unseen_folds, seed=ctx.seed)
+    for (train, test), names, (n_seq, fitted) in zip(folds, captured, fits[n_plain:]):
+        train_names = {ds.object_names[j] for j in np.unique(ds.object_ids[train])}
+        assert set(names) == train_names  # captures of the training objects, none of the test objects
+        assert fitted == train_names  # a capture's touches belong to its object
+        assert n_seq == len(train) + len(train_names) * ctx.sizes.unseen_contours
+    active.active_episodes(ctx, objects, train_on_captures=True, **options)  # same settings: cached
+    assert len(fits) == 2 * n_plain
+    active.active_episodes(ctx, objects, **options)  # ... and the mesh-only models were not overwritten
+    assert len(fits) == 2 * n_plain
+    monkeypatch.setattr(active, "SMOOTH_ITERATIONS", 3)  # other smoothing of the captures: trained again
+    active.active_episodes(ctx, objects, train_on_captures=True, **options)
+    assert len(fits) == 3 * n_plain
+
+
+def test_active_part_file_names(monkeypatch):
+    from types import SimpleNamespace
+
+    from fusion.experiments import active
+    from fusion.experiments.config import QUICK
+
+    names = []
+    ctx = SimpleNamespace(sizes=QUICK, seed=0,
+                          cached_part=lambda name, record, compute: names.append(name) or episodes())
+    summary = active.active_part(ctx, [], visual="camera", train_on_captures=True)
+    assert names == ["active_camera_captures"] and summary["episodes"] == "parts/active_camera_captures.json"
+    active.active_part(ctx, [], visual="camera", classifier="cnn")
+    assert names[-1] == "active_camera_cnn"
+
+
+def test_cli_passes_episodes_and_train_on_captures(tmp_path, monkeypatch):
+    from fusion.experiments import active, data
+
+    seen = {}
+
+    def part(ctx, objects, **options):
+        seen.update(options)
+        return {**active.summarize(episodes()), "episodes": "parts/x.json"}
+
+    monkeypatch.setattr(active, "active_part", part)
+    monkeypatch.setattr(data, "folder_objects", lambda *a, **k: [])
+    active.main(["--data", str(tmp_path), "--out", str(tmp_path / "out"), "--quick", "--visual", "camera",
+                 "--episodes", "4", "--train-on-captures"])
+    assert seen["episodes"] == 4 and seen["train_on_captures"] is True and seen["visual"] == "camera"
+    assert (tmp_path / "out" / "report_camera_captures.md").is_file()
+
+
+def test_render_markdown_mentions_episodes_only_when_several():
+    summary = summarize(episodes())
+    assert summary["episodes_per_object"] == 1 and "episodes per object" not in render_markdown(summary)
+
+
+def test_captures_are_smoothed_as_the_planner_smooths():
+    from fusion.active.policies import SMOOTH_ITERATIONS, InformationPolicy
+
+    assert InformationPolicy().smooth_iterations == SMOOTH_ITERATIONS
+
+
+def test_timings_count_every_episode():
+    result = episodes()
+    for row in result["objects"]:
+        extra = _policy(["a", "a"], [0.6, 0.8])
+        extra["planning_s"] = [0.6, 0.03]
+        row["policies"]["random"]["more_runs"] = [extra]
+    timing = {t["policy"]: t for t in summarize(result)["timing"]}
+    assert timing["random"]["planning_mean_s"] == pytest.approx((0.2 + 0.01 + 0.6 + 0.03) / 4)
+    assert timing["random"]["planning_first_s"] == pytest.approx(0.4)  # median of 0.2 (x10) and 0.6 (x10)

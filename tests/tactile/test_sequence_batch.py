@@ -77,3 +77,40 @@ def test_concatenate_refuses_batches_that_do_not_match(sequences):
             **{**batch.__dict__, "frames": batch.frames[:, :5], "normals": batch.normals[:, :5],
                "positions": batch.positions[:, :5], "tangents": batch.tangents[:, :5],
                "pad_sides_mm": batch.pad_sides_mm[:, :5]})])
+
+
+def test_concatenate_keeps_the_first_batch_and_numbers_new_objects_in_order(sequences):
+    spec = FSRSensor(rows=8, cols=8).spec()
+    make = lambda s: SequenceBatch.from_sequences(s, class_names=["ball", "box"], sensor_spec=spec)
+    s1, s2, s3 = sequences
+    joined = SequenceBatch.concatenate([make([s3, s1]), make([s2, s3])])
+    assert joined.object_names == ("s3", "s1", "s2")  # the first batch's ids still hold; s2 comes after
+    assert list(joined.object_ids) == [0, 1, 2, 0]
+
+
+def test_concatenate_with_empty_batches(sequences):
+    spec = FSRSensor(rows=8, cols=8).spec()
+    full = SequenceBatch.from_sequences([sequences[0], sequences[2]], class_names=["ball", "box"], sensor_spec=spec)
+    empty = full.subset(np.zeros(0, dtype=np.int64))
+    assert len(SequenceBatch.concatenate([empty, empty])) == 0
+    for joined in (SequenceBatch.concatenate([empty, full]), SequenceBatch.concatenate([full, empty])):
+        names = np.asarray(joined.object_names, dtype=object)[joined.object_ids]
+        assert len(joined) == 2 and list(names) == ["s1", "s3"]
+        np.testing.assert_array_equal(joined.frames, full.frames)
+
+
+def test_concatenate_refuses_what_is_not_a_list_of_batches(sequences):
+    batch = SequenceBatch.from_sequences(sequences)
+    for bad in ([1, batch], [batch, None], [batch, sequences[0]], (b for b in [batch]), batch, None):
+        with pytest.raises(DatasetError, match="concatenate"):
+            SequenceBatch.concatenate(bad)
+    broken = SequenceBatch(**{**batch.__dict__, "object_ids": np.array([0, 1, 7])})
+    with pytest.raises(DatasetError, match="object ids outside"):
+        SequenceBatch.concatenate([batch, broken])
+
+
+def test_concatenate_keeps_the_first_batch_dtypes(sequences):
+    batch = SequenceBatch.from_sequences(sequences)
+    wide = SequenceBatch(**{**batch.__dict__, "frames": batch.frames.astype(np.float64)})
+    joined = SequenceBatch.concatenate([batch, wide])
+    assert joined.frames.dtype == np.float32 and len(joined) == 6
