@@ -26,6 +26,7 @@ from fusion.active.policies import SMOOTH_ITERATIONS
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
 from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
+from perception.limits import check_count
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 
@@ -76,7 +77,7 @@ def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
     captured by a virtual OAK-D from ``views`` orbit views (:func:`tactile.captures.virtual_capture`, stereo
     noise seeded by ``seed``); the visual model is the reconstruction, the true model the mesh as placed, both
     in the table's frame (mm, physical size). Cached under ``captures/`` of the report folder (a capture takes
-    20-50 s on 2 cores)."""
+    about 3 s on 2 cores)."""
     import os
     import zlib
 
@@ -142,7 +143,7 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
     ``visual``: what the policies plan on: ``"noisy"`` (the mesh in its pose with N(0, ``noise_mm``) mm along
     the normals) or ``"camera"`` (a virtual OAK-D capture's reconstruction, :func:`camera_models`; the true
     mesh is touched where it stands on the table). ``per_fold``: only the first N test objects of each fold, taken
-    class by class in turn (a balanced subset; camera captures take 20-80 s each on 2 cores). An object whose
+    class by class in turn (a balanced subset; a camera capture takes about 3 s on 2 cores). An object whose
     capture cannot be reconstructed (no object found on the table) is left out and listed in
     ``capture_failures``. ``episodes``: episodes per object and policy, episode e seeding the policies' draws (the
     random planes, the information policy's candidates, the saliency pair order) and the sensor noise with seed + e;
@@ -153,8 +154,6 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
         raise InvalidArgumentError(f"active: episodes must be an integer >= 1, got {episodes!r}")
     if isinstance(max_touches, bool) or not isinstance(max_touches, (int, np.integer)) or max_touches < 1:
         raise InvalidArgumentError(f"active: max_touches must be an integer >= 1, got {max_touches!r}")
-    from perception.limits import check_count
-
     check_count("touches", int(episodes) * int(max_touches),
                 f"active: {episodes} episodes x {max_touches} touches per object and policy")
     from fusion.active.policies import InformationPolicy, visual_belief
