@@ -384,6 +384,6 @@ def noisy_copy(model: ObjectModel, noise_mm: float = 1.0, seed: int = 0, *, name
     return ObjectModel(model.vertices + shift, model.triangles, name=name or f"{model.name}@visual", label=None)
 
 
-__all__ = ["POLICIES", "SMOOTH_ITERATIONS", "ActiveState", "InformationPolicy", "Policy", "RandomPolicy", "SaliencyPolicy",
-           "information_gain", "make_policy", "noisy_copy", "plan_scores", "same_plane", "smoothed",
+__all__ = ["POLICIES", "SMOOTH_ITERATIONS", "ActiveState", "InformationPolicy", "Policy", "RandomPolicy",
+           "SaliencyPolicy", "information_gain", "make_policy", "noisy_copy", "plan_scores", "same_plane", "smoothed",
            "visual_belief", "visual_key"]
