@@ -424,4 +424,12 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    from perception.errors import VisuotactileError
+
+    try:
+        main()
+    except VisuotactileError as exc:  # refused input: one line, as the visuotactile CLI says it
+        print(f"python -m fusion.experiments.active: error: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -334,3 +334,16 @@ def test_timings_count_every_episode():
     timing = {t["policy"]: t for t in summarize(result)["timing"]}
     assert timing["random"]["planning_mean_s"] == pytest.approx((0.2 + 0.01 + 0.6 + 0.03) / 4)
     assert timing["random"]["planning_first_s"] == pytest.approx(0.4)  # median of 0.2 (x10) and 0.6 (x10)
+
+
+def test_module_runner_refuses_bad_input_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "fusion.experiments.active", "--data", str(tmp_path / "none"),
+                           "--out", str(tmp_path / "out")], check=False, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"python -m fusion.experiments.active: error: {tmp_path / 'none'}: not a folder "
+        "(expected <root>/<Class>/<instance>.<ext>)"]
