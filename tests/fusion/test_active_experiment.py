@@ -344,6 +344,6 @@ def test_module_runner_refuses_bad_input_in_one_line(tmp_path):
                            "--out", str(tmp_path / "out")], check=False, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 2
-    assert done.stderr.strip().splitlines() == [
-        f"python -m fusion.experiments.active: error: {tmp_path / 'none'}: not a folder "
-        "(expected <root>/<Class>/<instance>.<ext>)"]
+    expected = (f"python -m fusion.experiments.active: error: {tmp_path / 'none'}: not a folder "
+                "(expected <root>/<Class>/<instance>.<ext>)")
+    assert done.stderr.strip().splitlines() == [expected]
