@@ -231,8 +231,7 @@ class SequenceBatch:
                                    f"batch 0 {first.frames.shape[1:]}")
         names = list(dict.fromkeys(n for b in batches for n in b.object_names))
         index = {n: i for i, n in enumerate(names)}
-        ids = [np.array([index[n] for n in b.object_names], dtype=np.int64)[b.object_ids] if len(b) else
-               np.zeros(0, np.int64) for b in batches]
+        ids = [np.array([index[n] for n in b.object_names], dtype=np.int64)[b.object_ids] for b in batches]
         # In the first batch's dtypes (the contract's: float32 frames), so a float64 batch does not double the memory.
         join = lambda attr: np.concatenate([getattr(b, attr) for b in batches]).astype(getattr(first, attr).dtype,
                                                                                          copy=False)

@@ -22,13 +22,15 @@ import time
 import numpy as np
 
 from fusion.active import ActiveState, make_policy, noisy_copy, run_episode
-from fusion.active.policies import SMOOTH_ITERATIONS
+from fusion.active.policies import SMOOTH_ITERATIONS, InformationPolicy, smoothed, visual_belief
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
 from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
+from perception.geometry import ObjectModel
 from perception.limits import check_count
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
+from tactile.touching import touch
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +83,6 @@ def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
     import os
     import zlib
 
-    from perception.geometry import ObjectModel
     from tactile.captures import virtual_capture
 
     path = ctx.path("captures", f"{spec.name.replace('/', '_')}-{zlib.crc32(spec.name.encode()):08x}"
@@ -102,20 +103,21 @@ def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
     return visual, capture.truth
 
 
-def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, smooth_iterations: int):
+def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, smooth_iterations: int,
+                  touched: dict | None = None):
     """Touches on the camera's view of each training object (``names``, in their poses): ``contours`` blind contours
     of its virtual OAK-D reconstruction (:func:`camera_models`, the same capture a test object gets), smoothed as
     the information policy smooths what it plans on, labelled with the object's class. What a robot trained for
     the camera in the loop also learns from: how the objects it knows read when touched *on what the camera saw*.
-    Objects whose capture finds nothing are left out (as at test time)."""
-    from fusion.active.policies import smoothed
-    from perception.geometry import ObjectModel
-    from tactile.touching import touch
-
-    batches = []
+    Objects whose capture finds nothing are left out (as at test time). ``touched``: name -> batch (None: no
+    capture) of objects done already, filled here (an object trains in several folds; it is touched once)."""
+    touched = {} if touched is None else touched
     for name in names:
         if name not in specs:
             raise DatasetError(f"active: training object {name!r} is not among the objects of this run")
+        if name in touched:
+            continue
+        touched[name] = None
         try:
             seen, _ = camera_models(ctx, specs[name], specs[name].load(), ctx.seed)
         except InvalidMeshError as exc:
@@ -126,8 +128,9 @@ def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, 
         # model search that trained on one and validated on the other would be fooled by the same object).
         labelled = ObjectModel(surface.vertices, surface.triangles, name=name, label=specs[name].label)
         sequences = touch(labelled, "blind", contours, sensor, probes, seed=ctx.seed)
-        batches.append(SequenceBatch.from_sequences(sequences, class_names=store.class_names,
-                                                    sensor_spec=store.sensor_spec))
+        touched[name] = SequenceBatch.from_sequences(sequences, class_names=store.class_names,
+                                                     sensor_spec=store.sensor_spec)
+    batches = [touched[name] for name in names if touched[name] is not None]
     if not batches:
         raise DatasetError(f"active: none of the {len(names)} training objects' captures could be reconstructed; "
                            "train on the meshes alone (without train_on_captures)")
@@ -156,7 +159,6 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
         raise InvalidArgumentError(f"active: max_touches must be an integer >= 1, got {max_touches!r}")
     check_count("touches", int(episodes) * int(max_touches),
                 f"active: {episodes} episodes x {max_touches} touches per object and policy")
-    from fusion.active.policies import InformationPolicy, visual_belief
     from fusion.experiments.data import any_pose
     from tactile.dataset import object_specs
 
@@ -172,7 +174,7 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
     factory = pick(ctx.classifiers, [classifier])[classifier]
     specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)
-    rows, failures = [], []
+    rows, failures, touched = [], [], {}
     for i, (train, test) in enumerate(folds):
         fit_record = {"part": "active", "store": record, "train": [int(x) for x in train]}
         load = lambda t=train: ds.load(t)
@@ -181,9 +183,11 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
             trained = sorted({ds.object_names[j] for j in np.unique(ds.object_ids[train])})
             sensor, probes = FSRSensor.from_spec(ds.sensor_spec), ds.probes
             load = lambda t=train, n=trained, s=sensor, p=probes: SequenceBatch.concatenate(
-                [ds.load(t), capture_batch(ctx, n, specs, ds, s, p, sizes.unseen_contours, SMOOTH_ITERATIONS)])
+                [ds.load(t), capture_batch(ctx, n, specs, ds, s, p, sizes.unseen_contours, SMOOTH_ITERATIONS,
+                                           touched)])
+            # (the objects captured are the training objects, which "train" names already)
             fit_record["captures"] = {"views": CAMERA_VIEWS, "contours": sizes.unseen_contours,
-                                      "smoothing": SMOOTH_ITERATIONS, "objects": trained}
+                                      "smoothing": SMOOTH_ITERATIONS}
             file = f"{classifier}-captures.vtm"
         model, _fit_s = fit_cached(factory, load, ctx.path("models", "active", f"fold{i + 1}", file), fit_record)
         names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
@@ -254,7 +258,7 @@ def summarize(result: dict, seed: int = 0) -> dict:
         runs = [(r["label"], g, run) for r, g in zip(rows, groups) for run in _runs(r, p)]
         labels = np.array([label for label, _, _ in runs], dtype=object)
         run_groups = np.array([g for _, g, _ in runs])
-        right = _correct(rows, p)
+        right = random_right if p == "random" else _correct(rows, p)
         accs = []
         for k in ks:
             predicted = np.array([run["decisions"][k - 1] for _, _, run in runs], dtype=object)
