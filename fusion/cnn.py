@@ -175,20 +175,28 @@ def pool_frames(frames: np.ndarray, frame_size: int, chunk: int = 256) -> torch.
 
 @contextlib.contextmanager
 def _torch_settings(threads: int | None, deterministic: bool) -> Iterator[None]:
-    """Fixed thread count and deterministic kernels for the block; the caller's settings come back after."""
+    """Fixed thread count and deterministic kernels for the block; the caller's settings come back after.
+
+    Deterministic mode also fills every new uninitialised tensor with NaN by default (a guard against reading
+    memory before writing it). No kernel here reads such memory, and the fills cost a tenth of a paper-scale
+    training step on 2 CPU cores (93 fills per step of the cutaneous net), so they are off in the block: the
+    trained weights are the same bytes either way (tests/fusion/test_cnn.py).
+    """
     old_threads, old_det = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
-    old_cudnn = torch.backends.cudnn.benchmark
+    old_cudnn, old_fill = torch.backends.cudnn.benchmark, torch.utils.deterministic.fill_uninitialized_memory
     try:
         if threads:
             torch.set_num_threads(int(threads))
         if deterministic:
             torch.use_deterministic_algorithms(True, warn_only=True)
             torch.backends.cudnn.benchmark = False
+            torch.utils.deterministic.fill_uninitialized_memory = False
         yield
     finally:
         torch.set_num_threads(old_threads)
         torch.use_deterministic_algorithms(old_det)
         torch.backends.cudnn.benchmark = old_cudnn
+        torch.utils.deterministic.fill_uninitialized_memory = old_fill
 
 
 def default_threads() -> int:

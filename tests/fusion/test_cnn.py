@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 import torch
 
+import fusion.cnn as cnn_module
 from fusion.base import load_model
 from fusion.cnn import (
     CNNClassifier,
@@ -259,6 +262,38 @@ def test_seeded_fits_give_identical_predictions_and_leave_torch_settings_alone()
     assert not np.array_equal(a["cutaneous"], c["cutaneous"])
     assert torch.get_num_threads() == threads and torch.are_deterministic_algorithms_enabled() == deterministic
     assert torch.equal(torch.random.get_rng_state(), rng_state)  # the caller's random stream is untouched
+    assert torch.utils.deterministic.fill_uninitialized_memory is True  # torch's default, restored
+
+
+def test_training_without_nan_fills_gives_the_same_weights(monkeypatch):
+    """Training turns off deterministic mode's NaN fills of new tensors (for speed); with them on, the same seed
+    must give the same weights to the bit, else some kernel read memory it had not written."""
+    train = make_batch(seed=0)
+    kw = {**FAST, "epochs": 2, "augment": True}
+    seen = []
+    original = cnn_module.CNNClassifier._train_net
+
+    def recording(self, *args, **kwargs):
+        seen.append(torch.utils.deterministic.fill_uninitialized_memory)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(cnn_module.CNNClassifier, "_train_net", recording)
+    fast = CNNClassifier(random_state=2, **kw).fit(train)
+    assert seen == [False, False]
+    settings = cnn_module._torch_settings
+
+    @contextlib.contextmanager
+    def with_fills(threads, deterministic):
+        with settings(threads, deterministic):
+            torch.utils.deterministic.fill_uninitialized_memory = True
+            yield
+
+    monkeypatch.setattr(cnn_module, "_torch_settings", with_fills)
+    filled = CNNClassifier(random_state=2, **kw).fit(train)
+    assert seen[2:] == [True, True]
+    for name in ("cutaneous_net_", "kinesthetic_net_"):
+        for key, value in getattr(fast, name).state_dict().items():
+            assert torch.equal(value, getattr(filled, name).state_dict()[key]), (name, key)
 
 
 def test_statistics_come_from_the_training_frames():
