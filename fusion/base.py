@@ -43,6 +43,8 @@ log = logging.getLogger(__name__)
 READOUT_SETTINGS = ("noise_std", "dead_taxel_rate")
 #: Fitted attributes every classifier has; the model file stores them in its description's header fields.
 BASE_FITTED = ("classes_", "sensor_spec_", "n_probes_", "grid_", "training_")
+#: Attributes a loaded model carries about its file, never saved (the same model saves the same bytes).
+FILE_ATTRIBUTES = ("_source_file",)
 #: The toolkit's classifiers by the class name a model file gives, and the module that defines each (imported
 #: on demand: a model file can name only classes defined in the running process or listed here).
 KNOWN_CLASSES = {"fusion.cnn.CNNClassifier": "fusion.cnn",
@@ -192,8 +194,12 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         batch = as_batch(X)
         self.check_compatible(batch)
         proba = np.asarray(self._predict_proba(batch), dtype=np.float64)
-        if not np.isfinite(proba).all():  # a defect, not bad input: say so loudly
-            raise FloatingPointError(f"{type(self).__name__} produced non-finite probabilities")
+        if not np.isfinite(proba).all():
+            source = getattr(self, "_source_file", None)
+            if source is not None:  # finite weights read from a file can still overflow: bad input
+                raise ModelFileError(f"{source}: the {type(self).__name__} it holds gives non-finite probabilities "
+                                     "(damaged or hostile weights)")
+            raise FloatingPointError(f"{type(self).__name__} produced non-finite probabilities")  # a defect: loudly
         return proba / proba.sum(axis=1, keepdims=True)
 
     def predict(self, X, reject: bool = False) -> np.ndarray:
@@ -318,7 +324,8 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
             TypeError: an attribute that is neither a parameter nor spelled as a fitted one (``name_``).
         """
         params = set(self.get_params(deep=False))
-        fitted = {k: v for k, v in vars(self).items() if k not in params and k not in BASE_FITTED and k not in exclude}
+        fitted = {k: v for k, v in vars(self).items()
+                  if k not in params and k not in BASE_FITTED and k not in FILE_ATTRIBUTES and k not in exclude}
         odd = [k for k in fitted if not is_fitted_name(k)]
         if odd:
             raise TypeError(f"attributes {odd} are neither parameters nor fitted attributes (name_)")
@@ -454,6 +461,7 @@ def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int |
         if training is not None:
             model.training_ = training
         model._restore_state(_field(description, "state", dict, path), arrays, str(path))
+        model._source_file = str(path)  # names the file when its numbers misbehave (not saved, not a parameter)
         if hasattr(model, "calibration_"):
             from fusion.openset import check_calibration
 

@@ -96,6 +96,10 @@ AUGMENT = ("none", "kinesthetic", "cutaneous", "both")
 SCHEDULES = ("onecycle", "constant")
 #: How the two nets' probabilities combine, see :func:`fuse_modalities`.
 MODALITY_RULES = ("product", "sum")
+#: Most CPU threads a model may ask for (an OpenMP runtime asked for a million dies allocating their stacks).
+MAX_THREADS = 1024
+#: Arithmetic of the cutaneous net's training steps (:class:`CNNClassifier` ``precision``).
+PRECISIONS = ("auto", "float32", "bfloat16")
 #: Standardised inputs are clipped to this many standard deviations (no overflow on absurd readings).
 INPUT_CLIP = 20.0
 #: Invariant cue channels whose sign flips with the contour's direction (standardised without centring).
@@ -199,6 +203,15 @@ def _torch_settings(threads: int | None, deterministic: bool) -> Iterator[None]:
         torch.utils.deterministic.fill_uninitialized_memory = old_fill
 
 
+def native_bfloat16() -> bool:
+    """Whether this CPU has native bfloat16 kernels (oneDNN: AVX512-BF16 or AMX); without them bfloat16 is
+    emulated and slower than float32."""
+    try:
+        return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a build without oneDNN or without the query
+        return False
+
+
 def default_threads() -> int:
     """The CPU cores this process may use (the affinity mask where the platform has one)."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -239,7 +252,7 @@ class CNNClassifier(TactileClassifier):
             on, inside the training data), else sequences.
         random_state: seeds the split, the initial weights, the batch order and the augmentation.
         device: ``"auto"`` (CUDA when present), ``"cpu"`` or ``"cuda"``.
-        threads: CPU threads during fit and predict (None: the cores this process may use).
+        threads: CPU threads during fit and predict (None: the cores this process may use; at most MAX_THREADS).
         progress: tqdm bar over the epochs.
         modality: what ``predict_proba`` returns: ``"fusion"`` (both, see ``modality_rule``), ``"cutaneous"`` or
             ``"kinesthetic"``; a single modality trains only its own net.
@@ -255,6 +268,11 @@ class CNNClassifier(TactileClassifier):
         max_steps: most optimizer steps per net (None: no cap): on a large training set the epochs are cut to
             the fewest whose steps reach it (the schedule then spans those epochs); small sets train all
             ``epochs``.
+        precision: the cutaneous net's training steps (forward and backward) in ``"float32"`` or under bfloat16
+            autocast (``"bfloat16"``; weights, optimizer and batch norm stay float32); ``"auto"`` (the default):
+            bfloat16 on a CPU with native bfloat16 kernels (:func:`native_bfloat16`), else float32. The kinesthetic
+            net, whose small steps cost Python rather than arithmetic, and prediction are always float32. See the
+            module docstring for what bfloat16 changed.
 
     Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
@@ -275,7 +293,7 @@ class CNNClassifier(TactileClassifier):
                  patience: int = 6, val_fraction: float = 0.0, random_state: int = 0, device: str = "auto",
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
                  frame_size: int = 16, augment: bool | str = "both", test_views: int = 1,
-                 modality_rule: str = "product", max_steps: int | None = 5000, **renamed):
+                 modality_rule: str = "product", max_steps: int | None = 5000, precision: str = "auto", **renamed):
         random_state = renamed_seed(renamed, random_state, type(self).__name__)
         self.cue = cue
         self.epochs = epochs
@@ -296,6 +314,7 @@ class CNNClassifier(TactileClassifier):
         self.test_views = test_views
         self.modality_rule = modality_rule
         self.max_steps = max_steps
+        self.precision = precision
 
     # ------------------------------------------------------------------------------------ checks
     def _check_params(self) -> None:
@@ -326,6 +345,12 @@ class CNNClassifier(TactileClassifier):
             raise InvalidArgumentError(f"CNNClassifier: weight_decay must be >= 0, got {self.weight_decay!r}")
         if not 0 <= self.label_smoothing < 1:
             raise InvalidArgumentError(f"CNNClassifier: label_smoothing must be in [0, 1), got {self.label_smoothing!r}")
+        if self.threads is not None and (isinstance(self.threads, bool) or not isinstance(self.threads, (int, np.integer))
+                                         or not 1 <= self.threads <= MAX_THREADS):
+            raise InvalidArgumentError(f"CNNClassifier: threads must be None or an integer in [1, {MAX_THREADS}], got "
+                                       f"{self.threads!r}")
+        if self.precision not in PRECISIONS:
+            raise InvalidArgumentError(f"CNNClassifier: precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
@@ -468,6 +493,7 @@ class CNNClassifier(TactileClassifier):
         net.to(device)
         opt, scheduler = self._optimizer(net, len(train_idx))
         y_t = torch.from_numpy(y.astype(np.int64))
+        bfloat16 = self._bfloat16(kind, device)
         best, best_state, best_epoch, since = (-1.0, np.inf), None, 0, 0
         epoch_times, curve = [], []
         epochs = progress_bar(range(self.epochs_for(len(train_idx))), enabled=self.progress, desc=f"train {kind}",
@@ -484,7 +510,9 @@ class CNNClassifier(TactileClassifier):
                 xb = x[idx].to(device, torch.float32)
                 if augment:
                     xb = self._augment(xb, kind, gen)
-                loss = F.cross_entropy(net(xb), y_t[idx].to(device), label_smoothing=self.label_smoothing)
+                with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bfloat16):
+                    logits = net(xb)
+                loss = F.cross_entropy(logits.float(), y_t[idx].to(device), label_smoothing=self.label_smoothing)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
@@ -516,6 +544,12 @@ class CNNClassifier(TactileClassifier):
         return {"epochs": epoch + 1, "best_epoch": best_epoch + 1,
                 "val_accuracy": None if len(val_idx) == 0 else best[0], "val_curve": curve,
                 "epoch_seconds": float(np.median(epoch_times)) if epoch_times else 0.0}
+
+    def _bfloat16(self, kind: str, device: torch.device) -> bool:
+        """Whether ``kind``'s training steps run under bfloat16 autocast (``precision``)."""
+        if kind != "cutaneous" or self.precision == "float32":
+            return False
+        return self.precision == "bfloat16" or (device.type == "cpu" and native_bfloat16())
 
     def _steps_per_epoch(self, n_train: int) -> int:
         """Optimizer steps in one epoch of ``n_train`` sequences (a last batch of one is skipped: batch norm)."""
@@ -653,7 +687,7 @@ class CNNClassifier(TactileClassifier):
     _NETS = ("cutaneous", "kinesthetic")
     #: Files written before a parameter existed: what those models were trained or predict with (the sum; no
     #: step cap).
-    OLDER_FILE_PARAMS: ClassVar[dict] = {"modality_rule": "sum", "max_steps": None}
+    OLDER_FILE_PARAMS: ClassVar[dict] = {"modality_rule": "sum", "max_steps": None, "precision": "float32"}
 
     def _model_state(self, arrays: dict[str, np.ndarray]) -> dict:
         """Plain fitted attributes, and each trained net's state dict as tensors ``<net>.<parameter>``."""
@@ -685,8 +719,9 @@ class CNNClassifier(TactileClassifier):
         for name in ("cue_mean_", "cue_std_"):
             value = getattr(self, name, None)
             if not (isinstance(value, np.ndarray) and value.dtype == np.float32 and value.shape == (width,)
-                    and np.isfinite(value).all()):
-                raise ModelFileError(f"{where}: the CNN's {name} must be {width} finite float32 values")
+                    and np.isfinite(value).all() and (name == "cue_mean_" or (value > 0).all())):
+                raise ModelFileError(f"{where}: the CNN's {name} must be {width} finite float32 values"
+                                     f"{', all positive' if name == 'cue_std_' else ''}")
         nets = state.get("nets")
         if not isinstance(nets, dict) or set(nets) != set(self._NETS):
             raise ModelFileError(f"{where}: the CNN's description does not say which nets it holds")
@@ -715,6 +750,8 @@ class CNNClassifier(TactileClassifier):
                                              f"the architecture needs {meta.dtype} {tuple(meta.shape)}")
                     if value.is_floating_point() and not torch.isfinite(value).all():
                         raise ModelFileError(f"{where}: tensor {kind}.{name} holds NaN or Inf")
+                    if name.endswith("running_var") and (value < 0).any():
+                        raise ModelFileError(f"{where}: tensor {kind}.{name} holds negative variances")
                     weights[name] = value
                 net = net.to_empty(device="cpu")
                 net.load_state_dict(weights, strict=True)
@@ -722,4 +759,5 @@ class CNNClassifier(TactileClassifier):
             setattr(self, f"{kind}_net_", net)
 
 
-__all__ = ["MODALITIES", "MODALITY_RULES", "SCHEDULES", "CNNClassifier", "CutaneousNet", "KinestheticNet", "fuse_modalities", "pool_frames"]
+__all__ = ["MODALITIES", "MODALITY_RULES", "PRECISIONS", "SCHEDULES", "CNNClassifier", "CutaneousNet", "KinestheticNet",
+           "fuse_modalities", "native_bfloat16", "pool_frames"]
