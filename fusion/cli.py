@@ -41,17 +41,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Seeds every subcommand takes: what NumPy's legacy seeding and scikit-learn accept (32 bits, unsigned). A
+#: subcommand whose seed reaches a narrower generator sets ``seed_max`` (``camera``: Open3D's C int, 31 bits).
+SEED_MAX = 2**32 - 1
+
+
 def check_common(args: argparse.Namespace) -> None:
-    """Checks of options several subcommands share, before any work: ``--seed`` (a non-negative integer).
+    """Checks of options several subcommands share, before any work: ``--seed`` (an integer in [0, 2**32 - 1], or
+    the subcommand's own ``seed_max``).
 
     Raises:
-        InvalidArgumentError: naming the option and the value.
+        InvalidArgumentError: naming the option, the value and the range.
     """
     from perception.errors import InvalidArgumentError
 
     seed = getattr(args, "seed", None)
-    if seed is not None and seed < 0:
-        raise InvalidArgumentError(f"--seed must be a non-negative integer, got {seed}")
+    if seed is None:
+        return
+    most = getattr(args, "seed_max", SEED_MAX)
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= most:
+        raise InvalidArgumentError(f"--seed must be a non-negative integer, at most {most} "
+                                   f"(2**{most.bit_length()} - 1), got {seed}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,6 +9,10 @@ import numpy as np
 
 from perception.errors import InvalidArgumentError
 
+#: Largest --seed (checked with the others in :func:`fusion.cli.check_common`): the seed reaches
+#: ``o3d.utility.random.seed``, a C int, so larger seeds are refused rather than folded onto smaller ones.
+SEED_MAX = 2**31 - 1
+
 
 def parse_pixel(text: str) -> tuple[float, float]:
     """``"U,V"`` (column, row of the first frame) -> (u, v).
@@ -36,7 +40,8 @@ def check_camera_args(args: argparse.Namespace) -> None:
     Raises:
         InvalidArgumentError, ModelFileError: naming the option and the problem.
     """
-    from perception.atomic import check_output_folder
+    from fusion.commands import check_output_folder
+    from perception.camera.virtual import MAX_DISTANCE_MM
     from perception.limits import check_count
 
     if args.contours < 1:
@@ -45,8 +50,9 @@ def check_camera_args(args: argparse.Namespace) -> None:
     if args.views < 1:
         raise InvalidArgumentError(f"--views must be at least 1, got {args.views}")
     check_count("views", args.views, "--views")
-    if not (np.isfinite(args.distance) and args.distance > 0):
-        raise InvalidArgumentError(f"--distance must be a positive number of mm, got {args.distance}")
+    if not (np.isfinite(args.distance) and 0 < args.distance <= MAX_DISTANCE_MM):
+        raise InvalidArgumentError(f"--distance must be a positive number of mm up to {MAX_DISTANCE_MM:g} "
+                                   f"(the virtual camera's range), got {args.distance}")
     if args.source == "oak":
         return  # the device check comes first (seconds, without loading the geometry stack); a live capture is quick
     from tactile.sampling import STRATEGIES
@@ -123,7 +129,9 @@ def register(sub) -> None:
     camera.add_argument("--strategy", default="blind", help="contour strategy: blind | guided | mesh | iss")
     camera.add_argument("--target", default=None, metavar="U,V",
                         help="touch the object this pixel (column,row) of the first frame shows (default: the one in front)")
-    camera.add_argument("--seed", type=int, default=0)
+    camera.add_argument("--seed", type=int, default=0,
+                        help=f"seed of the virtual object, its noise and the reconstruction, 0 to {SEED_MAX} "
+                             "(Open3D's seed is a C int: 31 bits) (default 0)")
     camera.add_argument("--json", action="store_true", help="print the summary as JSON")
     camera.add_argument("--out", default="out/camera", help="folder for the figure and summary.json")
-    camera.set_defaults(func=run)
+    camera.set_defaults(func=run, seed_max=SEED_MAX)

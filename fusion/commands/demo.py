@@ -9,13 +9,15 @@ from pathlib import Path
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
-    from fusion.commands import print_json
+    from fusion.commands import check_output_folder, print_json
     from fusion.demo import DEMO_SIZES, check_demo_sizes, run_demo
 
     changes = {k: v for k, v in (("objects_per_class", args.objects_per_class), ("unseen_contours", args.contours),
-                                 ("epochs", args.epochs)) if v is not None}
+                                 ("epochs", args.epochs)) if v is not None}  # Sizes refuses epochs < 1
+    sizes = check_demo_sizes(replace(DEMO_SIZES, **changes))
+    check_output_folder(args.out, "--out")
     echo = (lambda line: print(line, file=sys.stderr)) if args.json else print
-    summary = run_demo(Path(args.out), seed=args.seed, sizes=check_demo_sizes(replace(DEMO_SIZES, **changes)),
+    summary = run_demo(Path(args.out), seed=args.seed, sizes=sizes,
                        recognition=not args.no_recognition, echo=echo)
     if args.json:
         print_json(summary)

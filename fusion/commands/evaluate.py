@@ -17,7 +17,6 @@ def check_evaluate_args(args: argparse.Namespace) -> None:
     Raises:
         InvalidArgumentError: naming the option, the value and the limit or the fix.
     """
-    from perception.atomic import check_output_file
     from perception.errors import InvalidArgumentError
     from perception.limits import check_count
 
@@ -25,10 +24,23 @@ def check_evaluate_args(args: argparse.Namespace) -> None:
         raise InvalidArgumentError(f"--touches must be at least 1 (sequences per decision), got {args.touches}")
     check_count("touches", args.touches, "--touches")
     if args.figure is not None:
-        check_output_file(args.figure, "--figure")
-        if Path(args.figure).suffix.lower() not in FIGURE_SUFFIXES:
-            raise InvalidArgumentError(f"--figure {args.figure!r}: give a file ending in "
-                                       f"{', '.join(FIGURE_SUFFIXES)} (the figure's format)")
+        check_figure(args.figure)
+
+
+def check_figure(path, what: str = "--figure") -> None:
+    """A figure file to write: a writable place (:func:`fusion.commands.check_output_file`) and a format
+    matplotlib writes (:data:`FIGURE_SUFFIXES`), checked before any work (evaluate, recognize).
+
+    Raises:
+        InvalidArgumentError: naming the option, the path and the fix.
+    """
+    from fusion.commands import check_output_file
+    from perception.errors import InvalidArgumentError
+
+    check_output_file(path, what)
+    if Path(path).suffix.lower() not in FIGURE_SUFFIXES:
+        raise InvalidArgumentError(f"{what} {str(path)!r}: give a file ending in {', '.join(FIGURE_SUFFIXES)} "
+                                   "(the figure's format)")
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:

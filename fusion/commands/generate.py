@@ -50,9 +50,11 @@ def _store_bytes(path: Path) -> int:
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
+    from fusion.commands import check_output_folder
     from tactile.dataset import generate, open_dataset
 
     objects = _objects(args)
+    check_output_folder(args.out, "--out")
     report = generate(
         objects, args.out, strategies=tuple(args.strategies), contours_per_object=args.contours,
         probes=args.probes, seed=args.seed, workers=args.workers, executor=args.executor, strict=args.strict,

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from fusion.commands.evaluate import check_figure
+
 DEFAULT_MODEL = "out/demo/models/cnn.vtm"
 
 
@@ -16,9 +18,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
 
     check_count("touches", args.touches, "--touches")  # before the model and the mesh load
     if args.figure is not None:
-        from perception.atomic import check_output_file
-
-        check_output_file(args.figure, "--figure")
+        check_figure(args.figure)
 
     obj, result = recognize_file(args.mesh, args.model, touches=args.touches, strategy=args.strategy, seed=args.seed,
                                  rule=args.rule, trust_pickle=args.trust_pickle)
@@ -59,6 +59,6 @@ def register(sub) -> None:
                              "answering 'unknown' when the touches fit no known class; else log: sum of log "
                              "probabilities)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the contour choice (default 0)")
-    parser.add_argument("--figure", help="write the touched contours and probabilities to this PNG")
+    parser.add_argument("--figure", help="write the touched contours and probabilities to this PNG (or .pdf, .svg)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     parser.set_defaults(func=run)

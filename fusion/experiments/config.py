@@ -111,6 +111,10 @@ class Sizes:
         train = self.unseen_train_contours
         if train is not None and (isinstance(train, bool) or not isinstance(train, int) or train < 1):
             raise InvalidArgumentError(f"Sizes.unseen_train_contours must be a positive integer or None, got {train!r}")
+        epochs = self.epochs  # None: the classifier's default (0 must not mean that: it is refused, as -1 is)
+        if epochs is not None and (isinstance(epochs, bool) or not isinstance(epochs, int) or epochs < 1):
+            raise InvalidArgumentError(f"Sizes.epochs (--epochs) must be a positive integer or None (the "
+                                       f"classifier's default), got {epochs!r}")
         for name in ("unseen_folds", "attention_folds"):
             if getattr(self, name) < 2:
                 raise InvalidArgumentError(f"Sizes.{name} must be at least 2, got {getattr(self, name)!r}")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 from pathlib import Path
 
@@ -30,11 +31,36 @@ log = logging.getLogger(__name__)
 FORMAT = "visuotactile-rgbd/1"
 INDEX = "recording.json"
 _MAX_DEPTH_UNITS = 65535
+#: Largest frame metadata or ``camera.json`` read, bytes (ours are under 1 kB: intrinsics, a pose, a timestamp);
+#: the index may add :data:`INDEX_BYTES_PER_FRAME` per frame the ``frames`` limit allows. Checked from the file's
+#: size before reading: a recording is a file users exchange.
+MAX_JSON_BYTES = 2**20
+#: Index bytes allowed per frame (a name is at most 200 characters, plus quotes, comma and indentation).
+INDEX_BYTES_PER_FRAME = 256
 
 
-def _read_png(path: Path, what: str) -> np.ndarray:
+def _check_inside(path: Path, root: Path | None) -> None:
+    """Refuse a file of the recording that leads outside its folder ``root`` (resolved), e.g. a symbolic link to
+    another file of the system: only files inside the recording folder are read.
+
+    Raises:
+        DatasetError: naming the file and where it leads.
+    """
+    if root is None:
+        return
+    try:
+        target = path.resolve()
+    except (OSError, RuntimeError) as exc:  # a symlink loop
+        raise DatasetError(f"{path}: cannot resolve ({exc})") from None
+    if not target.is_relative_to(root):
+        raise DatasetError(f"{path}: leads outside the recording folder (to {target}); a recording's files must "
+                           "lie inside its folder")
+
+
+def _read_png(path: Path, what: str, root: Path | None = None) -> np.ndarray:
     from PIL import Image, UnidentifiedImageError
 
+    _check_inside(path, root)
     if not path.is_file():
         raise DatasetError(f"{path}: {what} image is missing")
     try:
@@ -101,10 +127,29 @@ def _pose(meta: dict, where: Path) -> np.ndarray:
     return pose
 
 
-def _read_json(path: Path) -> dict:
+def _read_json(path: Path, root: Path | None = None, max_bytes: int = MAX_JSON_BYTES) -> dict:
+    """The JSON object in ``path``, a file inside the recording folder ``root``, of at most ``max_bytes``.
+
+    Raises:
+        DatasetError: naming the file: outside the folder, too large (from its size, before reading), unreadable,
+            not JSON, nested too deeply for the parser, or not an object.
+    """
+    _check_inside(path, root)
+    if path.exists() and not path.is_file():  # a FIFO or a device would block or never end
+        raise DatasetError(f"{path}: not a regular file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size > max_bytes:
+                raise DatasetError(f"{path}: {size} bytes, more than the {max_bytes} a recording's JSON file may "
+                                   "have (not a recording's metadata)")
+            raw = f.read(max_bytes + 1)
+        if len(raw) > max_bytes:  # not a regular file, or it grew
+            raise DatasetError(f"{path}: more than the {max_bytes} bytes a recording's JSON file may have")
+        data = json.loads(raw.decode("utf-8"))
+    except RecursionError:
+        raise DatasetError(f"{path}: cannot read JSON (nested too deeply)") from None
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors, as huge ints
         raise DatasetError(f"{path}: cannot read JSON ({exc})") from None
     if not isinstance(data, dict):
         raise DatasetError(f"{path}: expected a JSON object")
@@ -137,9 +182,10 @@ def _parse_intrinsics(data: dict, where: Path, width: int, height: int) -> Intri
         raise DatasetError(f"{where}: bad intrinsics ({exc})") from None
 
 
-def _frame(color_path: Path, depth_path: Path, meta: dict, meta_path: Path, depth_scale: float, name: str):
-    color = _read_png(color_path, "colour")
-    raw = _read_png(depth_path, "depth")
+def _frame(color_path: Path, depth_path: Path, meta: dict, meta_path: Path, depth_scale: float, name: str,
+           root: Path | None = None):
+    color = _read_png(color_path, "colour", root)
+    raw = _read_png(depth_path, "depth", root)
     if color.shape[:2] != raw.shape:
         raise DatasetError(f"{color_path}: colour {color.shape[:2]} and depth {raw.shape} sizes differ")
     height, width = raw.shape
@@ -168,15 +214,22 @@ def is_recording(folder: str | Path) -> bool:
 def read_recording(folder: str | Path) -> list[RGBDFrame]:
     """Read all frames of a recording folder (ours, or a generic ``color.png`` + ``depth.png`` + ``camera.json``).
 
+    Only files inside ``folder`` are read (a file that is a symbolic link leading outside it is refused), and JSON
+    files are size-checked before reading (:data:`MAX_JSON_BYTES`).
+
     Raises:
-        DatasetError: the folder is missing, of no known layout, or a file is missing or malformed.
+        DatasetError: the folder is missing, of no known layout, or a file is missing, malformed, too large or
+            outside the folder.
     """
+    from perception.limits import limit
+
     folder = Path(folder)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: no such recording folder")
+    root = folder.resolve()
     index_path = folder / INDEX
     if index_path.is_file():
-        index = _read_json(index_path)
+        index = _read_json(index_path, root, MAX_JSON_BYTES + INDEX_BYTES_PER_FRAME * limit("frames"))
         if index.get("format") != FORMAT:
             raise DatasetError(f"{index_path}: unknown format {index.get('format')!r} (expected {FORMAT!r})")
         names = index.get("frames")
@@ -195,18 +248,18 @@ def read_recording(folder: str | Path) -> list[RGBDFrame]:
             meta_path = folder / f"{name}.json"
             if not meta_path.is_file():
                 raise DatasetError(f"{meta_path}: frame metadata is missing")
-            meta = _read_json(meta_path)
+            meta = _read_json(meta_path, root)
             frames.append(
                 _frame(folder / f"{name}.color.png", folder / f"{name}.depth.png", meta, meta_path, scale,
-                       f"{folder.name}/{name}")
+                       f"{folder.name}/{name}", root)
             )
         return frames
     camera_path = folder / "camera.json"
     if camera_path.is_file():
-        meta = _read_json(camera_path)
+        meta = _read_json(camera_path, root)
         color_path = next((folder / n for n in ("color.png", "rgb.png") if (folder / n).is_file()), folder / "color.png")
         return [_frame(color_path, folder / "depth.png", meta, camera_path,
-                       _depth_scale(meta, camera_path), folder.name)]
+                       _depth_scale(meta, camera_path), folder.name, root)]
     raise DatasetError(
         f"{folder}: not a recording (expected {INDEX} written by visuotactile, or color.png + depth.png + camera.json)"
     )
@@ -214,9 +267,12 @@ def read_recording(folder: str | Path) -> list[RGBDFrame]:
 
 def _listed_frames(folder: Path) -> list[str]:
     """The frame names the recording index in ``folder`` lists (none if there is no readable index)."""
+    from perception.limits import limit
+
     try:
-        names = json.loads((folder / INDEX).read_text(encoding="utf-8")).get("frames", [])
-    except (OSError, ValueError, AttributeError):
+        names = _read_json(folder / INDEX, folder.resolve(), MAX_JSON_BYTES + INDEX_BYTES_PER_FRAME * limit("frames"))
+        names = names.get("frames", [])
+    except (DatasetError, OSError):
         return []
     return [n for n in names if isinstance(n, str)] if isinstance(names, list) else []
 

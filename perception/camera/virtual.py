@@ -37,6 +37,9 @@ OAK_MODES = {"800p": (1280, 800, 882.5), "400p": (640, 400, 441.25)}
 OAK_BASELINE_MM = 75.0
 #: Disparity search range of the OAK stereo engine, px (doubled by extended disparity).
 OAK_MAX_DISPARITY_PX = 95.0
+#: Farthest orbit distance, mm (10 m): an OAK-D's depth is meaningless far beyond it, and a distance near the
+#: float range overflows the pose arithmetic.
+MAX_DISTANCE_MM = 10_000.0
 
 _TABLE_RGB = np.array([0.22, 0.42, 0.36])
 _OBJECT_RGB = np.array([0.80, 0.78, 0.72])
@@ -68,10 +71,16 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
         InvalidArgumentError: eye and target coincide, or the view direction is parallel to ``up``.
     """
     eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
+    if not (np.isfinite(eye).all() and np.isfinite(target).all() and np.isfinite(up).all()):
+        raise InvalidArgumentError("look_at: eye, target and up must be finite")
     z = target - eye
-    if np.linalg.norm(z) == 0:
+    with np.errstate(over="ignore", invalid="ignore"):  # a huge eye overflows the norm: refused just below
+        norm = np.linalg.norm(z)
+    if not np.isfinite(norm):
+        raise InvalidArgumentError("look_at: the camera is too far from its target (the distance overflows)")
+    if norm == 0:
         raise InvalidArgumentError("look_at: the camera sits on its target")
-    z /= np.linalg.norm(z)
+    z /= norm
     x = np.cross(z, up)
     if np.linalg.norm(x) < 1e-9:
         raise InvalidArgumentError("look_at: viewing direction is parallel to the up vector")
@@ -155,13 +164,15 @@ class VirtualOakCamera:
         ``elevation_deg`` above the table.
 
         Raises:
-            InvalidArgumentError: n_views < 1, non-positive distance, or elevation outside (0, 90).
+            InvalidArgumentError: n_views < 1, a distance outside (0, :data:`MAX_DISTANCE_MM`], or elevation outside
+                (0, 90).
         """
         if int(n_views) != n_views or n_views < 1:
             raise InvalidArgumentError(f"VirtualOakCamera: n_views must be a positive integer, got {n_views!r}")
-        if not distance_mm > 0 or not 0 < elevation_deg < 90:
+        if not 0 < distance_mm <= MAX_DISTANCE_MM or not 0 < elevation_deg < 90:
             raise InvalidArgumentError(
-                f"VirtualOakCamera: need distance_mm > 0 and 0 < elevation_deg < 90, got {distance_mm}, {elevation_deg}"
+                f"VirtualOakCamera: need 0 < distance_mm <= {MAX_DISTANCE_MM:g} and 0 < elevation_deg < 90, got "
+                f"{distance_mm}, {elevation_deg}"
             )
         el = np.radians(elevation_deg)
         poses = []
