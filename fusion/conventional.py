@@ -339,7 +339,8 @@ class ConventionalClassifier(TactileClassifier):
                 raise ModelFileError(f"{where}: {name} of the model holds NaN or Inf")
         width = n_series(self.cue) * int(self.n_probes_)
         try:
-            proba = pipeline[1:].predict_proba(np.zeros((1, width)))
+            with np.errstate(all="ignore"):  # a hostile file's numbers (a zero scale) must not warn before the refusal
+                proba = pipeline[1:].predict_proba(np.zeros((1, width)))
         except (ValueError, TypeError, IndexError, AttributeError) as exc:
             raise ModelFileError(f"{where}: the model's pipeline steps do not fit together ({str(exc)[:200]})") from None
         if proba.shape != (1, n_classes):
