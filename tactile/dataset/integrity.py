@@ -9,7 +9,6 @@ Checking reads the whole store once (decompression and hashing: about the speed 
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -22,8 +21,10 @@ from tactile.dataset.store import (
     RECORDS,
     ZARR_READ,
     array_digest,
+    check_arrays,
     layout_of,
     read_attrs,
+    read_json,
     read_records,
     read_rows,
     rows_per_file,
@@ -66,13 +67,17 @@ class VerifyReport:
                 "seconds": round(self.seconds, 3)}
 
 
-def _arrays(path: Path) -> dict:
+def _arrays(path: Path, settings: dict) -> dict:
+    """The store's arrays, opened for reading, their shapes and dtypes checked against the settings (what chunk
+    sizes are bounded by, :func:`~tactile.dataset.store.max_chunk_file_bytes`)."""
     import zarr
 
     try:
-        return {name: zarr.open_array(f"{path}/{name}", mode="r") for name in ARRAYS}
+        arrays = {name: zarr.open_array(f"{path}/{name}", mode="r") for name in ARRAYS}
     except Exception as exc:  # noqa: BLE001 -- zarr raises several types for missing or corrupt metadata
         raise DatasetError(f"{path}: cannot open the store's arrays ({type(exc).__name__}: {exc})") from None
+    check_arrays(path, arrays, settings)
+    return arrays
 
 
 def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: dict) -> str | None:
@@ -110,8 +115,8 @@ def _unreadable_records(path: Path, n_objects: int) -> list[int]:
         file = Path(path) / RECORDS / f"{index:05d}.json"
         if not file.exists():
             continue
-        try:
-            if isinstance(json.loads(file.read_text(encoding="utf-8")), dict):
+        try:  # not a regular file, too large or too deeply nested: unreadable too (read_json)
+            if isinstance(read_json(file), dict):
                 continue
         except (OSError, ValueError):
             pass
@@ -127,9 +132,13 @@ def damaged_objects(path: str | Path, progress: bool = False) -> dict[int, str]:
     """
     path = Path(path)
     settings = read_attrs(path)["settings"]
-    records = read_records(path, len(settings["objects"]))
+    return _damaged_objects(path, settings, read_records(path, len(settings["objects"])), progress)
+
+
+def _damaged_objects(path: Path, settings: dict, records: dict[int, dict], progress: bool) -> dict[int, str]:
+    """:func:`damaged_objects` of a store whose settings and records were read."""
     complete = [i for i in sorted(records) if records[i].get("status") == "complete"]
-    arrays = _arrays(path) if complete else {}
+    arrays = _arrays(path, settings) if complete else {}
     damaged = {}
     for index in progress_bar(complete, enabled=progress, desc="verify", unit="object"):
         problem = object_damage(path, arrays, settings, index, records[index])
@@ -158,7 +167,7 @@ def verify_store(path: str | Path, progress: bool = False) -> VerifyReport:
     unreadable = set(_unreadable_records(path, len(objects)))
     for index in sorted(unreadable):
         report.damaged[str(objects[index]["name"])] = "its completion record is unreadable"
-    for index, problem in damaged_objects(path, progress).items():
+    for index, problem in _damaged_objects(path, settings, records, progress).items():
         report.damaged[str(objects[index]["name"])] = problem
     report.checked = sum(1 for r in records.values() if r.get("status") == "complete")
     report.failed = {str(objects[i]["name"]): str(r.get("reason", "")) for i, r in sorted(records.items())

@@ -27,6 +27,11 @@ dtype). Reading a missing, empty or altered chunk raises :class:`DatasetError` n
 (:func:`read_rows`); :func:`tactile.dataset.verify_store` checks every object against its digests, and
 ``generate`` re-explores exactly the damaged objects. Stores of format 1 (no checksums) are refused with a
 message to regenerate them: damage in them would read as zeros.
+
+A store's files are untrusted input: opening one (:func:`read_attrs`) lists it once and refuses FIFOs, devices,
+sockets and symlinks out of it before anything is read (:func:`check_store_files`); JSON files are read without
+blocking, bounded by :data:`MAX_JSON_BYTES` and refused when nested too deeply (:func:`read_json`), and a chunk
+file larger than its rows can take is damage, refused before it is read (:func:`max_chunk_file_bytes`).
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ import json
 import logging
 import os
 import shutil
+import stat
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -67,6 +73,16 @@ ZARR_WRITE = {"threading.max_workers": 1, "codec_pipeline.batch_size": 64}
 ZARR_READ = {"codec_pipeline.batch_size": 64}
 #: Quantisation codes of the frames (uint16).
 CODE_MAX = np.iinfo(np.uint16).max
+#: Largest JSON file of a store that is read (root and array ``zarr.json``, completion records): a genuine one is a
+#: few KB (a record with its interest points well under 1 MB); a larger one is refused from its size, unread.
+MAX_JSON_BYTES = 16 << 20
+#: What a chunk file may hold beyond its rows' raw bytes (:func:`max_chunk_file_bytes`): Blosc's header and
+#: incompressible-data overhead (at most 16 bytes + a margin of 1/8 here), the CRC-32C and, in a shard, the index
+#: entry of each inner chunk, with room to spare.
+CHUNK_OVERHEAD_BYTES = 1024
+#: Files of a store are listed when it is opened (:func:`check_store_files`); a store of a few hundred files
+#: lists in about a millisecond. More entries than its settings account for (twice, plus this) are refused.
+SPARE_STORE_ENTRIES = 1024
 
 #: name -> (dtype, trailing shape given (probes, rows, cols)) of the per-sequence arrays besides frames.
 SEQUENCE_ARRAYS: dict[str, tuple[str, Callable[[int, int, int], tuple]]] = {
@@ -294,15 +310,124 @@ def store_lock(path: Path):
         os.close(fd)  # releases the lock
 
 
-def read_attrs(path: Path) -> dict:
-    """The store metadata. Raises DatasetError if ``path`` is not a visuotactile dataset store."""
-    meta_file = Path(path) / "zarr.json"
-    if not meta_file.is_file():
-        raise DatasetError(f"{path}: not a dataset store (no zarr.json); create one with generate()")
+def read_json(file: Path):
+    """The parsed JSON file ``file`` of a store (untrusted): opened without blocking and checked with ``fstat`` to
+    be a regular file (a FIFO or device is refused, never waited on) of at most :data:`MAX_JSON_BYTES` (refused
+    from its size, unread), and nesting too deep for the parser is refused.
+
+    Raises:
+        OSError: it cannot be opened or read; ValueError: any of the above, or not UTF-8 JSON (the problem only:
+        callers name the file).
+    """
+    fd = os.open(file, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+    with os.fdopen(fd, "rb") as f:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise ValueError(f"not a regular file (a {_file_kind(info.st_mode)})")
+        if info.st_size > MAX_JSON_BYTES:
+            raise ValueError(f"{info.st_size} bytes, more than the {MAX_JSON_BYTES} a store's JSON file may hold")
+        data = f.read(MAX_JSON_BYTES + 1)
+    if len(data) > MAX_JSON_BYTES:
+        raise ValueError(f"more than the {MAX_JSON_BYTES} bytes a store's JSON file may hold")
     try:
-        meta = json.loads(meta_file.read_text(encoding="utf-8"))
+        return json.loads(data.decode("utf-8"))
+    except RecursionError:
+        raise ValueError("JSON nested too deeply") from None
+
+
+def _file_kind(mode: int) -> str:
+    for test, kind in ((stat.S_ISFIFO, "FIFO"), (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
+                       (stat.S_ISSOCK, "socket"), (stat.S_ISDIR, "folder"), (stat.S_ISLNK, "symlink")):
+        if test(mode):
+            return kind
+    return "special file"
+
+
+#: The metadata files zarr may read in a store's folders (v3, and v2 when it guesses the format).
+ZARR_METADATA = frozenset({"zarr.json", ".zgroup", ".zarray", ".zattrs", ".zmetadata"})
+
+
+def check_store_files(path: Path, settings: dict) -> None:
+    """Check every entry of the store ``path`` before zarr reads any (one ``scandir`` walk, no file opened): only
+    folders and regular files, symlinks only to those and inside the store (a FIFO blocks a reader forever; a link
+    may reach any file of the machine), metadata files of at most :data:`MAX_JSON_BYTES`, each array's
+    ``zarr.json`` parsed (too deep nesting named here, not as zarr's RecursionError), and no more entries than the
+    settings account for. Chunk sizes are checked where they are read (:func:`read_rows`: damage, repairable).
+
+    Raises:
+        DatasetError: naming the file and the problem.
+    """
+    root = os.path.realpath(path)
+    layout = layout_of(settings)
+    n = max(layout.n_rows, 1)
+    chunks = -(-n // layout.shard) + (len(ARRAYS) - 1) * -(-n // layout.contours)
+    most = 2 * (4 * chunks + 4 * len(ARRAYS) + len(settings["objects"])) + SPARE_STORE_ENTRIES  # 4: a chunk's folders
+    seen = 0
+    folders = [root]
+    while folders:
+        folder = folders.pop()
+        try:
+            entries = list(os.scandir(folder))
+        except OSError as exc:
+            raise DatasetError(f"{_shown(path, root, folder)}: cannot list the store's folder ({exc.strerror})") from None
+        seen += len(entries)
+        if seen > most:
+            raise DatasetError(f"{path}: holds more than {most} files and folders, more than a store of its settings "
+                               "has: not a store made by generate(), refused")
+        for entry in entries:
+            try:
+                if entry.is_symlink():
+                    target = os.path.realpath(entry.path)
+                    if os.path.commonpath([root, target]) != root:
+                        raise DatasetError(f"{_shown(path, root, entry.path)}: a symlink to {target}, outside the "
+                                           "store: refused (a store holds its own files)")
+                    info = os.stat(entry.path)
+                else:
+                    info = entry.stat(follow_symlinks=False)
+            except FileNotFoundError:
+                continue  # removed meanwhile (a record being replaced), or a dangling link: read as missing
+            except OSError as exc:
+                raise DatasetError(f"{_shown(path, root, entry.path)}: cannot be read ({exc.strerror})") from None
+            if stat.S_ISDIR(info.st_mode):
+                if not entry.is_symlink():  # a linked folder inside the store is listed where it is
+                    folders.append(entry.path)
+                continue
+            if not stat.S_ISREG(info.st_mode):
+                raise DatasetError(f"{_shown(path, root, entry.path)}: a {_file_kind(info.st_mode)}, not a regular "
+                                   "file: refused (reading it could block forever)")
+            if entry.name in ZARR_METADATA and info.st_size > MAX_JSON_BYTES:
+                raise DatasetError(f"{_shown(path, root, entry.path)}: {info.st_size} bytes, more than the "
+                                   f"{MAX_JSON_BYTES} a store's metadata file may hold: refused unread")
+    for name in ARRAYS:
+        file = Path(path) / name / "zarr.json"
+        try:
+            meta = read_json(file)
+        except FileNotFoundError:
+            continue  # check_arrays names the missing array
+        except (OSError, ValueError) as exc:
+            raise DatasetError(f"{file}: unreadable array metadata ({exc})") from None
+        if not isinstance(meta, dict):
+            raise DatasetError(f"{file}: array metadata must be a JSON object, got {type(meta).__name__}")
+
+
+def _shown(path: Path, root: str, entry: str) -> str:
+    """``entry`` (a path under the real folder ``root``) spelled under the store's path as given."""
+    return str(Path(path) / os.path.relpath(entry, root))
+
+
+def read_attrs(path: Path) -> dict:
+    """The store metadata, after checking the store's files (:func:`check_store_files`).
+
+    Raises:
+        DatasetError: ``path`` is not a visuotactile dataset store of this format, or holds a file that is refused.
+    """
+    meta_file = Path(path) / "zarr.json"
+    try:
+        meta = read_json(meta_file)
+    except (FileNotFoundError, NotADirectoryError):
+        raise DatasetError(f"{path}: not a dataset store (no zarr.json); create one with generate()") from None
     except (OSError, ValueError) as exc:
-        raise DatasetError(f"{path}: unreadable zarr.json ({exc})") from exc
+        raise DatasetError(f"{path}: unreadable zarr.json ({exc})") from None
     attributes = meta.get("attributes", {}) if isinstance(meta, dict) else None
     attrs = attributes.get(ATTRS_KEY) if isinstance(attributes, dict) else None
     if not isinstance(meta, dict) or meta.get("node_type") != "group" or not isinstance(attrs, dict):
@@ -319,6 +444,7 @@ def read_attrs(path: Path) -> dict:
             f"{path}: dataset format {attrs.get('format')!r}, this version reads format {FORMAT_VERSION}"
         )
     check_settings(attrs.get("settings"), f"{path}/zarr.json")
+    check_store_files(path, attrs["settings"])
     return attrs
 
 
@@ -453,20 +579,38 @@ def chunk_files(path: Path, name: str, array, lo: int, hi: int) -> list[Path]:
     return [Path(path) / name / array.metadata.encode_chunk_key((i, *tail)) for i in range(lo // per, (hi - 1) // per + 1)]
 
 
+def max_chunk_file_bytes(array) -> int:
+    """The most bytes a chunk file of ``array`` can take: the raw bytes of its rows (from the array's shape, chunks
+    and dtype) plus Blosc, checksum and shard-index overhead (:data:`CHUNK_OVERHEAD_BYTES` per inner chunk and
+    1/8 of the raw size). A larger file is damage, refused before zarr reads it whole."""
+    per = rows_per_file(array)
+    raw = per * int(np.prod(array.shape[1:], dtype=np.int64)) * int(np.dtype(array.dtype).itemsize)
+    outer = (per, *array.shape[1:])
+    inner = int(np.prod([-(-o // max(int(c), 1)) for o, c in zip(outer, array.chunks)], dtype=np.int64))
+    return raw + raw // 8 + (inner + 1) * CHUNK_OVERHEAD_BYTES
+
+
 def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.ndarray:
     """``array[lo:hi]``, rows of one object (``owner``, named in errors), with every chunk checked: its file
-    present and not empty, its checksum matching (zarr's ``crc32c`` codec).
+    present, a regular file, not empty and not larger than its rows can take (:func:`max_chunk_file_bytes`),
+    its checksum matching (zarr's ``crc32c`` codec).
 
     Raises:
-        DatasetError: a missing, empty or damaged chunk.
+        DatasetError: a missing, empty, oversized or damaged chunk.
     """
+    most = None
     for file in chunk_files(path, name, array, lo, hi):
         try:
-            size = file.stat().st_size if file.is_file() else 0
+            info = file.stat()
+            size = info.st_size if stat.S_ISREG(info.st_mode) else 0
         except OSError:
             size = 0
         if size == 0:
             raise DatasetError(_damage(path, owner, f"its {name} chunk {file.relative_to(path).as_posix()} is missing"))
+        most = max_chunk_file_bytes(array) if most is None else most
+        if size > most:
+            raise DatasetError(_damage(path, owner, f"its {name} chunk {file.relative_to(path).as_posix()} is {size} "
+                                                    f"bytes, more than its rows can take ({most})"))
     try:
         return array[lo:hi]
     except MemoryError:
@@ -503,7 +647,8 @@ def write_record(path: Path, index: int, record: dict) -> None:
 
 def read_records(path: Path, n_objects: int) -> dict[int, dict]:
     """All readable records, by object index. A record that cannot be parsed (it cannot be half-written,
-    but it could be damaged by hand) is ignored with a warning: its object counts as not done."""
+    but it could be damaged by hand; :func:`read_json`: not a regular file, too large, too deeply nested) is ignored
+    with a warning: its object counts as not done."""
     records = {}
     folder = Path(path) / RECORDS
     if not folder.is_dir():
@@ -511,7 +656,7 @@ def read_records(path: Path, n_objects: int) -> dict[int, dict]:
     for file in folder.glob("[0-9]*.json"):
         try:
             index = int(file.stem)
-            record = json.loads(file.read_text(encoding="utf-8"))
+            record = read_json(file)
         except (OSError, ValueError) as exc:
             log.warning("%s: ignoring unreadable record (%s)", file, exc)
             continue
@@ -528,6 +673,7 @@ __all__ = [
     "array_digest",
     "check_arrays",
     "check_settings",
+    "check_store_files",
     "chunk_files",
     "contour_seed",
     "create_store",
@@ -535,9 +681,11 @@ __all__ = [
     "encode_frames",
     "frame_encoding",
     "layout_of",
+    "max_chunk_file_bytes",
     "open_for_writing",
     "pair_order_seed",
     "read_attrs",
+    "read_json",
     "read_records",
     "read_rows",
     "remove_stale_creations",
