@@ -98,8 +98,6 @@ SCHEDULES = ("onecycle", "constant")
 MODALITY_RULES = ("product", "sum")
 #: Most CPU threads a model may ask for (an OpenMP runtime asked for a million dies allocating their stacks).
 MAX_THREADS = 1024
-#: Arithmetic of the cutaneous net's training steps (:class:`CNNClassifier` ``precision``).
-PRECISIONS = ("auto", "float32", "bfloat16")
 #: Standardised inputs are clipped to this many standard deviations (no overflow on absurd readings).
 INPUT_CLIP = 20.0
 #: Invariant cue channels whose sign flips with the contour's direction (standardised without centring).
@@ -203,15 +201,6 @@ def _torch_settings(threads: int | None, deterministic: bool) -> Iterator[None]:
         torch.utils.deterministic.fill_uninitialized_memory = old_fill
 
 
-def native_bfloat16() -> bool:
-    """Whether this CPU has native bfloat16 kernels (oneDNN: AVX512-BF16 or AMX); without them bfloat16 is
-    emulated and slower than float32."""
-    try:
-        return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
-    except (AttributeError, RuntimeError):  # a build without oneDNN or without the query
-        return False
-
-
 def default_threads() -> int:
     """The CPU cores this process may use (the affinity mask where the platform has one)."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -268,11 +257,6 @@ class CNNClassifier(TactileClassifier):
         max_steps: most optimizer steps per net (None: no cap): on a large training set the epochs are cut to
             the fewest whose steps reach it (the schedule then spans those epochs); small sets train all
             ``epochs``.
-        precision: the cutaneous net's training steps (forward and backward) in ``"float32"`` or under bfloat16
-            autocast (``"bfloat16"``; weights, optimizer and batch norm stay float32); ``"auto"`` (the default):
-            bfloat16 on a CPU with native bfloat16 kernels (:func:`native_bfloat16`), else float32. The kinesthetic
-            net, whose small steps cost Python rather than arithmetic, and prediction are always float32. See the
-            module docstring for what bfloat16 changed.
 
     Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
@@ -293,7 +277,7 @@ class CNNClassifier(TactileClassifier):
                  patience: int = 6, val_fraction: float = 0.0, random_state: int = 0, device: str = "auto",
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
                  frame_size: int = 16, augment: bool | str = "both", test_views: int = 1,
-                 modality_rule: str = "product", max_steps: int | None = 5000, precision: str = "auto", **renamed):
+                 modality_rule: str = "product", max_steps: int | None = 5000, **renamed):
         random_state = renamed_seed(renamed, random_state, type(self).__name__)
         self.cue = cue
         self.epochs = epochs
@@ -314,7 +298,6 @@ class CNNClassifier(TactileClassifier):
         self.test_views = test_views
         self.modality_rule = modality_rule
         self.max_steps = max_steps
-        self.precision = precision
 
     # ------------------------------------------------------------------------------------ checks
     def _check_params(self) -> None:
@@ -349,8 +332,6 @@ class CNNClassifier(TactileClassifier):
                                          or not 1 <= self.threads <= MAX_THREADS):
             raise InvalidArgumentError(f"CNNClassifier: threads must be None or an integer in [1, {MAX_THREADS}], got "
                                        f"{self.threads!r}")
-        if self.precision not in PRECISIONS:
-            raise InvalidArgumentError(f"CNNClassifier: precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
@@ -493,7 +474,6 @@ class CNNClassifier(TactileClassifier):
         net.to(device)
         opt, scheduler = self._optimizer(net, len(train_idx))
         y_t = torch.from_numpy(y.astype(np.int64))
-        bfloat16 = self._bfloat16(kind, device)
         best, best_state, best_epoch, since = (-1.0, np.inf), None, 0, 0
         epoch_times, curve = [], []
         epochs = progress_bar(range(self.epochs_for(len(train_idx))), enabled=self.progress, desc=f"train {kind}",
@@ -510,9 +490,7 @@ class CNNClassifier(TactileClassifier):
                 xb = x[idx].to(device, torch.float32)
                 if augment:
                     xb = self._augment(xb, kind, gen)
-                with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bfloat16):
-                    logits = net(xb)
-                loss = F.cross_entropy(logits.float(), y_t[idx].to(device), label_smoothing=self.label_smoothing)
+                loss = F.cross_entropy(net(xb), y_t[idx].to(device), label_smoothing=self.label_smoothing)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
@@ -544,12 +522,6 @@ class CNNClassifier(TactileClassifier):
         return {"epochs": epoch + 1, "best_epoch": best_epoch + 1,
                 "val_accuracy": None if len(val_idx) == 0 else best[0], "val_curve": curve,
                 "epoch_seconds": float(np.median(epoch_times)) if epoch_times else 0.0}
-
-    def _bfloat16(self, kind: str, device: torch.device) -> bool:
-        """Whether ``kind``'s training steps run under bfloat16 autocast (``precision``)."""
-        if kind != "cutaneous" or self.precision == "float32":
-            return False
-        return self.precision == "bfloat16" or (device.type == "cpu" and native_bfloat16())
 
     def _steps_per_epoch(self, n_train: int) -> int:
         """Optimizer steps in one epoch of ``n_train`` sequences (a last batch of one is skipped: batch norm)."""
@@ -687,7 +659,7 @@ class CNNClassifier(TactileClassifier):
     _NETS = ("cutaneous", "kinesthetic")
     #: Files written before a parameter existed: what those models were trained or predict with (the sum; no
     #: step cap).
-    OLDER_FILE_PARAMS: ClassVar[dict] = {"modality_rule": "sum", "max_steps": None, "precision": "float32"}
+    OLDER_FILE_PARAMS: ClassVar[dict] = {"modality_rule": "sum", "max_steps": None}
 
     def _model_state(self, arrays: dict[str, np.ndarray]) -> dict:
         """Plain fitted attributes, and each trained net's state dict as tensors ``<net>.<parameter>``."""
@@ -759,5 +731,5 @@ class CNNClassifier(TactileClassifier):
             setattr(self, f"{kind}_net_", net)
 
 
-__all__ = ["MODALITIES", "MODALITY_RULES", "PRECISIONS", "SCHEDULES", "CNNClassifier", "CutaneousNet", "KinestheticNet",
-           "fuse_modalities", "native_bfloat16", "pool_frames"]
+__all__ = ["MAX_THREADS", "MODALITIES", "MODALITY_RULES", "SCHEDULES", "CNNClassifier", "CutaneousNet",
+           "KinestheticNet", "fuse_modalities", "pool_frames"]

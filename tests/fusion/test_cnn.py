@@ -416,42 +416,6 @@ def test_older_model_files_load_as_trained_without_a_step_cap(tmp_path):
     del description["params"]["dict"]["max_steps"]  # a file written before the cap was a parameter
     assert load_model(write_model_file(tmp_path / "old.vtm", description, arrays)).max_steps is None
 
-    description, arrays = read_model_file(model.save(tmp_path / "new.vtm"))
-    del description["params"]["dict"]["precision"]  # a file written before the precision was a parameter
-    assert load_model(write_model_file(tmp_path / "older.vtm", description, arrays)).precision == "float32"
-
-
-@pytest.mark.parametrize("precision,native,cutaneous", [("float32", True, torch.float32),
-                                                         ("bfloat16", False, torch.bfloat16),
-                                                         ("auto", True, torch.bfloat16),
-                                                         ("auto", False, torch.float32)])
-def test_precision_sets_the_cutaneous_training_arithmetic(monkeypatch, precision, native, cutaneous):
-    """The cutaneous net's training convolutions run in the asked arithmetic ("auto": bfloat16 where the CPU has
-    it natively); the kinesthetic net's and every prediction's stay float32; the weights stay float32."""
-    monkeypatch.setattr(cnn_module, "native_bfloat16", lambda: native)
-    seen = {"cutaneous": set(), "kinesthetic": set()}
-    originals = {cls: cls.features for cls in (cnn_module.CutaneousNet, cnn_module.KinestheticNet)}
-
-    def recording(kind, cls):
-        def features(self, x):
-            seen[kind].add((self.training, self.conv1(cnn_module._circular_probes(x)).dtype))
-            return originals[cls](self, x)
-        return features
-
-    monkeypatch.setattr(cnn_module.CutaneousNet, "features", recording("cutaneous", cnn_module.CutaneousNet))
-    monkeypatch.setattr(cnn_module.KinestheticNet, "features", recording("kinesthetic", cnn_module.KinestheticNet))
-    batch = make_batch(n_per_class=4)
-    model = CNNClassifier(**{**FAST, "epochs": 1, "precision": precision}).fit(batch)
-    model.predict_proba(batch)
-    assert seen["cutaneous"] == {(True, cutaneous), (False, torch.float32)}
-    assert seen["kinesthetic"] == {(True, torch.float32), (False, torch.float32)}
-    assert all(p.dtype == torch.float32 for p in model.cutaneous_net_.parameters())
-
-
-def test_an_unknown_precision_is_refused():
-    with pytest.raises(InvalidArgumentError, match="precision must be one of"):
-        CNNClassifier(**{**FAST, "precision": "float16"}).fit(make_batch(n_per_class=4))
-
 
 def test_paper_recipe_is_plain_adam_at_a_constant_rate(monkeypatch):
     made = []
