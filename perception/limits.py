@@ -51,6 +51,8 @@ LIMITS: dict[str, Limit] = {
     "views": Limit("VISUOTACTILE_MAX_VIEWS", 1_000, "camera views"),
     "frames": Limit("VISUOTACTILE_MAX_FRAMES", 10_000, "frames in a recording"),
     "image_pixels": Limit("VISUOTACTILE_MAX_IMAGE_PIXELS", 40_000_000, "pixels per image"),
+    # A parsed mesh or point file takes about 3.5 times its size in memory; a 16k-triangle scan is 1-2 MB.
+    "file_mb": Limit("VISUOTACTILE_MAX_FILE_MB", 512, "MB per mesh or point file"),
     "memory_mb": Limit("VISUOTACTILE_MAX_MEMORY_MB", 0, "MB in one allocation"),  # 0: half of the memory
 }
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from perception.errors import InvalidMeshError, MeshLoadError
+from perception.limits import LIMITS, limit
 
 log = logging.getLogger(__name__)
 
@@ -40,10 +41,11 @@ class RawMesh:
 
 
 def check_file(path: str | Path, kind: str, suffixes) -> tuple[Path, str]:
-    """``path`` as a Path and its lower-case suffix, after checking it names a non-empty file of a known type.
+    """``path`` as a Path and its lower-case suffix, after checking it names a non-empty file of a known type and
+    of at most the ``file_mb`` limit (:mod:`perception.limits`; checked from its size, before it is read).
 
     Raises:
-        MeshLoadError: missing, a directory, an unknown suffix, or empty; the message names ``kind``.
+        MeshLoadError: missing, a directory, an unknown suffix, empty or too large; the message names ``kind``.
     """
     path = Path(path)
     if not path.exists():
@@ -53,8 +55,13 @@ def check_file(path: str | Path, kind: str, suffixes) -> tuple[Path, str]:
     suffix = path.suffix.lower()
     if suffix not in suffixes:
         raise MeshLoadError(f"{path}: unknown {kind} type {suffix!r} (expected one of {sorted(suffixes)})")
-    if path.stat().st_size == 0:
+    size = path.stat().st_size
+    if size == 0:
         raise MeshLoadError(f"{path}: file is empty")
+    top = limit("file_mb")
+    if size > top * 2**20:
+        raise MeshLoadError(f"{path}: {size / 2**20:,.0f} MB, above the limit of {top:,} MB per {kind} file (set "
+                            f"{LIMITS['file_mb'].env} to raise it)")
     return path, suffix
 
 

@@ -145,6 +145,28 @@ def test_missing_file_and_directory(tmp_path):
         load_object(tmp_path / "dir.off")
 
 
+@pytest.mark.parametrize("suffix", [".off", ".obj", ".ply", ".stl"])
+def test_a_file_above_the_size_limit_is_refused_unread(tmp_path, monkeypatch, suffix):
+    """A sparse 3 MB file over a 2 MB limit: refused from its size (the message names the file, the limit and the
+    variable), before any byte is read."""
+    monkeypatch.setenv("VISUOTACTILE_MAX_FILE_MB", "2")
+    path = tmp_path / f"big{suffix}"
+    with open(path, "wb") as f:
+        f.truncate(3 * 2**20)
+    real_open = open
+    with monkeypatch.context() as unread, pytest.raises(MeshLoadError, match="3 MB, above the limit of 2 MB per mesh "
+                                                                            "file") as info:
+        unread.setattr("builtins.open", lambda *a, **k: pytest.fail(f"opened {a[0]}") if str(a[0]) == str(path)
+                       else real_open(*a, **k))
+        unread.setattr(type(path), "read_bytes", lambda self: pytest.fail(f"read {self}"))
+        load_object(path)
+    assert "big" in str(info.value) and "VISUOTACTILE_MAX_FILE_MB" in str(info.value)
+    monkeypatch.setenv("VISUOTACTILE_MAX_FILE_MB", "4")  # within the limit: past the size check, to the parser
+    with pytest.raises(MeshLoadError) as info:
+        load_object(path)
+    assert "limit" not in str(info.value)
+
+
 @pytest.mark.parametrize(
     ("vertices", "triangles", "words"),
     [
