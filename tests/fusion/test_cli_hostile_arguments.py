@@ -11,8 +11,7 @@ import pytest
 
 from fusion.cli import SEED_MAX, main
 from perception.errors import InvalidArgumentError
-from tactile.dataset import generate
-from tactile.sensor import FSRSensor
+from tests._small_store import small_knn_model, small_store
 
 MESH = ("OFF\n8 6 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n"
         "4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 1 2 6 5\n4 2 3 7 6\n4 3 0 4 7\n")
@@ -23,18 +22,12 @@ needs_proc = pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs L
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("cli-args") / "small.zarr"
-    generate([("box", 0), ("ring", 0)], out, strategies=("blind",), contours_per_object=6,
-             sensor=FSRSensor(rows=8, cols=8), probes=6, seed=0, workers=1, progress=False)
-    return out
+    return small_store(tmp_path_factory.mktemp("cli-args") / "small.zarr")
 
 
 @pytest.fixture(scope="module")
 def model(store, tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("cli-args-model") / "knn.vtm"
-    assert main(["train", "--store", str(store), "--model", "knn", "--out", str(path), "--split", "none",
-                 "--no-progress"]) == 0
-    return path
+    return small_knn_model(store, tmp_path_factory.mktemp("cli-args-model") / "knn.vtm")
 
 
 @pytest.fixture

@@ -20,18 +20,15 @@ from fusion.cli import main
 from fusion.cnn import CNNClassifier
 from fusion.modelfile import FORMAT_NAME, content_digest
 from perception.errors import InvalidArgumentError, ModelFileError
-from tactile.dataset import generate, open_dataset
-from tactile.sensor import FSRSensor
+from tactile.dataset import open_dataset
+from tests._small_store import small_store
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("cnn-params") / "small.zarr"
-    generate([("box", 0), ("ring", 0)], out, strategies="blind", contours_per_object=6,
-             sensor=FSRSensor(rows=8, cols=8), probes=6, seed=0, workers=1, progress=False)
-    return out
+    return small_store(tmp_path_factory.mktemp("cnn-params") / "small.zarr")
 
 
 @pytest.fixture(scope="module")

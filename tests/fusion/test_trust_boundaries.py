@@ -22,24 +22,19 @@ from fusion.cli import main
 from perception.limits import LIMITS
 from tactile.dataset import generate
 from tactile.sensor import FSRSensor
+from tests._small_store import small_knn_model, small_store
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("boundaries") / "small.zarr"
-    generate([("box", 0), ("ring", 0)], out, strategies="blind", contours_per_object=6,
-             sensor=FSRSensor(rows=8, cols=8), probes=6, seed=0, workers=1, progress=False)
-    return out
+    return small_store(tmp_path_factory.mktemp("boundaries") / "small.zarr")
 
 
 @pytest.fixture(scope="module")
 def model(store, tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("boundaries-model") / "knn.vtm"
-    assert main(["train", "--store", str(store), "--model", "knn", "--out", str(path), "--split", "none",
-                 "--no-progress"]) == 0
-    return path
+    return small_knn_model(store, tmp_path_factory.mktemp("boundaries-model") / "knn.vtm")
 
 
 def one_line(capsys, code: int, argv: list[str], *expect: str) -> str:

@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from fusion.cli import main
-from tactile.dataset import generate
 from tactile.sensor import FSRSensor
+from tests._small_store import small_knn_model, small_store
 
 ROOT = Path(__file__).resolve().parents[2]
 OBJECTS = [("box", 0), ("ring", 0)]
@@ -27,17 +27,12 @@ NESTED = "[" * 100_000 + "]" * 100_000
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("untrusted") / "small.zarr"
-    generate(OBJECTS, out, **SETTINGS)
-    return out
+    return small_store(tmp_path_factory.mktemp("untrusted") / "small.zarr")
 
 
 @pytest.fixture(scope="module")
 def model(store, tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("untrusted-model") / "knn.vtm"
-    assert main(["train", "--store", str(store), "--model", "knn", "--out", str(path), "--split", "none",
-                 "--no-progress"]) == 0
-    return path
+    return small_knn_model(store, tmp_path_factory.mktemp("untrusted-model") / "knn.vtm")
 
 
 @pytest.fixture
