@@ -81,14 +81,24 @@ def _read_png(path: Path, what: str, root: Path | None = None) -> np.ndarray:
         raise DatasetError(f"{path}: cannot read {what} image ({type(exc).__name__}: {exc})") from None
 
 
+#: What a PNG file may hold beyond its pixels stored uncompressed (8 bytes each at most, with a filter byte per row):
+#: chunk headers, palettes, text. A larger file is refused before it is decoded.
+PNG_SPARE_BYTES = 2**20
+
+
 def _check_image_size(path: Path, what: str, size: tuple[int, int]) -> None:
     """Refuse an image larger than the ``image_pixels`` limit (and what its float64 copy would take) from its
-    header, before decoding: a small PNG can hold a huge image of zeros."""
+    header, before decoding: a small PNG can hold a huge image of zeros; and a file larger than its pixels can
+    take uncompressed (:data:`PNG_SPARE_BYTES`): a small image can carry gigabytes of other chunks."""
     from perception.limits import check_bytes, check_count
 
     width, height = size
     check_count("image_pixels", width * height, f"{path}: {what} image of {width} x {height} pixels", DatasetError)
     check_bytes(width * height * 8, f"{path}: decoding the {width} x {height} {what} image", DatasetError)
+    most = (width * 8 + 1) * height + PNG_SPARE_BYTES
+    if path.stat().st_size > most:
+        raise DatasetError(f"{path}: {what} image file of {path.stat().st_size} bytes, more than a {width} x {height} "
+                           f"image can take ({most}); refused undecoded")
 
 
 def _number(meta: dict, key: str, default: float, where: Path, positive: bool = False) -> float:

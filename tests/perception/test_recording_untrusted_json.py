@@ -69,6 +69,21 @@ def test_an_oversized_frame_json_is_refused_from_its_size(recording):
         read_recording(recording)
 
 
+
+@pytest.mark.parametrize("image,what", [("color", "colour"), ("depth", "depth")])
+def test_a_png_far_larger_than_its_pixels_is_refused_undecoded(recording, image, what):
+    """A 32 x 24 image followed by 8 MiB of other bytes (a sparse tail): refused from the file's size, which no
+    image of that size can need, before PIL decodes anything."""
+    from perception.camera.recording import PNG_SPARE_BYTES
+
+    (path,) = [p for p in recording.iterdir() if p.suffix == ".png" and image in p.name]
+    with open(path, "r+b") as f:
+        f.truncate(path.stat().st_size + 8 * 2**20)
+    most = (32 * 8 + 1) * 24 + PNG_SPARE_BYTES
+    with pytest.raises(DatasetError, match=rf"{path.name}: {what} image file of \d+ bytes, more than a 32 x 24 image "
+                                           rf"can take \({most}\)"):
+        read_recording(recording)
+
 def test_an_oversized_sparse_frame_json_is_refused_without_reading(recording, monkeypatch):
     path = _frame_json(recording)
     with open(path, "r+b") as f:
