@@ -30,8 +30,11 @@ message to regenerate them: damage in them would read as zeros.
 
 A store's files are untrusted input: opening one (:func:`read_attrs`) lists it once and refuses FIFOs, devices,
 sockets and symlinks out of it before anything is read (:func:`check_store_files`); JSON files are read without
-blocking, bounded by :data:`MAX_JSON_BYTES` and refused when nested too deeply (:func:`read_json`), and a chunk
-file larger than its rows can take is damage, refused before it is read (:func:`max_chunk_file_bytes`).
+blocking, bounded by :data:`MAX_JSON_BYTES` and refused when nested too deeply (:func:`read_json`), a chunk
+file larger than its rows can take is damage, refused before it is read (:func:`max_chunk_file_bytes`), and so is a
+chunk whose Blosc header declares another size than its rows' raw bytes (a "decompression bomb": a few KB declaring
+gigabytes), refused from its header before zarr decodes it, as is a shard index entry outside its shard; an array
+whose codecs are not those :func:`create_store` writes is refused (:func:`read_rows`).
 """
 
 from __future__ import annotations
@@ -41,9 +44,11 @@ import functools
 import hashlib
 import json
 import logging
+import math
 import os
 import shutil
 import stat
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -80,6 +85,15 @@ MAX_JSON_BYTES = 16 << 20
 #: incompressible-data overhead (at most 16 bytes + a margin of 1/8 here), the CRC-32C and, in a shard, the index
 #: entry of each inner chunk, with room to spare.
 CHUNK_OVERHEAD_BYTES = 1024
+#: A Blosc (1.x) frame starts with a 16-byte header: version, codec version, flags and type size (1 byte each), then
+#: little-endian uint32s: ``nbytes`` (its size once decompressed) at 4, the block size at 8 and ``cbytes`` (the frame's
+#: own size) at 12. Blosc allocates ``nbytes`` before decompressing: :func:`read_rows` checks it first.
+BLOSC_HEADER_BYTES = 16
+#: The CRC-32C that ends every chunk and the shard index (zarr's ``crc32c`` codec).
+CRC_BYTES = 4
+#: One entry of a shard index: (offset, length) of an inner chunk in the shard, little-endian uint64s; both
+#: 2**64 - 1 for an absent one.
+SHARD_ENTRY_BYTES = 16
 #: Files of a store are listed when it is opened (:func:`check_store_files`); a store of a few hundred files
 #: lists in about a millisecond. More entries than its settings account for (twice, plus this) are refused.
 SPARE_STORE_ENTRIES = 1024
@@ -592,25 +606,40 @@ def max_chunk_file_bytes(array) -> int:
 
 def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.ndarray:
     """``array[lo:hi]``, rows of one object (``owner``, named in errors), with every chunk checked: its file
-    present, a regular file, not empty and not larger than its rows can take (:func:`max_chunk_file_bytes`),
-    its checksum matching (zarr's ``crc32c`` codec).
+    present, a regular file, not empty and not larger than its rows can take (:func:`max_chunk_file_bytes`), the
+    Blosc header of each chunk to decode declaring the raw size of that chunk (checked from a few bytes of the file
+    before zarr decodes it: a small chunk declaring gigabytes would be decompressed in full first), and its checksum
+    matching (zarr's ``crc32c`` codec).
 
     Raises:
-        DatasetError: a missing, empty, oversized or damaged chunk.
+        DatasetError: a missing, empty, oversized or damaged chunk; an array whose codecs are not those
+        :func:`create_store` writes.
     """
-    most = None
-    for file in chunk_files(path, name, array, lo, hi):
+    plan = _chunk_plan(path, name, array)
+    per = plan.per
+    for index, file in enumerate(chunk_files(path, name, array, lo, hi), start=lo // per):
         try:
-            info = file.stat()
-            size = info.st_size if stat.S_ISREG(info.st_mode) else 0
-        except OSError:
-            size = 0
-        if size == 0:
-            raise DatasetError(_damage(path, owner, f"its {name} chunk {file.relative_to(path).as_posix()} is missing"))
-        most = max_chunk_file_bytes(array) if most is None else most
-        if size > most:
-            raise DatasetError(_damage(path, owner, f"its {name} chunk {file.relative_to(path).as_posix()} is {size} "
-                                                    f"bytes, more than its rows can take ({most})"))
+            fd = os.open(file, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+        except (FileNotFoundError, NotADirectoryError):
+            fd = None
+        except OSError as exc:
+            raise DatasetError(_damage(path, owner, f"its {name} chunk {_key_of(path, file)} cannot be read "
+                                                    f"({exc.strerror})")) from None
+        try:
+            info = os.fstat(fd) if fd is not None else None
+            size = info.st_size if info is not None and stat.S_ISREG(info.st_mode) else 0
+            if size == 0:
+                raise DatasetError(_damage(path, owner, f"its {name} chunk {_key_of(path, file)} is missing"))
+            if size > plan.most:
+                raise DatasetError(_damage(path, owner, f"its {name} chunk {_key_of(path, file)} is {size} bytes, "
+                                                        f"more than its rows can take ({plan.most})"))
+            first = index * per
+            problem = _header_problem(fd, size, plan, max(lo, first) - first, min(hi, first + per) - first)
+            if problem:
+                raise DatasetError(_damage(path, owner, f"its {name} chunk {_key_of(path, file)} {problem}"))
+        finally:
+            if fd is not None:
+                os.close(fd)
     try:
         return array[lo:hi]
     except MemoryError:
@@ -618,6 +647,135 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.
     except Exception as exc:  # noqa: BLE001 -- zarr and its codecs raise several types for damaged chunks
         raise DatasetError(_damage(path, owner, f"its {name} rows {lo}..{hi - 1} do not read back "
                                                 f"({type(exc).__name__}: {str(exc)[:160]})")) from None
+
+
+@dataclass(frozen=True)
+class _ChunkPlan:
+    """How the chunks of one array lie in its files: ``per`` rows and at most ``most`` bytes
+    (:func:`max_chunk_file_bytes`) in each file, ``raw`` bytes in each (inner) chunk; for a sharded array, ``inner``
+    chunks per shard, ``inner_rows`` rows per inner chunk and ``per_row`` index entries per inner row."""
+
+    per: int
+    most: int
+    raw: int
+    inner: int = 0
+    inner_rows: int = 1
+    per_row: int = 1
+
+
+#: id(array metadata) -> (that metadata, its plan): zarr's metadata objects are immutable, and held here their ids
+#: are not reused; a DataLoader reading one sequence at a time then skips rebuilding the plan (~20 us).
+_PLANS: dict[int, tuple[object, _ChunkPlan]] = {}
+
+
+def _chunk_plan(path: Path, name: str, array) -> _ChunkPlan:
+    """The :class:`_ChunkPlan` of ``array``, after checking that its codecs are those :func:`create_store` writes
+    (bytes, Blosc, CRC-32C; in shards with a little-endian, checksummed index at their end): metadata naming
+    another compressor could decode a small file to gigabytes unchecked, another index layout be read otherwise
+    here than by zarr. Cached by the array's metadata object.
+
+    Raises:
+        DatasetError: other codecs (naming the array).
+    """
+    metadata = array.metadata
+    cached = _PLANS.get(id(metadata))
+    if cached is not None and cached[0] is metadata:
+        return cached[1]
+    plan = _new_chunk_plan(path, name, array)
+    if len(_PLANS) >= 64:
+        _PLANS.clear()
+    _PLANS[id(metadata)] = (metadata, plan)
+    return plan
+
+
+def _new_chunk_plan(path: Path, name: str, array) -> _ChunkPlan:
+    from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec, ShardingCodec, ShardingCodecIndexLocation
+
+    def kinds(codecs) -> tuple:
+        return tuple(type(codec) for codec in codecs)
+
+    chunk = (BytesCodec, BloscCodec, Crc32cCodec)
+    codecs = tuple(array.metadata.codecs)
+    sharded = bool(getattr(array, "shards", None))
+    if sharded:
+        sharding = codecs[0] if len(codecs) == 1 and type(codecs[0]) is ShardingCodec else None
+        ok = (sharding is not None and kinds(sharding.codecs) == chunk
+              and kinds(sharding.index_codecs) == (BytesCodec, Crc32cCodec)
+              and str(getattr(sharding.index_codecs[0].endian, "value", "")) == "little"
+              and sharding.index_location == ShardingCodecIndexLocation.end)
+    else:
+        ok = kinds(codecs) == chunk
+    if not ok:
+        raise DatasetError(f"{path}: the {name!r} array's codecs ({', '.join(type(c).__name__ for c in codecs)}) are "
+                           "not those generate() writes: the metadata was edited or damaged; regenerate the store")
+    inner_shape = tuple(int(c) for c in array.chunks)
+    raw = math.prod(inner_shape) * int(np.dtype(array.dtype).itemsize)
+    per, most = rows_per_file(array), max_chunk_file_bytes(array)
+    if not sharded:
+        return _ChunkPlan(per, most, raw)
+    counts = [-(-int(s) // max(c, 1)) for s, c in zip(array.shards, inner_shape)]
+    return _ChunkPlan(per, most, raw, math.prod(counts), max(inner_shape[0], 1), math.prod(counts[1:]))
+
+
+def _header_problem(fd: int, size: int, plan: _ChunkPlan, lo: int, hi: int) -> str | None:
+    """What is wrong with the chunk file ``fd`` (``size`` bytes) for reading its rows ``lo:hi`` (counted in the file),
+    or None: a Blosc header (:data:`BLOSC_HEADER_BYTES`) declaring another decompressed size than the chunk's raw
+    bytes, or another frame size than the chunk's; in a shard, an index entry of those rows outside its chunk data.
+    Reads the headers and index entries only, a few bytes each. Only when one is wrong are the index and that chunk
+    read (bounded: the file's size was checked) to check their checksums: with a checksum that fails, the damage is
+    left to zarr, which checks it before decoding anything (and says so). Absent inner chunks are left to zarr too:
+    it reads them as zeros, decoding nothing, and the object's digests tell."""
+    if not plan.inner:
+        problem = _frame_problem(fd, 0, size, plan.raw)
+        return problem if problem and _checksum_holds(fd, 0, size) else None
+    index_bytes = plan.inner * SHARD_ENTRY_BYTES + CRC_BYTES
+    data_end = size - index_bytes
+    if data_end < 0:
+        return None  # zarr reads no index from it: damage it reports, decoding nothing
+    first, last = lo // plan.inner_rows, (hi - 1) // plan.inner_rows + 1
+    want = (last - first) * plan.per_row * SHARD_ENTRY_BYTES
+    entries = os.pread(fd, want, data_end + first * plan.per_row * SHARD_ENTRY_BYTES)
+    absent = 2**64 - 1
+    for k, (offset, length) in enumerate(struct.iter_unpack("<QQ", entries[:want - want % SHARD_ENTRY_BYTES])):
+        if offset == absent and length == absent:
+            continue
+        where = f"(inner chunk {first * plan.per_row + k})"
+        if offset > data_end or length > data_end - offset:
+            problem = f"{where} lies at bytes {offset}..{offset + length}, outside its {data_end} bytes of chunk data"
+            return problem if _checksum_holds(fd, data_end, index_bytes) else None
+        problem = _frame_problem(fd, offset, length, plan.raw)
+        if problem:
+            genuine = _checksum_holds(fd, data_end, index_bytes) and _checksum_holds(fd, offset, length)
+            return f"{where} {problem}" if genuine else None
+    return None
+
+
+def _frame_problem(fd: int, offset: int, length: int, raw: int) -> str | None:
+    """What is wrong with the chunk of ``length`` bytes at ``offset`` of ``fd`` (a Blosc frame, then its CRC-32C)
+    that must decompress to ``raw`` bytes, or None."""
+    header = os.pread(fd, BLOSC_HEADER_BYTES, offset) if length >= BLOSC_HEADER_BYTES + CRC_BYTES else b""
+    if len(header) != BLOSC_HEADER_BYTES:
+        return f"is {length} bytes, too short for a compressed chunk"
+    nbytes, _, cbytes = struct.unpack_from("<III", header, 4)
+    if nbytes != raw:
+        return f"declares {nbytes} bytes once decompressed, not the {raw} of its rows: refused undecoded"
+    if cbytes != length - CRC_BYTES:
+        return f"declares a compressed size of {cbytes} bytes, but holds {length - CRC_BYTES}: refused undecoded"
+    return None
+
+
+def _checksum_holds(fd: int, offset: int, length: int) -> bool:
+    """Whether the ``length`` bytes at ``offset`` of ``fd`` end in the CRC-32C of the others (zarr's ``crc32c``
+    codec). Reads them all: only for a chunk or index already found wrong, within a file of a checked size."""
+    import google_crc32c  # zarr's own crc32c codec uses it
+
+    data = os.pread(fd, length, offset) if length >= CRC_BYTES else b""
+    return len(data) == length >= CRC_BYTES and google_crc32c.value(data[:-CRC_BYTES]) == int.from_bytes(
+        data[-CRC_BYTES:], "little")
+
+
+def _key_of(path: Path, file: Path) -> str:
+    return file.relative_to(path).as_posix()
 
 
 def _damage(path: Path, owner: str, problem: str) -> str:
