@@ -15,12 +15,12 @@ import functools
 import hashlib
 import logging
 import os
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from perception import untrusted
 from perception.atomic import atomic_path
 from perception.errors import SaliencyError
 from perception.geometry import ObjectModel
@@ -92,17 +92,14 @@ class InterestPointCache:
         (never blocking: a FIFO or device is skipped), and its header is checked before any array is read."""
         path = self._path(self.key(model, method, seed, n))
         try:
-            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+            f = untrusted.open_regular(path, MAX_ENTRY_BYTES)
         except FileNotFoundError:
             return None
-        except OSError as exc:
-            log.warning("%s: unreadable interest-point cache entry (%s); computing again", path, exc)
+        except (OSError, ValueError) as exc:
+            log.warning("%s: unusable interest-point cache entry (%s); computing again", path, exc)
             return None
         try:
-            with os.fdopen(fd, "rb") as f:
-                info = os.fstat(f.fileno())
-                if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_ENTRY_BYTES:
-                    raise ValueError(f"not a regular file of at most {MAX_ENTRY_BYTES} bytes")
+            with f:
                 version = np.lib.format.read_magic(f)
                 if version not in ((1, 0), (2, 0)):
                     raise ValueError(f".npy format version {version}")

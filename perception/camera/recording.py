@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import re
 from pathlib import Path
 
 import numpy as np
 
+from perception import untrusted
 from perception.atomic import atomic_path, write_text
 from perception.camera.frame import Intrinsics, RGBDFrame
 from perception.errors import DatasetError, InvalidArgumentError
@@ -145,21 +145,9 @@ def _read_json(path: Path, root: Path | None = None, max_bytes: int = MAX_JSON_B
             not JSON, nested too deeply for the parser, or not an object.
     """
     _check_inside(path, root)
-    if path.exists() and not path.is_file():  # a FIFO or a device would block or never end
-        raise DatasetError(f"{path}: not a regular file")
     try:
-        with open(path, "rb") as f:
-            size = os.fstat(f.fileno()).st_size
-            if size > max_bytes:
-                raise DatasetError(f"{path}: {size} bytes, more than the {max_bytes} a recording's JSON file may "
-                                   "have (not a recording's metadata)")
-            raw = f.read(max_bytes + 1)
-        if len(raw) > max_bytes:  # not a regular file, or it grew
-            raise DatasetError(f"{path}: more than the {max_bytes} bytes a recording's JSON file may have")
-        data = json.loads(raw.decode("utf-8"))
-    except RecursionError:
-        raise DatasetError(f"{path}: cannot read JSON (nested too deeply)") from None
-    except (OSError, ValueError) as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors, as huge ints
+        data = untrusted.read_json(path, max_bytes)
+    except (OSError, ValueError) as exc:  # not a regular file, too large (unread), not JSON, nested too deeply
         raise DatasetError(f"{path}: cannot read JSON ({exc})") from None
     if not isinstance(data, dict):
         raise DatasetError(f"{path}: expected a JSON object")

@@ -56,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from perception import untrusted
 from perception.atomic import write_text
 from perception.errors import DatasetError
 
@@ -325,36 +326,15 @@ def store_lock(path: Path):
 
 
 def read_json(file: Path):
-    """The parsed JSON file ``file`` of a store (untrusted): opened without blocking and checked with ``fstat`` to
-    be a regular file (a FIFO or device is refused, never waited on) of at most :data:`MAX_JSON_BYTES` (refused
-    from its size, unread), and nesting too deep for the parser is refused.
+    """The parsed JSON file ``file`` of a store, at most :data:`MAX_JSON_BYTES` (:func:`perception.untrusted.read_json`:
+    a FIFO or device is refused, never waited on; a larger file is refused from its size, unread; nesting too deep
+    for the parser is refused).
 
     Raises:
         OSError: it cannot be opened or read; ValueError: any of the above, or not UTF-8 JSON (the problem only:
         callers name the file).
     """
-    fd = os.open(file, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
-    with os.fdopen(fd, "rb") as f:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise ValueError(f"not a regular file (a {_file_kind(info.st_mode)})")
-        if info.st_size > MAX_JSON_BYTES:
-            raise ValueError(f"{info.st_size} bytes, more than the {MAX_JSON_BYTES} a store's JSON file may hold")
-        data = f.read(MAX_JSON_BYTES + 1)
-    if len(data) > MAX_JSON_BYTES:
-        raise ValueError(f"more than the {MAX_JSON_BYTES} bytes a store's JSON file may hold")
-    try:
-        return json.loads(data.decode("utf-8"))
-    except RecursionError:
-        raise ValueError("JSON nested too deeply") from None
-
-
-def _file_kind(mode: int) -> str:
-    for test, kind in ((stat.S_ISFIFO, "FIFO"), (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
-                       (stat.S_ISSOCK, "socket"), (stat.S_ISDIR, "folder"), (stat.S_ISLNK, "symlink")):
-        if test(mode):
-            return kind
-    return "special file"
+    return untrusted.read_json(file, MAX_JSON_BYTES)
 
 
 #: The metadata files zarr may read in a store's folders (v3, and v2 when it guesses the format).
@@ -407,7 +387,7 @@ def check_store_files(path: Path, settings: dict) -> None:
                     folders.append(entry.path)
                 continue
             if not stat.S_ISREG(info.st_mode):
-                raise DatasetError(f"{_shown(path, root, entry.path)}: a {_file_kind(info.st_mode)}, not a regular "
+                raise DatasetError(f"{_shown(path, root, entry.path)}: a {untrusted.file_kind(info.st_mode)}, not a regular "
                                    "file: refused (reading it could block forever)")
             if entry.name in ZARR_METADATA and info.st_size > MAX_JSON_BYTES:
                 raise DatasetError(f"{_shown(path, root, entry.path)}: {info.st_size} bytes, more than the "

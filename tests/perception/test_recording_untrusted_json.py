@@ -44,7 +44,7 @@ def test_deeply_nested_json_is_a_dataset_error_naming_the_file(recording, which)
         (recording / "recording.json").unlink()
         path = recording / "camera.json"
     path.write_text('{"a": ' + DEEP + "}")
-    with pytest.raises(DatasetError, match=rf"{path.name}: cannot read JSON \(nested too deeply\)"):
+    with pytest.raises(DatasetError, match=rf"{path.name}: cannot read JSON \(JSON nested too deeply\)"):
         read_recording(recording)
 
 
@@ -64,7 +64,7 @@ def test_an_oversized_frame_json_is_refused_from_its_size(recording):
     with open(path, "a") as f:
         f.write(" " * (8 * 2**20))
     assert path.stat().st_size > MAX_JSON_BYTES
-    with pytest.raises(DatasetError, match=rf"frame_000000\.json: {path.stat().st_size} bytes, more than the "
+    with pytest.raises(DatasetError, match=rf"frame_000000\.json: cannot read JSON \({path.stat().st_size} bytes, more than the "
                                            rf"{MAX_JSON_BYTES}"):
         read_recording(recording)
 
