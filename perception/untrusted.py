@@ -43,17 +43,16 @@ def open_regular(path: str | Path, max_bytes: int) -> BinaryIO:
         file).
     """
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
-    f = os.fdopen(fd, "rb")
-    try:
+    try:  # checked on the raw descriptor: fdopen itself refuses a folder, and the descriptor must not leak
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):
             raise ValueError(f"not a regular file (a {file_kind(info.st_mode)})")
         if info.st_size > max_bytes:
             raise ValueError(f"{info.st_size} bytes, more than the {max_bytes} this file may hold")
+        return os.fdopen(fd, "rb")
     except BaseException:
-        f.close()
+        os.close(fd)
         raise
-    return f
 
 
 def read_json(path: str | Path, max_bytes: int):

@@ -17,7 +17,7 @@ from safetensors.numpy import save
 
 from fusion.base import load_model
 from fusion.cli import main
-from fusion.cnn import CNNClassifier
+from fusion.cnn import MAX_THREADS, CNNClassifier
 from fusion.modelfile import FORMAT_NAME, content_digest
 from perception.errors import InvalidArgumentError, ModelFileError
 from tactile.dataset import open_dataset
@@ -111,3 +111,24 @@ def test_finite_but_hostile_numbers_are_one_line_not_a_floating_point_traceback(
     assert main(["evaluate", "--model", str(path), "--store", str(store), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(path) in err[0], err
+
+
+@pytest.mark.parametrize("threads", [1, MAX_THREADS])
+def test_thread_counts_at_the_bounds_load(cnn_file, tmp_path, threads):
+    assert load_model(rewrite(cnn_file, tmp_path / "m.vtm", _param("threads", threads))).threads == threads
+
+
+def test_a_boolean_thread_count_is_refused_on_loading(cnn_file, tmp_path):
+    path = rewrite(cnn_file, tmp_path / "m.vtm", _param("threads", True))
+    with pytest.raises(ModelFileError, match="threads"):
+        load_model(path)
+
+
+def test_a_negative_batch_norm_variance_is_refused_on_loading(cnn_file, tmp_path):
+    def edit(description, arrays):
+        arrays["cutaneous.bn1.running_var"] = np.full_like(arrays["cutaneous.bn1.running_var"], -1.0)
+
+    path = rewrite(cnn_file, tmp_path / "m.vtm", edit)
+    with pytest.raises(ModelFileError, match=r"cutaneous\.bn1\.running_var holds negative variances") as info:
+        load_model(path)
+    assert str(path) in str(info.value)
