@@ -54,7 +54,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     from tactile.dataset import generate, open_dataset
 
     objects = _objects(args)
-    check_output_folder(args.out, "--out")
+    args.out = check_output_folder(args.out, "--out")
     report = generate(
         objects, args.out, strategies=tuple(args.strategies), contours_per_object=args.contours,
         probes=args.probes, seed=args.seed, workers=args.workers, executor=args.executor, strict=args.strict,
@@ -106,7 +106,8 @@ def register(sub) -> None:
     source.add_argument("--catalogue", type=int, metavar="N", help="N built-in objects per class (seeds 0..N-1)")
     p.add_argument("--classes", nargs="+", help="only these classes (default: all)")
     p.add_argument("--objects-per-class", type=int, metavar="N", help="with --data: the first N files of each class")
-    p.add_argument("--out", type=Path, required=True, help="the store folder (created, or resumed)")
+    # A string, checked in run(): Path("") would already read as the current folder.
+    p.add_argument("--out", required=True, help="the store folder (created, or resumed)")
     p.add_argument("--strategies", nargs="+", default=["guided", "blind"],
                    help="sampling strategies: blind, guided, mesh, iss (default: guided blind)")
     p.add_argument("--contours", type=int, default=950, help="contours per object and strategy (default: 950, the paper's)")

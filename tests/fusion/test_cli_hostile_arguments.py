@@ -153,3 +153,12 @@ def test_demo_epochs_below_one_are_refused_before_any_work(epochs, tmp_path, cap
     refused(capsys, ["demo", "--out", str(tmp_path / "demo"), "--epochs", str(epochs), "--no-progress"],
             "--epochs", str(epochs))
     assert not (tmp_path / "demo").exists()
+
+
+def test_generate_to_an_empty_out_is_refused_as_empty(tmp_path, capsys, monkeypatch):
+    """``--out ""`` is an empty path, not the current folder (it was read as ".", and refused as "not a store")."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["generate", "--catalogue", "2", "--contours", "2", "--out", ""]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--out: an empty path" in err[0], err
+    assert list(tmp_path.iterdir()) == []
