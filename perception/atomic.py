@@ -43,13 +43,39 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             os.remove(tmp)
 
 
+def _nearest_existing(path: Path) -> Path:
+    """``path`` if it exists, else its nearest existing parent (the folder a new file or folder goes in)."""
+    for candidate in (path, *path.parents):
+        if candidate.exists():
+            return candidate
+    return Path.cwd()
+
+
 def _name_max(folder: Path) -> int:
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
     try:
-        return os.pathconf(folder, "PC_NAME_MAX")
+        return os.pathconf(_nearest_existing(folder), "PC_NAME_MAX")
     except (OSError, ValueError):
         return 255
+
+
+def _check_writable(path: Path, what: str, place: Path) -> None:
+    """Refuse ``path`` when the nearest existing folder of ``place`` takes no new file: a file is really created and
+    removed there (``os.access`` says yes to root in ``/proc`` and ``/sys``, and on read-only mounts; writing is
+    the only sure test)."""
+    import tempfile
+
+    from perception.errors import InvalidArgumentError
+
+    place = _nearest_existing(place)
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".visuotactile-write-test-", dir=place)
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise InvalidArgumentError(f"{what} {str(path)!r}: cannot write in {str(place)!r} ({reason}); "
+                                   "give a place you can write to") from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.remove(probe)
 
 
 def _check_parents(path: Path, what: str) -> None:
@@ -64,7 +90,8 @@ def _check_parents(path: Path, what: str) -> None:
 
 def check_output_file(path, what: str = "output file") -> Path:
     """Check, before any work, that a file can be written atomically at ``path``: a non-empty name, not a folder, no
-    file where a parent folder must be, and a name short enough for the temporary name :func:`atomic_path` adds.
+    file where a parent folder must be, a name short enough for the temporary name :func:`atomic_path` adds, and
+    a folder that takes a new file (a real write test).
 
     Raises:
         InvalidArgumentError: naming ``what``, the path and the problem.
@@ -81,11 +108,13 @@ def check_output_file(path, what: str = "output file") -> Path:
     if longest > _name_max(path.parent):
         raise InvalidArgumentError(f"{what} {str(path)!r}: the name is too long ({len(os.fsencode(path.name))} bytes; "
                                    f"at most {_name_max(path.parent) - 11 - len(os.fsencode(path.suffix))} here)")
+    _check_writable(path, what, path.parent)
     return path
 
 
 def check_output_folder(path, what: str = "output folder") -> Path:
-    """Check, before any work, that ``path`` is or can become a folder (not a file, no file among its parents).
+    """Check, before any work, that ``path`` is or can become a folder (not a file, no file among its parents) in a
+    place that takes a new file (a real write test).
 
     Raises:
         InvalidArgumentError: naming ``what``, the path and the problem.
@@ -100,6 +129,7 @@ def check_output_folder(path, what: str = "output folder") -> Path:
     _check_parents(path, what)
     if len(os.fsencode(path.name)) > _name_max(path.parent):
         raise InvalidArgumentError(f"{what} {str(path)!r}: the name is too long")
+    _check_writable(path, what, path)
     return path
 
 

@@ -40,7 +40,7 @@ def check_camera_args(args: argparse.Namespace) -> None:
     Raises:
         InvalidArgumentError, ModelFileError: naming the option and the problem.
     """
-    from fusion.commands import check_output_folder
+    from perception.atomic import check_output_folder
     from perception.camera.virtual import MAX_DISTANCE_MM
     from perception.limits import check_count
 

@@ -9,8 +9,9 @@ from pathlib import Path
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
-    from fusion.commands import check_output_folder, print_json
+    from fusion.commands import print_json
     from fusion.demo import DEMO_SIZES, check_demo_sizes, run_demo
+    from perception.atomic import check_output_folder
 
     changes = {k: v for k, v in (("objects_per_class", args.objects_per_class), ("unseen_contours", args.contours),
                                  ("epochs", args.epochs)) if v is not None}  # Sizes refuses epochs < 1

@@ -28,13 +28,13 @@ def check_evaluate_args(args: argparse.Namespace) -> None:
 
 
 def check_figure(path, what: str = "--figure") -> None:
-    """A figure file to write: a writable place (:func:`fusion.commands.check_output_file`) and a format
+    """A figure file to write: a writable place (:func:`perception.atomic.check_output_file`) and a format
     matplotlib writes (:data:`FIGURE_SUFFIXES`), checked before any work (evaluate, recognize).
 
     Raises:
         InvalidArgumentError: naming the option, the path and the fix.
     """
-    from fusion.commands import check_output_file
+    from perception.atomic import check_output_file
     from perception.errors import InvalidArgumentError
 
     check_output_file(path, what)

@@ -50,7 +50,7 @@ def _store_bytes(path: Path) -> int:
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
-    from fusion.commands import check_output_folder
+    from perception.atomic import check_output_folder
     from tactile.dataset import generate, open_dataset
 
     objects = _objects(args)

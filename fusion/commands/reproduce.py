@@ -7,10 +7,11 @@ import sys
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
-    from fusion.commands import check_output_folder, print_json
+    from fusion.commands import print_json
     from fusion.evaluate import markdown_table
     from fusion.experiments import reproduce
     from fusion.experiments.report import pct, table1
+    from perception.atomic import check_output_folder
     from perception.errors import InvalidArgumentError
 
     out = args.out or ("out/reproduce-quick" if args.quick else "out/reproduce")

@@ -8,8 +8,8 @@ from fusion.commands import print_json
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
-    from fusion.commands import check_output_file
     from fusion.training import train_on_store
+    from perception.atomic import check_output_file
 
     check_output_file(args.out, "--out")  # before training, not after
     result = train_on_store(args.store, args.model, args.out, cue=args.cue, split=args.split,

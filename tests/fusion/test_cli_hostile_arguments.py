@@ -121,7 +121,7 @@ def test_output_folders_in_an_unwritable_place(capsys, command):
 
 
 def test_a_writable_place_is_left_as_it_was(tmp_path, capsys):
-    from fusion.commands import check_output_file, check_output_folder
+    from perception.atomic import check_output_file, check_output_folder
 
     check_output_file(tmp_path / "a" / "b" / "m.vtm", "--out")
     check_output_folder(tmp_path / "c" / "d", "--out")

@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
-from fusion.commands import check_output_file
+from perception.atomic import check_output_file
 from perception.camera import Intrinsics, RGBDFrame, look_at, read_recording, write_recording
 from perception.camera.recording import PNG_SPARE_BYTES
 from perception.errors import InvalidArgumentError, MeshLoadError

@@ -20,14 +20,11 @@ import pytest
 import zarr
 
 from perception.errors import DatasetError
-from tactile.dataset import generate, open_dataset
+from tactile.dataset import open_dataset
 from tactile.dataset.store import ARRAYS, max_chunk_file_bytes, read_rows
-from tactile.sensor import FSRSensor
+from tests._small_store import small_store
 
 ROOT = Path(__file__).resolve().parents[2]
-OBJECTS = [("box", 0), ("ring", 0)]
-SETTINGS = {"strategies": "blind", "contours_per_object": 6, "sensor": FSRSensor(rows=8, cols=8), "probes": 6,
-            "seed": 0, "workers": 1, "progress": False}
 ROWS = 6  # rows per object: one frames shard of 6 inner chunks, one chunk of each other array
 #: What a bomb declares once decompressed: thousands of times a chunk's raw bytes, yet its frame (one Blosc block of
 #: zstd blocks of zeros, a few bytes per 128 KB) fits a chunk file's size limit (max_chunk_file_bytes) here.
@@ -38,9 +35,7 @@ GROWTH_LIMIT = 12 << 20
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("bombs") / "small.zarr"
-    generate(OBJECTS, out, **SETTINGS)
-    return out
+    return small_store(tmp_path_factory.mktemp("bombs") / "small.zarr")
 
 
 @pytest.fixture

@@ -15,13 +15,9 @@ from pathlib import Path
 import pytest
 
 from fusion.cli import main
-from tactile.sensor import FSRSensor
-from tests._small_store import small_knn_model, small_store
+from tests._small_store import OBJECTS, small_knn_model, small_store
 
 ROOT = Path(__file__).resolve().parents[2]
-OBJECTS = [("box", 0), ("ring", 0)]
-SETTINGS = {"strategies": "blind", "contours_per_object": 6, "sensor": FSRSensor(rows=8, cols=8), "probes": 6,
-            "seed": 0, "workers": 1, "progress": False}
 NESTED = "[" * 100_000 + "]" * 100_000
 
 
