@@ -1,7 +1,8 @@
 """Checking a store for damage: every complete object's chunks (present, not empty, checksums) and digests.
 
 A complete object is intact when every chunk file holding its rows exists and is not empty, every chunk passes
-its CRC-32C checksum, and the SHA-256 of each array's rows equals the digest in its completion record (see
+its CRC-32C checksum, the SHA-256 of each array's rows equals the digest in its completion record, and the record's
+row checksums and settings digest (where it holds them) are those of its rows and of the store's settings (see
 :mod:`tactile.dataset.store`). :func:`verify_store` checks all of them (``visuotactile verify``);
 :func:`damaged_objects` is what ``generate`` runs before resuming, to re-explore exactly the damaged ones.
 Checking reads the whole store once (decompression and hashing: about the speed of loading it).
@@ -14,20 +15,26 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from perception.errors import DatasetError
 from perception.runtime import progress_bar
 from tactile.dataset.store import (
     ARRAYS,
     RECORDS,
+    ROW_CHECKED_ARRAYS,
     ZARR_READ,
     array_digest,
     check_arrays,
+    decode_row_checksums,
     layout_of,
     read_attrs,
     read_json,
     read_records,
     read_rows,
+    row_checksums,
     rows_per_file,
+    settings_digest,
     update_digest,
 )
 
@@ -90,21 +97,37 @@ def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: 
     if not isinstance(digests, dict):
         return "its completion record holds no digests"
     problems = []
+    written = record.get("settings_sha256")
+    if written is not None and written != settings_digest(settings):
+        problems.append("it was written with other settings than the store's zarr.json now holds")
+    sums = record.get("row_checksums")  # absent in records written before they were kept
     with zarr.config.set(ZARR_READ):
         for array_name in ARRAYS:
             array = arrays[array_name]
             rows = layout.rows(index)
             digest = array_digest()
             per = rows_per_file(array)
+            found = []
             try:
                 for lo in range(rows.start, rows.stop, per):  # one chunk file at a time: bounded memory
                     hi = min(lo + per, rows.stop)
-                    update_digest(digest, read_rows(path, array_name, array, lo, hi, name), array.dtype)
+                    values = read_rows(path, array_name, array, lo, hi, name)
+                    update_digest(digest, values, array.dtype)
+                    if sums is not None and array_name in ROW_CHECKED_ARRAYS:
+                        found.append(row_checksums(values, array.dtype))
             except DatasetError as exc:
                 problems.append(str(exc).split(" is damaged: ", 1)[-1].split("; `visuotactile verify", 1)[0])
                 continue
             if digest.hexdigest() != digests.get(array_name):
                 problems.append(f"its {array_name} rows differ from the digest in its record")
+            elif found:  # the rows are intact: the record's row checksums must be theirs
+                try:
+                    text = sums.get(array_name) if isinstance(sums, dict) else None
+                    expected = decode_row_checksums(text, layout.block, "its record")
+                except DatasetError:
+                    expected = None
+                if expected is None or not np.array_equal(expected, np.concatenate(found)):
+                    problems.append(f"its record's row checksums of {array_name} are not those of its rows")
     return "; ".join(problems) or None
 
 

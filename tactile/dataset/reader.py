@@ -125,6 +125,8 @@ class TactileDataset:
         self.incomplete = tuple(objects[i]["name"] for i in range(len(objects)) if i not in records)
         self._store_objects = np.asarray(complete, dtype=np.int64)
         self._records = records
+        self._check_settings_digests(complete)
+        self._row_sums: dict[tuple[int, str], np.ndarray | None] = {}
         self.object_names: tuple[str, ...] = tuple(objects[i]["name"] for i in complete)
         self.object_labels = np.array([self.class_names.index(objects[i]["label"]) for i in complete], np.int64)
         block = self._layout.block
@@ -161,6 +163,77 @@ class TactileDataset:
                     "was edited or the store is damaged; regenerate it"
                 )
 
+    def _check_settings_digests(self, complete: list[int]) -> None:
+        """Every complete record that holds the digest of the settings its rows were written with must hold this
+        store's: settings edited in ``zarr.json`` since (a frame scale, a sensor range) are refused.
+
+        Raises:
+            DatasetError: naming the first object whose record holds another digest.
+        """
+        from tactile.dataset.store import settings_digest
+
+        current = settings_digest(self._settings)
+        for i in complete:
+            written = self._records[i].get("settings_sha256")
+            if written is not None and written != current:
+                raise DatasetError(
+                    f"{self.path}: object {self._settings['objects'][i]['name']!r} was written with other settings "
+                    "than the store's zarr.json now holds: the metadata was edited or the store is damaged; "
+                    "regenerate it")
+
+    def row_checksums(self, name: str, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(expected (N,) uint32, known (N,) bool): the record's checksum of each store row in ``rows`` of array
+        ``name`` (:data:`~tactile.dataset.store.ROW_CHECKED_ARRAYS`); ``known`` is False for rows of objects
+        whose record was written before records held them.
+
+        Raises:
+            DatasetError: a record whose row checksums are malformed, naming its object.
+        """
+        from tactile.dataset.store import decode_row_checksums
+
+        block = self._layout.block
+        rows = np.asarray(rows, dtype=np.int64)
+        expected, known = np.zeros(len(rows), np.uint32), np.zeros(len(rows), bool)
+        owners = rows // block
+        for obj in np.unique(owners):
+            key = (int(obj), name)
+            if key not in self._row_sums:
+                text = self._records.get(int(obj), {}).get("row_checksums")
+                where = f"{self.path}: object {self._owner(obj * block)!r}: its record"
+                if text is None:
+                    self._row_sums[key] = None
+                elif not isinstance(text, dict) or name not in text:
+                    raise DatasetError(f"{where} has no row checksums of {name}: the record was edited or damaged; "
+                                       "regenerate the store")
+                else:
+                    self._row_sums[key] = decode_row_checksums(text[name], block, f"{where}'s {name}")
+            sums = self._row_sums[key]
+            if sums is not None:
+                mine = owners == obj
+                expected[mine], known[mine] = sums[rows[mine] - obj * block], True
+        return expected, known
+
+    def _check_rows(self, name: str, rows: np.ndarray, values: np.ndarray) -> None:
+        """Compare each row read of array ``name`` with its record's checksum (where it has them).
+
+        Raises:
+            DatasetError: naming the object and the row whose bytes are not those written there.
+        """
+        from tactile.dataset.store import ROW_CHECKED_ARRAYS, _damage, row_checksums
+
+        if name not in ROW_CHECKED_ARRAYS or not len(rows):
+            return
+        expected, known = self.row_checksums(name, rows)
+        if not known.any():
+            return
+        found = row_checksums(values[known], values.dtype)
+        bad = np.flatnonzero(found != expected[known])
+        if len(bad):
+            row = int(rows[known][bad[0]])
+            raise DatasetError(_damage(self.path, self._owner(row), f"its {name} row {row % self._layout.block} "
+                                                                    "differs from the checksum in its record (a chunk "
+                                                                    "moved from elsewhere or missing)"))
+
     def _column(self, name: str) -> np.ndarray:
         return self._read(name, self._rows)
 
@@ -174,6 +247,7 @@ class TactileDataset:
         object's passes its checksum, not the digest)."""
         array = self._frames if name == "frames" else self._group[name]
         values = _read_rows(self.path, name, array, rows, self._owner)
+        self._check_rows(name, rows, values)
         self._check_digests(name, array.dtype, rows, values)
         return values
 
@@ -323,7 +397,8 @@ class TactileDataset:
         rows = self._rows[idx]
         probe = {name: self._read(name, rows) for name in PROBE_ARRAYS}
         owners = [self._owner(r) for r in rows]
-        return TorchTactileDataset(str(self.path), rows, probe, self.labels[idx].copy(), self._encoding, owners)
+        return TorchTactileDataset(str(self.path), rows, probe, self.labels[idx].copy(), self._encoding, owners,
+                                   self.row_checksums("frames", rows))
 
     # -------------------------------------------------------------------------------------- splits
     @staticmethod

@@ -28,6 +28,14 @@ dtype). Reading a missing, empty or altered chunk raises :class:`DatasetError` n
 ``generate`` re-explores exactly the damaged objects. Stores of format 1 (no checksums) are refused with a
 message to regenerate them: damage in them would read as zeros.
 
+A chunk's own checksum cannot tell where the chunk belongs: a chunk file copied over another object's, or a shard
+index entry marked absent (read as zeros), passes it. Reads of whole objects are checked against the digests; for
+reads of some rows (a sequence split, a DataLoader), each record also holds ``row_checksums``: per array read in parts
+(:data:`ROW_CHECKED_ARRAYS`), the CRC-32C of each row as stored (:func:`row_checksums`), which every read compares.
+And ``settings_sha256`` (:func:`settings_digest`): ``zarr.json``'s settings, edited after the rows were written (a
+frame scale, a sensor range), are refused when the store is opened. Records written before these were kept are read
+as before (their whole-object digests only).
+
 A store's files are untrusted input: opening one (:func:`read_attrs`) lists it once and refuses FIFOs, devices,
 sockets and symlinks out of it before anything is read (:func:`check_store_files`); JSON files are read without
 blocking, bounded by :data:`MAX_JSON_BYTES` and refused when nested too deeply (:func:`read_json`), a chunk
@@ -39,6 +47,7 @@ whose codecs are not those :func:`create_store` writes is refused (:func:`read_r
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import functools
 import hashlib
@@ -115,6 +124,10 @@ SEQUENCE_ARRAYS: dict[str, tuple[str, Callable[[int, int, int], tuple]]] = {
 }
 #: Every array of a store, frames first.
 ARRAYS = ("frames", *SEQUENCE_ARRAYS)
+#: The arrays every reader reads whole when it opens a store (their rows are checked against the records' digests
+#: then); the others are read in parts, row by row, and each row is checked against its record's row checksums.
+IDENTITY_ARRAYS = ("labels", "object_ids", "strategies", "contour_seeds", "noise_seeds")
+ROW_CHECKED_ARRAYS = tuple(name for name in ARRAYS if name not in IDENTITY_ARRAYS)
 
 
 # ----------------------------------------------------------------------------------- encoding
@@ -773,6 +786,45 @@ def update_digest(digest, values: np.ndarray, dtype) -> None:
     digest.update(np.ascontiguousarray(values, dtype=dtype).tobytes())
 
 
+def row_checksums(values: np.ndarray, dtype) -> np.ndarray:
+    """(N,) uint32: the CRC-32C of each row of ``values`` (N, ...) as ``dtype``, C order: the bytes the store holds
+    for the row once decoded, wherever its chunk lies (so a chunk moved from another object's rows, or an absent one
+    read as zeros, gives other checksums)."""
+    import google_crc32c  # zarr's own crc32c codec uses it
+
+    rows = np.ascontiguousarray(values, dtype=dtype)
+    return np.fromiter((google_crc32c.value(row.tobytes()) for row in rows), dtype=np.uint32, count=len(rows))
+
+
+def encode_row_checksums(sums: np.ndarray) -> str:
+    """Row checksums as record text: base64 of little-endian uint32s."""
+    return base64.b64encode(np.asarray(sums, dtype="<u4").tobytes()).decode("ascii")
+
+
+def decode_row_checksums(text, n_rows: int, where: str) -> np.ndarray:
+    """(n_rows,) uint32 from :func:`encode_row_checksums` text.
+
+    Raises:
+        DatasetError: naming ``where``: not base64 text of exactly ``n_rows`` checksums.
+    """
+    if not isinstance(text, str) or len(text) != 4 * -(-4 * n_rows // 3):
+        raise DatasetError(f"{where}: malformed row checksums (expected base64 text of {n_rows} checksums)")
+    try:
+        raw = base64.b64decode(text, validate=True)
+    except ValueError:
+        raise DatasetError(f"{where}: malformed row checksums (not base64)") from None
+    if len(raw) != 4 * n_rows:
+        raise DatasetError(f"{where}: malformed row checksums (expected base64 text of {n_rows} checksums)")
+    return np.frombuffer(raw, dtype="<u4").astype(np.uint32)
+
+
+def settings_digest(settings: dict) -> str:
+    """SHA-256 of a store's settings as JSON (keys sorted, after a JSON round trip, as the store holds them): each
+    complete record holds the digest of the settings its rows were written with."""
+    canonical = json.dumps(json.loads(json.dumps(settings)), sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(canonical.encode()).hexdigest()
+
+
 # ------------------------------------------------------------------------------------ records
 def record_path(path: Path, index: int) -> Path:
     return Path(path) / RECORDS / f"{index:05d}.json"
@@ -807,6 +859,8 @@ __all__ = [
     "ARRAYS",
     "ATTRS_KEY",
     "FORMAT_VERSION",
+    "IDENTITY_ARRAYS",
+    "ROW_CHECKED_ARRAYS",
     "Layout",
     "array_digest",
     "check_arrays",
@@ -816,7 +870,9 @@ __all__ = [
     "contour_seed",
     "create_store",
     "decode_frames",
+    "decode_row_checksums",
     "encode_frames",
+    "encode_row_checksums",
     "frame_encoding",
     "layout_of",
     "max_chunk_file_bytes",
@@ -827,8 +883,10 @@ __all__ = [
     "read_records",
     "read_rows",
     "remove_stale_creations",
+    "row_checksums",
     "rows_per_file",
     "settings_difference",
+    "settings_digest",
     "store_lock",
     "update_digest",
     "write_record",

@@ -8,19 +8,22 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from tactile.dataset.store import decode_frames, read_rows
+from perception.errors import DatasetError
+from tactile.dataset.store import _damage, decode_frames, read_rows, row_checksums
 
 
 class TorchTactileDataset(Dataset):
     """Sequences of a store, frames read one sequence chunk at a time (see
     :meth:`tactile.dataset.TactileDataset.torch_dataset`). Picklable: each DataLoader worker opens the
     store itself on first use. Each read checks its chunk (a damaged one raises DatasetError naming the object
-    in ``owners``)."""
+    in ``owners``) and, with ``checksums`` ((expected, known) per item, from
+    :meth:`tactile.dataset.TactileDataset.row_checksums`), the row's bytes against its record's checksum."""
 
     def __init__(self, path: str, rows: np.ndarray, probe: dict[str, np.ndarray], labels: np.ndarray, encoding: dict,
-                 owners: list[str] | None = None):
+                 owners: list[str] | None = None, checksums: tuple[np.ndarray, np.ndarray] | None = None):
         self.path, self.rows, self.labels, self.encoding = path, rows, labels, encoding
         self.owners = owners if owners is not None else [f"row {r}" for r in rows]
+        self.checksums = checksums
         self.probe = {name: torch.from_numpy(np.ascontiguousarray(values)) for name, values in probe.items()}
         self._frames = None
 
@@ -40,8 +43,13 @@ class TorchTactileDataset(Dataset):
         if not -len(self) <= i < len(self):
             raise IndexError(f"index {i} out of range for {len(self)} sequences")
         row = int(self.rows[i])
-        frames = decode_frames(read_rows(Path(self.path), "frames", self._frames, row, row + 1, self.owners[i])[0],
-                               self.encoding)
+        codes = read_rows(Path(self.path), "frames", self._frames, row, row + 1, self.owners[i])
+        if self.checksums is not None and self.checksums[1][i] and row_checksums(codes, codes.dtype)[0] != (
+                self.checksums[0][i]):
+            raise DatasetError(_damage(Path(self.path), self.owners[i], "its frames row differs from the checksum in "
+                                                                        "its record (a chunk moved from elsewhere or "
+                                                                        "missing)"))
+        frames = decode_frames(codes[0], self.encoding)
         probe = {name: values[i] for name, values in self.probe.items()}
         return torch.from_numpy(frames), probe, torch.tensor(self.labels[i], dtype=torch.int64)
 

@@ -28,13 +28,17 @@ from tactile.contours import Contour
 from tactile.dataset.objects import ObjectSpec
 from tactile.dataset.store import (
     ARRAYS,
+    ROW_CHECKED_ARRAYS,
     ZARR_WRITE,
     array_digest,
     contour_seed,
     encode_frames,
+    encode_row_checksums,
     layout_of,
     open_for_writing,
     pair_order_seed,
+    row_checksums,
+    settings_digest,
     update_digest,
     write_record,
 )
@@ -100,6 +104,7 @@ def explore_into_store(
     # Named, not listed: listing the group would trip over the records folder (not a zarr node).
     arrays = {name: open_for_writing(store, name) for name in ARRAYS}
     digests = {name: array_digest() for name in ARRAYS}
+    sums: dict[str, list] = {name: [] for name in ROW_CHECKED_ARRAYS}  # per strategy, in row order
     saliencies: dict = {}  # one per method, shared by the strategies using it
     interest: dict[str, list] = {}
     cache = None if saliency_cache is None else InterestPointCache(saliency_cache)
@@ -160,6 +165,8 @@ def explore_into_store(
                 arrays[name][rows] = values
                 write_seconds += time.perf_counter() - started
                 update_digest(digests[name], values, arrays[name].dtype)  # strategies in row order
+                if name in ROW_CHECKED_ARRAYS:
+                    sums[name].append(row_checksums(values, arrays[name].dtype))
     record = {
         "index": index,
         "name": spec.name,
@@ -170,6 +177,8 @@ def explore_into_store(
         "triangles": model.n_triangles,
         "interest_points": interest,
         "digests": {name: digest.hexdigest() for name, digest in digests.items()},
+        "row_checksums": {name: encode_row_checksums(np.concatenate(parts)) for name, parts in sums.items()},
+        "settings_sha256": settings_digest(settings),
         "seconds": round(time.perf_counter() - start, 3),
         "write_seconds": round(write_seconds, 4),
     }

@@ -108,12 +108,22 @@ def test_reading_a_damaged_object_raises_naming_it(copy, case, capsys):
     assert f"damaged  {name}: " in out and "1 damaged" in out
 
 
-def test_a_chunk_swapped_for_another_objects_passes_its_checksum_but_not_the_digest(copy):
+def test_a_chunk_swapped_for_another_objects_passes_its_checksum_but_not_the_records(copy):
     shutil.copyfile(chunk(copy, "normals", 0), chunk(copy, "normals", 1))
     ds = open_dataset(copy)
-    ds.load(np.flatnonzero(ds.object_ids == 1)[:3])  # part of an object: each chunk is self-consistent, no digest
+    # The chunk is self-consistent; its record's row checksums tell, for whole objects and for parts of one alike.
+    for index in (None, np.flatnonzero(ds.object_ids == 1)[:3]):
+        with pytest.raises(DatasetError, match="object 'can/0' is damaged: its normals row 0 differs from the checksum"):
+            ds.load(index)
+    assert verify_store(copy).damaged == {"can/0": "its normals rows differ from the digest in its record"}
+    # A record written before records held row checksums: whole objects are still checked against the digests.
+    record = copy / "records" / "00001.json"
+    old = json.loads(record.read_text())
+    del old["row_checksums"], old["settings_sha256"]
+    record.write_text(json.dumps(old))
+    ds = open_dataset(copy)
     with pytest.raises(DatasetError, match="object 'can/0' is damaged: its normals rows differ from the digest"):
-        ds.load()  # whole objects are checked against their records' digests
+        ds.load()
     assert verify_store(copy).damaged == {"can/0": "its normals rows differ from the digest in its record"}
 
 
