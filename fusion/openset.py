@@ -33,7 +33,11 @@ Scores (higher = fits a known class better), of K touches of one object:
 - ``"distance"``: minus the mean over touches of log d, d the mean distance (feature space) of the touch to its
   ``neighbors`` nearest training sequences of the class nearest to it;
 - ``"class_distance"``: the same, but to the training sequences of the class the K touches decided on (how well
-  all touches fit the decision).
+  all touches fit the decision);
+- ``"set_distance"``: how well the K touches together fit one training object: minus the smallest, over the
+  training objects, of the mean over touches of log d, d the mean distance of the touch to its ``neighbors`` nearest
+  sequences of that object (an object of a known class is touched like some object seen in training, all over;
+  an unknown one may come near several classes' objects, each with some touches only).
 
 The distance scores need a feature space: the conventional classifier's (its pipeline before the SVM / kNN: the
 z-scored "SOM to 5" features), or a classifier's ``embed(batch) -> (S, D)`` method where it has one (the CNN pair:
@@ -69,7 +73,9 @@ log = logging.getLogger(__name__)
 
 #: The answer of a rejected decision.
 UNKNOWN = "unknown"
-SCORES = ("probability", "distance", "class_distance")
+SCORES = ("probability", "distance", "class_distance", "set_distance")
+#: The scores that need a feature space (:func:`embedding`).
+DISTANCE_SCORES = ("distance", "class_distance", "set_distance")
 #: Distances below this count as this much (mm-free feature units; keeps every log finite).
 DISTANCE_FLOOR = 1e-9
 #: Bounds on a model file's calibration state.
@@ -174,11 +180,11 @@ def _fuse(q: np.ndarray, state: dict, maps: bool = True) -> np.ndarray:
     return fused
 
 
-def group_scores(proba, groups, state: dict, distances=None) -> dict[str, np.ndarray]:
+def group_scores(proba, groups, state: dict, distances=None, object_distances=None) -> dict[str, np.ndarray]:
     """{score name: (G,)} of the (G, K) index ``groups`` into per-touch ``proba`` (S, C), temperature-scaled and
     smoothed, fused as ``state`` (a ``calibration_``) says, and, when given, per-touch class ``distances`` (S, C)
-    (see the module docstring); also ``"decision"``: (G,) the fused class index and ``"fused"``: (G, C) the fused
-    posterior."""
+    and distances to each training object ``object_distances`` (S, O) (see the module docstring); also
+    ``"decision"``: (G,) the fused class index and ``"fused"``: (G, C) the fused posterior."""
     proba = np.asarray(proba, dtype=np.float64)
     groups = np.asarray(groups, dtype=np.int64)
     if groups.ndim != 2 or groups.shape[1] < 1:
@@ -190,6 +196,9 @@ def group_scores(proba, groups, state: dict, distances=None) -> dict[str, np.nda
         logd = np.log(np.maximum(np.asarray(distances, dtype=np.float64), DISTANCE_FLOOR))
         out["distance"] = -logd.min(axis=1)[groups].mean(axis=1)
         out["class_distance"] = -logd[groups, decision[:, None]].mean(axis=1)
+    if object_distances is not None:
+        logd = np.log(np.maximum(np.asarray(object_distances, dtype=np.float64), DISTANCE_FLOOR))
+        out["set_distance"] = -logd[groups].mean(axis=1).min(axis=1)
     return out
 
 
@@ -238,8 +247,9 @@ class _Inner:
 
             self.features = sequence_features(batch, model.cue)
 
-    def run(self, train: np.ndarray, test: np.ndarray, want_distances: bool):
-        """(proba (T, C) with zeros for classes absent from ``train``, present (C,) bool, distances (T, C) or None)."""
+    def run(self, train: np.ndarray, test: np.ndarray, want_distances: bool, objects: np.ndarray | None = None):
+        """(proba (T, C) with zeros for classes absent from ``train``, present (C,) bool, distances (T, C) or None,
+        distances (T, O) to each training object or None; ``objects``: (S,) object index of every sequence)."""
         present = np.zeros(self.n_classes, dtype=bool)
         present[np.unique(self.y[train])] = True
         local = np.cumsum(present) - 1  # global class -> column of the inner model
@@ -259,12 +269,15 @@ class _Inner:
             emb_test = embedding(inner, self.batch.subset(test)) if emb_train is not None else None
         proba = np.zeros((len(test), self.n_classes))
         proba[:, present] = part
-        distances = None
+        distances = by_object = None
         if emb_train is not None:
             distances = np.full((len(test), self.n_classes), np.inf)
             distances[:, present] = class_distances(emb_test, emb_train, local[self.y[train]], int(present.sum()),
                                                     self.neighbors)
-        return proba, present, distances
+            if objects is not None:
+                _, owner = np.unique(objects[train], return_inverse=True)
+                by_object = class_distances(emb_test, emb_train, owner, int(owner.max()) + 1, self.neighbors)
+        return proba, present, distances, by_object
 
 
 def _object_folds(keys: np.ndarray, y: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
@@ -305,7 +318,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
             module docstring).
         max_touches: thresholds are fitted for K = 1..max_touches (a larger K uses the last).
         keep: share of held-out known objects a threshold keeps (0.95).
-        score: "probability", "distance", "class_distance", or "auto" (the best mean AUROC over K in the
+        score: one of :data:`SCORES`, or "auto" (the best mean AUROC over K in the
             leave-classes-out folds; distance scores need a feature space, see :func:`embedding`).
         open_set: False skips the leave-classes-out folds (no reject option).
 
@@ -350,7 +363,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
     inner = _Inner(model, batch, yi, classes, neighbors)
     folds = _object_folds(keys, yi, cv, rng)
     has_space = inner.features is not None or callable(getattr(model, "embed", None))
-    if score in ("distance", "class_distance") and not has_space:
+    if score in DISTANCE_SCORES and not has_space:
         raise InvalidArgumentError(f"calibrate: score {score!r} needs a feature space; {type(model).__name__} has "
                                    "none (use score='probability')")
 
@@ -360,7 +373,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
     for f in range(cv):
         train, test = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
         log.info("calibrate: calibration fold %d of %d", f + 1, cv)
-        proba, present, _ = inner.run(train, test, want_distances=False)
+        proba, present, _, _ = inner.run(train, test, want_distances=False)
         held[test] = proba
         usable[test] = present[yi[test]]
     idx = np.flatnonzero(usable)
@@ -386,6 +399,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
         order = rng.permutation(len(classes))
         left_out = [np.sort(order[j::class_folds]) for j in range(class_folds)]
         held_folds = _object_folds(keys, yi, holdout, rng)
+        _, object_index = np.unique(keys, return_inverse=True)
         known_scores: dict = {}
         unknown_scores: dict = {}
         for j, out in enumerate(left_out):
@@ -398,7 +412,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
             test = np.flatnonzero(unknown | held_known)
             log.info("calibrate: leave-classes-out fold %d of %d (%s out)", j + 1, class_folds,
                      ", ".join(classes[out]))
-            proba, present, dist = inner.run(train, test, want_distances=has_space)
+            proba, present, dist, by_object = inner.run(train, test, want_distances=has_space, objects=object_index)
             cal = np.zeros_like(proba)
             cal[:, present] = apply_calibration(proba[:, present], temperature, smoothing)
             if dist is not None:
@@ -410,7 +424,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                     g = _groups(keys, np.flatnonzero(which), k, random_state + j)
                     if not len(g):
                         continue
-                    s = group_scores(cal[:, present], position[g], state, dist)
+                    s = group_scores(cal[:, present], position[g], state, dist, by_object)
                     for name in SCORES:
                         if name in s:
                             store.setdefault((name, k), []).append(s[name])
@@ -430,23 +444,29 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
     # 3. the reference features of the model fitted on all the data.
     if open_set and has_space:  # kept even when the probability won: the distance scores stay available
         ref = embedding(model, batch, inner.features)
-        state |= {"reference": ref, "reference_labels": class_indices(model.classes_, names)}
+        _, owner = np.unique(keys, return_inverse=True)
+        state |= {"reference": ref, "reference_labels": class_indices(model.classes_, names),
+                  "reference_objects": owner.astype(np.int64)}
     model.calibration_ = state
     return model
 
 
 # ------------------------------------------------------------------------------------------ using it
-def per_touch(model, batch) -> tuple[np.ndarray, np.ndarray | None]:
+def per_touch(model, batch) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(per-touch (S, C) probabilities temperature-scaled and smoothed (not yet confidence-mapped: see
-    :func:`group_scores`), class distances (S, C) or None) of a calibrated ``model``."""
+    :func:`group_scores`), class distances (S, C) or None, distances to each training object (S, O) or None) of a
+    calibrated ``model``."""
     cal = _state(model)
     proba = apply_calibration(model.predict_proba_uncalibrated(batch), cal["temperature"], cal.get("smoothing", 0.0))
-    distances = None
+    distances = by_object = None
     if "reference" in cal:
         emb = embedding(model, batch)
         distances = class_distances(emb, cal["reference"], cal["reference_labels"], len(model.classes_),
                                     cal["neighbors"])
-    return proba, distances
+        owners = cal.get("reference_objects")  # absent in models calibrated before the set distance
+        if owners is not None:
+            by_object = class_distances(emb, cal["reference"], owners, int(owners.max()) + 1, cal["neighbors"])
+    return proba, distances, by_object
 
 
 def threshold_for(model, k: int) -> float:
@@ -479,8 +499,8 @@ def decide(model, X, groups=None) -> dict[str, np.ndarray]:
         raise InvalidArgumentError(f"decide: groups must be a (G, K) index array into {len(batch)} sequences")
     cal = _state(model)
     threshold = threshold_for(model, groups.shape[1])
-    proba, distances = per_touch(model, batch)
-    s = group_scores(proba, groups, cal, distances)
+    proba, distances, by_object = per_touch(model, batch)
+    s = group_scores(proba, groups, cal, distances, by_object)
     closest = np.asarray(model.classes_, dtype=object)[s["decision"]]
     unknown = s[cal["score"]] < threshold
     return {"label": np.where(unknown, UNKNOWN, closest).astype(object), "closest": closest,
@@ -510,7 +530,7 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
     if not isinstance(state, dict):
         raise bad("no mapping")
     allowed = {"temperature", "smoothing", "dependence", "keep", "neighbors", "max_touches", "score", "thresholds",
-               "inner_auroc", "reference", "reference_labels", "map_knots", "map_values"}
+               "inner_auroc", "reference", "reference_labels", "reference_objects", "map_knots", "map_values"}
     if set(state) - allowed:
         raise bad(f"unknown entries {sorted(set(state) - allowed)[:5]}")
     try:
@@ -548,9 +568,14 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
                 and isinstance(labels, np.ndarray) and labels.dtype.kind == "i" and labels.shape == (len(ref),)
                 and labels.min() >= 0 and labels.max() < n_classes):
             raise bad("inconsistent reference features or labels")
+        owners = state.get("reference_objects")
+        if (state["score"] == "set_distance" or owners is not None) and not (
+                isinstance(owners, np.ndarray) and owners.dtype.kind == "i" and isinstance(ref, np.ndarray)
+                and owners.shape == (len(ref),) and owners.min() >= 0 and owners.max() < len(ref)):
+            raise bad("inconsistent reference objects")
     return state
 
 
-__all__ = ["DISTANCE_FLOOR", "SCORES", "UNKNOWN", "auroc", "calibrate", "calibrated_fusion", "check_calibration",
+__all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "auroc", "calibrate", "calibrated_fusion", "check_calibration",
            "class_distances", "decide", "embedding", "group_scores", "object_keys",
            "objects_per_class", "per_touch", "rejected_share", "threshold_for", "threshold_keeping"]

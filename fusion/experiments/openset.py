@@ -10,7 +10,7 @@ confidences shows on that many decisions), and reliability diagrams.
 ``openset``: classes rotated out of training: the classes (shuffled, seeded) are dealt to R rotations; rotation r
 trains on the other classes' objects outside object fold r, calibrated and thresholded on them only (leaving
 classes out inside training), and tests the known classes' objects of fold r and every object of its left-out
-classes, all in any pose. Per score (max probability, feature distance, class distance) and K: AUROC known vs
+classes, all in any pose. Per score (max probability, feature distance, class distance, set distance) and K: AUROC known vs
 unknown (interval: bootstrap over objects, known and unknown resampled separately), and for the score the training
 folds chose: the share of known objects kept and of unknown ones answered "unknown" at the threshold fitted on
 training data, plus the share of unknown rejected at the threshold that keeps 95 % of the *test* known decisions.
@@ -155,7 +155,7 @@ def openset_part(ctx: Context, objects) -> dict:
             log.info("open set, rotation %d (%s left out): %s", r + 1, ", ".join(left_out[r]), name)
             model = calibrate(factory(), load("train"), max_touches=max(ks), random_state=ctx.seed)
             batch = load("test")
-            proba, distances = per_touch(model, batch)
+            proba, distances, by_object = per_touch(model, batch)
             label = np.asarray(batch.class_names, dtype=object)[batch.labels]
             is_unknown = np.isin(label, left_out[r])
             obj = np.asarray(batch.object_names, dtype=object)[batch.object_ids]
@@ -169,7 +169,7 @@ def openset_part(ctx: Context, objects) -> dict:
                               "dependence": round(cal["dependence"], 4), "inner_auroc": cal["inner_auroc"]})
             for k in ks:
                 groups = touch_groups(ids, k, seed=ctx.seed)
-                s = group_scores(proba, groups, cal, distances)
+                s = group_scores(proba, groups, cal, distances, by_object)
                 unknown_g = is_unknown[groups[:, 0]]
                 p = pooled.setdefault((name, k), {"unknown": [], "obj": [], "label": [], "chosen": [], "threshold": [],
                                                   **{n: [] for n in SCORES}})

@@ -801,7 +801,8 @@ def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
     assert (tmp_path / "report" / "reliability_em.png").read_bytes()[:4] == b"\x89PNG"
     rows = results["openset"]["rows"]
     assert {(r["k"], r["score"]) for r in rows} == {(k, s) for k in (1, 2)
-                                                   for s in ("probability", "distance", "class_distance", "chosen")}
+                                                   for s in ("probability", "distance", "class_distance",
+                                                             "set_distance", "chosen")}
     left_out = results["openset"]["left_out"]
     assert sorted(c for group in left_out for c in group) == sorted(classes)  # each class left out by exactly one rotation
     for r in rows:

@@ -12,6 +12,7 @@ from sklearn.metrics import roc_auc_score
 
 from fusion.base import TactileClassifier, load_model
 from fusion.openset import (
+    DISTANCE_SCORES,
     UNKNOWN,
     auroc,
     calibrate,
@@ -110,6 +111,32 @@ class TestScores:
         assert s["decision"][0] == 0 and s["class_distance"][0] == pytest.approx(-0.5)
         assert s["probability"][0] == pytest.approx(0.72 / (0.72 + 0.02))
 
+    def test_set_distance_hand_computed(self):
+        """Minus the smallest, over training objects, of the touches' mean log distance to that object."""
+        proba = np.full((3, 2), 0.5)
+        by_object = np.array([[1.0, np.e], [np.e**2, np.e], [1.0, np.e**3]])  # (touches, objects)
+        s = group_scores(proba, np.array([[0, 1], [0, 2], [1, 2]]), {"dependence": 0.0}, None, by_object)
+        # object 0: (0 + 2) / 2 = 1, object 1: (1 + 1) / 2 = 1 -> -1; object 0: 0 -> 0; objects: 1 and 2 -> -1
+        np.testing.assert_allclose(s["set_distance"], [-1.0, 0.0, -1.0])
+        assert "distance" not in s and "class_distance" not in s
+
+    def test_set_distance_tells_a_chimera_that_class_distance_accepts(self):
+        """Class c0's training objects sit at 0 and 4 (touches +- 0.1), class c1's at 100. A new c0 object touched
+        all over near 4 fits one training object; a chimera whose touches fall half near 0, half near 4 fits the
+        class as well, but no single object: the set distance tells it (log 2 = 0.69 lower), class distance not."""
+        reference = np.array([[-0.1], [0.1], [3.9], [4.1], [99.9], [100.1]])
+        labels, owners = np.array([0, 0, 0, 0, 1, 1]), np.array([0, 0, 1, 1, 2, 2])
+        touches = np.array([[4.0], [4.0], [0.0], [4.0]])  # a new c0 object: 0, 1; the chimera: 2, 3
+        by_class = class_distances(touches, reference, labels, 2, neighbors=2)
+        by_object = class_distances(touches, reference, owners, 3, neighbors=2)
+        s = group_scores(np.array([[0.9, 0.1]] * 4), np.array([[0, 1], [2, 3]]), {"dependence": 0.0}, by_class,
+                         by_object)
+        assert s["class_distance"][0] == pytest.approx(s["class_distance"][1])  # both fit class c0 equally
+        # each touch is 0.1 from its two nearest: -log 0.1 = 2.303; the chimera's touches are 0.1 from one object and
+        # 4 away from the other: min over objects of (log 0.1 + log 4) / 2
+        assert s["set_distance"][0] == pytest.approx(-np.log(0.1))
+        assert s["set_distance"][1] == pytest.approx(-(np.log(0.1) + np.log(4.0)) / 2)
+
     def test_captures_count_with_their_cad_twin(self):
         batch = dataclasses.replace(toy_batch([0.0, 5.0], objects_per_class=1, per_object=1),
                                     object_names=("a/1", "a/1@capture"))
@@ -119,7 +146,7 @@ class TestScores:
 class TestCalibrate:
     def test_known_clusters_kept_far_cluster_rejected(self, calibrated):
         cal = calibrated.calibration_
-        assert cal["score"] in ("distance", "class_distance")  # chosen by leaving classes out
+        assert cal["score"] in DISTANCE_SCORES  # chosen by leaving classes out
         known = toy_batch(KNOWN, seed=7)
         far = toy_batch([200.0], objects_per_class=3, seed=8, class_names=["c0"])
         assert np.mean(calibrated.predict(known, reject=True) != UNKNOWN) >= 0.9
@@ -203,8 +230,28 @@ class TestModelFile:
         assert np.array_equal(loaded.predict_proba(batch), calibrated.predict_proba(batch))
         assert np.array_equal(loaded.predict(batch, reject=True), calibrated.predict(batch, reject=True))
 
+    def test_reference_objects_name_each_training_object(self, calibrated):
+        cal, train = calibrated.calibration_, toy_batch(KNOWN, seed=1)
+        _, expected = np.unique(object_keys(train), return_inverse=True)
+        np.testing.assert_array_equal(cal["reference_objects"], expected)
+        assert cal["reference_objects"].max() == 15  # 4 classes x 4 objects
+
+    def test_a_model_calibrated_before_the_set_distance_still_loads_and_decides(self, calibrated, tmp_path):
+        saved = dict(calibrated.calibration_)
+        try:
+            calibrated.calibration_ = {k: v for k, v in saved.items() if k != "reference_objects"} | {
+                "score": "class_distance"}
+            path = calibrated.save(tmp_path / "older.vtm")
+        finally:
+            calibrated.calibration_ = saved
+        far = toy_batch([200.0], objects_per_class=3, seed=8, class_names=["c0"])
+        assert (load_model(path).predict(far, reject=True) == UNKNOWN).all()
+
     @pytest.mark.parametrize("change", [{"temperature": -1.0}, {"dependence": 2.0}, {"score": "magic"},
-                                        {"thresholds": np.array([np.nan, 0.0, 0.0, 0.0])}, {"extra": 1}])
+                                        {"thresholds": np.array([np.nan, 0.0, 0.0, 0.0])}, {"extra": 1},
+                                        {"reference_objects": np.full(96, -1)}, {"reference_objects": np.arange(95)},
+                                        {"reference_objects": np.full(96, 10**6)},
+                                        {"reference_objects": np.zeros(96)}])
     def test_damaged_calibration_refused(self, calibrated, tmp_path, change):
         saved = dict(calibrated.calibration_)
         try:
@@ -239,7 +286,7 @@ def test_a_calibrated_cnn_scores_distances_in_its_own_feature_space(tmp_path):
     state = model.calibration_
     assert state["reference"].shape == (len(train), 128)
     np.testing.assert_allclose(state["reference"], model.embed(train))
-    assert state["score"] in ("probability", "distance", "class_distance")
+    assert state["score"] in ("probability", *DISTANCE_SCORES)
     test = toy_batch(KNOWN, seed=3)
     scores = model.known_score(test)
     assert np.isfinite(scores).all()
