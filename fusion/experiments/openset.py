@@ -10,8 +10,8 @@ confidences shows on that many decisions), and reliability diagrams.
 ``openset``: classes rotated out of training: the classes (shuffled, seeded) are dealt to R rotations; rotation r
 trains on the other classes' objects outside object fold r, calibrated and thresholded on them only (leaving
 classes out inside training), and tests the known classes' objects of fold r and every object of its left-out
-classes, all in any pose. Per score (max probability, feature distance, class distance, set distance) and K: AUROC known vs
-unknown (interval: bootstrap over objects, known and unknown resampled separately), and for the score the training
+classes, all in any pose. Per score (max probability, feature distance, class distance, set distance) and K: AUROC
+known vs unknown (interval: bootstrap over objects, known and unknown resampled separately), and for the score the training
 folds chose: the share of known objects kept and of unknown ones answered "unknown" at the threshold fitted on
 training data, plus the share of unknown rejected at the threshold that keeps 95 % of the *test* known decisions.
 """

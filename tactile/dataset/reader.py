@@ -189,29 +189,32 @@ class TactileDataset:
         Raises:
             DatasetError: a record whose row checksums are malformed, naming its object.
         """
-        from tactile.dataset.store import decode_row_checksums
-
         block = self._layout.block
         rows = np.asarray(rows, dtype=np.int64)
-        expected, known = np.zeros(len(rows), np.uint32), np.zeros(len(rows), bool)
-        owners = rows // block
-        for obj in np.unique(owners):
-            key = (int(obj), name)
-            if key not in self._row_sums:
-                text = self._records.get(int(obj), {}).get("row_checksums")
-                where = f"{self.path}: object {self._owner(obj * block)!r}: its record"
-                if text is None:
-                    self._row_sums[key] = None
-                elif not isinstance(text, dict) or name not in text:
-                    raise DatasetError(f"{where} has no row checksums of {name}: the record was edited or damaged; "
-                                       "regenerate the store")
-                else:
-                    self._row_sums[key] = decode_row_checksums(text[name], block, f"{where}'s {name}")
-            sums = self._row_sums[key]
-            if sums is not None:
-                mine = owners == obj
-                expected[mine], known[mine] = sums[rows[mine] - obj * block], True
-        return expected, known
+        objects, which = np.unique(rows // block, return_inverse=True)
+        sums = [self._object_row_sums(int(obj), name) for obj in objects]
+        table = np.stack([np.zeros(block, np.uint32) if s is None else s for s in sums]) if sums else (
+            np.zeros((0, block), np.uint32))
+        known = np.array([s is not None for s in sums], dtype=bool)[which]
+        return table[which, rows % block], known
+
+    def _object_row_sums(self, obj: int, name: str) -> np.ndarray | None:
+        """(block,) the row checksums of array ``name`` in store object ``obj``'s record (parsed once), or None for
+        a record written before records held them."""
+        from tactile.dataset.store import decode_row_checksums
+
+        key = (obj, name)
+        if key not in self._row_sums:
+            text = self._records.get(obj, {}).get("row_checksums")
+            where = f"{self.path}: object {self._owner(obj * self._layout.block)!r}: its record"
+            if text is None:
+                self._row_sums[key] = None
+            elif not isinstance(text, dict) or name not in text:
+                raise DatasetError(f"{where} has no row checksums of {name}: the record was edited or damaged; "
+                                   "regenerate the store")
+            else:
+                self._row_sums[key] = decode_row_checksums(text[name], self._layout.block, f"{where}'s {name}")
+        return self._row_sums[key]
 
     def _check_rows(self, name: str, rows: np.ndarray, values: np.ndarray) -> None:
         """Compare each row read of array ``name`` with its record's checksum (where it has them).
