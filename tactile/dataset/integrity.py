@@ -97,10 +97,11 @@ def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: 
     if not isinstance(digests, dict):
         return "its completion record holds no digests"
     problems = []
-    written = record.get("settings_sha256")
-    if written is not None and written != settings_digest(settings):
+    # Both absent in records written before they were kept (null is damage).
+    if "settings_sha256" in record and record["settings_sha256"] != settings_digest(settings):
         problems.append("it was written with other settings than the store's zarr.json now holds")
-    sums = record.get("row_checksums")  # absent in records written before they were kept
+    kept = "row_checksums" in record
+    sums = record.get("row_checksums")
     with zarr.config.set(ZARR_READ):
         for array_name in ARRAYS:
             array = arrays[array_name]
@@ -113,7 +114,7 @@ def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: 
                     hi = min(lo + per, rows.stop)
                     values = read_rows(path, array_name, array, lo, hi, name)
                     update_digest(digest, values, array.dtype)
-                    if sums is not None and array_name in ROW_CHECKED_ARRAYS:
+                    if kept and array_name in ROW_CHECKED_ARRAYS:
                         found.append(row_checksums(values, array.dtype))
             except DatasetError as exc:
                 problems.append(str(exc).split(" is damaged: ", 1)[-1].split("; `visuotactile verify", 1)[0])

@@ -173,9 +173,8 @@ class TactileDataset:
         from tactile.dataset.store import settings_digest
 
         current = settings_digest(self._settings)
-        for i in complete:
-            written = self._records[i].get("settings_sha256")
-            if written is not None and written != current:
+        for i in complete:  # a record without the key was written before records held it; null is damage
+            if "settings_sha256" in self._records[i] and self._records[i]["settings_sha256"] != current:
                 raise DatasetError(
                     f"{self.path}: object {self._settings['objects'][i]['name']!r} was written with other settings "
                     "than the store's zarr.json now holds: the metadata was edited or the store is damaged; "
@@ -205,9 +204,10 @@ class TactileDataset:
 
         key = (obj, name)
         if key not in self._row_sums:
-            text = self._records.get(obj, {}).get("row_checksums")
+            record = self._records.get(obj, {})
+            text = record.get("row_checksums")
             where = f"{self.path}: object {self._owner(obj * self._layout.block)!r}: its record"
-            if text is None:
+            if "row_checksums" not in record:  # written before records held them (null is damage)
                 self._row_sums[key] = None
             elif not isinstance(text, dict) or name not in text:
                 raise DatasetError(f"{where} has no row checksums of {name}: the record was edited or damaged; "

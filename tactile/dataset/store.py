@@ -821,7 +821,8 @@ def decode_row_checksums(text, n_rows: int, where: str) -> np.ndarray:
 def settings_digest(settings: dict) -> str:
     """SHA-256 of a store's settings as JSON (keys sorted, after a JSON round trip, as the store holds them): each
     complete record holds the digest of the settings its rows were written with."""
-    canonical = json.dumps(json.loads(json.dumps(settings)), sort_keys=True, separators=(",", ":"), allow_nan=False)
+    # NaN is spelled "NaN" (never in settings generate() writes, but zarr.json is read with json.loads, which takes it)
+    canonical = json.dumps(json.loads(json.dumps(settings)), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
