@@ -68,6 +68,7 @@ from fusion.calibration import (
     log_proba,
 )
 from perception.errors import DatasetError, InvalidArgumentError, ModelFileError
+from perception.limits import limit
 
 log = logging.getLogger(__name__)
 
@@ -135,10 +136,16 @@ def class_distances(embedding: np.ndarray, reference: np.ndarray, reference_labe
     class (fewer where a class has fewer); +inf would never leave: a class without reference points gets the
     largest finite distance seen (it never fits best).
 
+    The reference rows are grouped by label once (sorted), so the cost grows with the rows and the labels present,
+    not their product (a model file naming a million objects would otherwise rescan the reference for each).
+
     Raises:
-        DatasetError: mismatched shapes or non-finite values.
+        DatasetError: mismatched shapes or non-finite values, labels outside 0..n_classes - 1, or an (S, C) result
+            above the memory limit (:func:`perception.limits.check_bytes`).
     """
     from scipy.spatial import cKDTree
+
+    from perception.limits import check_bytes
 
     embedding, reference = np.asarray(embedding, dtype=np.float64), np.asarray(reference, dtype=np.float64)
     labels = np.asarray(reference_labels)
@@ -148,11 +155,15 @@ def class_distances(embedding: np.ndarray, reference: np.ndarray, reference_labe
                            f"{labels.shape} do not match")
     if not (np.isfinite(embedding).all() and np.isfinite(reference).all()):
         raise DatasetError("class_distances: features contain NaN or Inf")
+    if labels.dtype.kind not in "iu" or labels.min() < 0 or labels.max() >= n_classes:
+        raise DatasetError(f"class_distances: reference labels must be integers in 0..{n_classes - 1}")
+    check_bytes(len(embedding) * n_classes * 8, f"class_distances: {len(embedding)} sequences x {n_classes} groups",
+                DatasetError)
     out = np.full((len(embedding), n_classes), np.nan)
-    for c in range(n_classes):
-        points = reference[labels == c]
-        if len(points) == 0:
-            continue
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(n_classes + 1))
+    for c in np.flatnonzero(bounds[1:] > bounds[:-1]):
+        points = reference[order[bounds[c]:bounds[c + 1]]]
         k = min(int(neighbors), len(points))
         d, _ = cKDTree(points).query(embedding, k=k)
         out[:, c] = np.asarray(d, dtype=np.float64).reshape(len(embedding), k).mean(axis=1)
@@ -560,19 +571,20 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
         if (not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.shape != (state["max_touches"],)
                 or not np.isfinite(t).all()):
             raise bad(f"no {state['max_touches']} finite thresholds")
-        needs_reference = state["score"] != "probability"
-        ref, labels = state.get("reference"), state.get("reference_labels")
-        if (needs_reference or ref is not None) and not (
-                isinstance(ref, np.ndarray) and ref.dtype == np.float64 and ref.ndim == 2
-                and 1 <= len(ref) <= MAX_REFERENCE and 1 <= ref.shape[1] <= 4096 and np.isfinite(ref).all()
-                and isinstance(labels, np.ndarray) and labels.dtype.kind == "i" and labels.shape == (len(ref),)
-                and labels.min() >= 0 and labels.max() < n_classes):
-            raise bad("inconsistent reference features or labels")
-        owners = state.get("reference_objects")
-        if (state["score"] == "set_distance" or owners is not None) and not (
-                isinstance(owners, np.ndarray) and owners.dtype.kind == "i" and isinstance(ref, np.ndarray)
-                and owners.shape == (len(ref),) and owners.min() >= 0 and owners.max() < len(ref)):
-            raise bad("inconsistent reference objects")
+    # Checked wherever present (per_touch uses them whatever the score), and required by the score that reads them.
+    score = state.get("score")
+    ref, labels, owners = state.get("reference"), state.get("reference_labels"), state.get("reference_objects")
+    if (score in DISTANCE_SCORES or ref is not None or labels is not None) and not (
+            isinstance(ref, np.ndarray) and ref.dtype == np.float64 and ref.ndim == 2
+            and 1 <= len(ref) <= MAX_REFERENCE and 1 <= ref.shape[1] <= 4096 and np.isfinite(ref).all()
+            and isinstance(labels, np.ndarray) and labels.dtype.kind == "i" and labels.shape == (len(ref),)
+            and labels.min() >= 0 and labels.max() < n_classes):
+        raise bad("inconsistent reference features or labels")
+    if (score == "set_distance" or owners is not None) and not (
+            isinstance(owners, np.ndarray) and owners.dtype.kind == "i" and isinstance(ref, np.ndarray)
+            and owners.shape == (len(ref),) and owners.min() >= 0 and owners.max() < min(len(ref), limit("objects"))):
+        raise bad(f"inconsistent reference objects (integers below the reference's rows and the objects limit, "
+                  f"{limit('objects'):,})")
     return state
 
 
