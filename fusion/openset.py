@@ -463,21 +463,21 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
 
 
 # ------------------------------------------------------------------------------------------ using it
-def per_touch(model, batch) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+def per_touch(model, batch, by_object: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(per-touch (S, C) probabilities temperature-scaled and smoothed (not yet confidence-mapped: see
-    :func:`group_scores`), class distances (S, C) or None, distances to each training object (S, O) or None) of a
-    calibrated ``model``."""
+    :func:`group_scores`), class distances (S, C) or None, distances to each training object (S, O) or None: also
+    when ``by_object`` is False) of a calibrated ``model``."""
     cal = _state(model)
     proba = apply_calibration(model.predict_proba_uncalibrated(batch), cal["temperature"], cal.get("smoothing", 0.0))
-    distances = by_object = None
+    distances = objects = None
     if "reference" in cal:
         emb = embedding(model, batch)
         distances = class_distances(emb, cal["reference"], cal["reference_labels"], len(model.classes_),
                                     cal["neighbors"])
         owners = cal.get("reference_objects")  # absent in models calibrated before the set distance
-        if owners is not None:
-            by_object = class_distances(emb, cal["reference"], owners, int(owners.max()) + 1, cal["neighbors"])
-    return proba, distances, by_object
+        if owners is not None and by_object:
+            objects = class_distances(emb, cal["reference"], owners, int(owners.max()) + 1, cal["neighbors"])
+    return proba, distances, objects
 
 
 def threshold_for(model, k: int) -> float:
@@ -510,7 +510,8 @@ def decide(model, X, groups=None) -> dict[str, np.ndarray]:
         raise InvalidArgumentError(f"decide: groups must be a (G, K) index array into {len(batch)} sequences")
     cal = _state(model)
     threshold = threshold_for(model, groups.shape[1])
-    proba, distances, by_object = per_touch(model, batch)
+    # the distances to each training object only where the chosen score reads them
+    proba, distances, by_object = per_touch(model, batch, by_object=cal["score"] == "set_distance")
     s = group_scores(proba, groups, cal, distances, by_object)
     closest = np.asarray(model.classes_, dtype=object)[s["decision"]]
     unknown = s[cal["score"]] < threshold
