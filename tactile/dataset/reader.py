@@ -15,14 +15,21 @@ import numpy as np
 
 from perception.errors import DataLeakError, DatasetError, InvalidArgumentError
 from tactile.dataset.store import (
+    ROW_CHECKED_ARRAYS,
     ZARR_READ,
+    _damage,
+    array_digest,
     check_arrays,
     decode_frames,
+    decode_row_checksums,
     layout_of,
     read_attrs,
     read_records,
     read_rows,
+    row_checksums,
     rows_per_file,
+    settings_digest,
+    update_digest,
 )
 from tactile.explore import SequenceBatch, sequence_nbytes
 
@@ -170,8 +177,6 @@ class TactileDataset:
         Raises:
             DatasetError: naming the first object whose record holds another digest.
         """
-        from tactile.dataset.store import settings_digest
-
         current = settings_digest(self._settings)
         for i in complete:  # a record without the key was written before records held it; null is damage
             if "settings_sha256" in self._records[i] and self._records[i]["settings_sha256"] != current:
@@ -200,8 +205,6 @@ class TactileDataset:
     def _object_row_sums(self, obj: int, name: str) -> np.ndarray | None:
         """(block,) the row checksums of array ``name`` in store object ``obj``'s record (parsed once), or None for
         a record written before records held them."""
-        from tactile.dataset.store import decode_row_checksums
-
         key = (obj, name)
         if key not in self._row_sums:
             record = self._records.get(obj, {})
@@ -222,8 +225,6 @@ class TactileDataset:
         Raises:
             DatasetError: naming the object and the row whose bytes are not those written there.
         """
-        from tactile.dataset.store import ROW_CHECKED_ARRAYS, _damage, row_checksums
-
         if name not in ROW_CHECKED_ARRAYS or not len(rows):
             return
         expected, known = self.row_checksums(name, rows)
@@ -260,8 +261,6 @@ class TactileDataset:
         Raises:
             DatasetError: naming the object whose rows differ from its digest.
         """
-        from tactile.dataset.store import _damage, array_digest, update_digest
-
         block = self._layout.block
         if not len(rows):
             return

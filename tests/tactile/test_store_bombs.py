@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -22,7 +21,6 @@ import zarr
 from perception.errors import DatasetError
 from tactile.dataset import open_dataset
 from tactile.dataset.store import ARRAYS, max_chunk_file_bytes, read_rows
-from tests._small_store import small_store
 
 ROOT = Path(__file__).resolve().parents[2]
 ROWS = 6  # rows per object: one frames shard of 6 inner chunks, one chunk of each other array
@@ -31,16 +29,6 @@ ROWS = 6  # rows per object: one frames shard of 6 inner chunks, one chunk of ea
 BOMB_BYTES = 48 << 20
 #: The most reading a refused bomb may add to the child's peak memory (decompressing it would add BOMB_BYTES).
 GROWTH_LIMIT = 12 << 20
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory) -> Path:
-    return small_store(tmp_path_factory.mktemp("bombs") / "small.zarr")
-
-
-@pytest.fixture
-def copy(store, tmp_path) -> Path:
-    return Path(shutil.copytree(store, tmp_path / "copy.zarr"))
 
 
 @pytest.fixture(scope="module")

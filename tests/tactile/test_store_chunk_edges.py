@@ -4,7 +4,6 @@ file zarr could read (.zattrs) is refused when the store is opened."""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import google_crc32c
@@ -15,19 +14,8 @@ import zarr
 from perception.errors import DatasetError
 from tactile.dataset import open_dataset
 from tactile.dataset.store import MAX_JSON_BYTES, max_chunk_file_bytes, read_rows
-from tests._small_store import small_store
 
 ROWS = 6  # rows per object in the small store
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory) -> Path:
-    return small_store(tmp_path_factory.mktemp("chunk-edges") / "small.zarr")
-
-
-@pytest.fixture
-def copy(store, tmp_path) -> Path:
-    return Path(shutil.copytree(store, tmp_path / "copy.zarr"))
 
 
 def normals_chunk(store: Path):

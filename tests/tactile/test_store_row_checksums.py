@@ -26,20 +26,10 @@ from tactile.dataset.store import (
     row_checksums,
 )
 from tactile.sensor import FSRSensor
-from tests._small_store import SETTINGS, small_store
+from tests._small_store import SETTINGS
 
 ROWS = SETTINGS["contours_per_object"]  # one strategy: an object's rows are one frames shard
 OTHER = "it was written with other settings than the store's zarr.json now holds"
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory) -> Path:
-    return small_store(tmp_path_factory.mktemp("rowsums") / "store.zarr")
-
-
-@pytest.fixture
-def copy(store, tmp_path) -> Path:
-    return Path(shutil.copytree(store, tmp_path / "copy.zarr"))
 
 
 def shard(path: Path, obj: int) -> Path:

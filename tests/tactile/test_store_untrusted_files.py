@@ -15,25 +15,15 @@ from pathlib import Path
 import pytest
 
 from fusion.cli import main
-from tests._small_store import OBJECTS, small_knn_model, small_store
+from tests._small_store import OBJECTS, small_knn_model
 
 ROOT = Path(__file__).resolve().parents[2]
 NESTED = "[" * 100_000 + "]" * 100_000
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory) -> Path:
-    return small_store(tmp_path_factory.mktemp("untrusted") / "small.zarr")
-
-
-@pytest.fixture(scope="module")
 def model(store, tmp_path_factory) -> Path:
     return small_knn_model(store, tmp_path_factory.mktemp("untrusted-model") / "knn.vtm")
-
-
-@pytest.fixture
-def copy(store, tmp_path) -> Path:
-    return Path(shutil.copytree(store, tmp_path / "copy.zarr"))
 
 
 def child(code: str, *, timeout: float = 60.0, extra_memory_mb: int | None = None) -> subprocess.CompletedProcess:
