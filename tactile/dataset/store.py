@@ -66,7 +66,7 @@ from pathlib import Path
 import numpy as np
 
 from perception import untrusted
-from perception.atomic import write_text
+from perception.atomic import atomic_path, write_text
 from perception.errors import DatasetError
 
 log = logging.getLogger(__name__)
@@ -572,6 +572,66 @@ def open_for_writing(path: str | Path, name: str):
     import zarr
 
     return zarr.open_array(f"{path}/{name}", mode="r+").with_config({"write_empty_chunks": True})
+
+
+def write_frames(path: str | Path, array, rows: slice, codes: np.ndarray) -> None:
+    """``array[rows] = codes`` for the frames array (opened with :func:`open_for_writing`), whole shards at a time:
+    each row Blosc-compressed with :data:`COMPRESSOR` and followed by its CRC-32C, then the shard index ((offset,
+    length) of each row, little-endian uint64s) and its CRC-32C: the bytes zarr's sharding codec writes for them
+    (tests compare), without its per-chunk machinery (1,900 SHREC sequences: 0.81 -> 0.45 s). Each shard file is
+    replaced atomically. Rows that are not whole shards, or an array not laid out as :func:`create_store` makes
+    it, are written by zarr."""
+    import google_crc32c  # zarr's own crc32c codec uses it
+    import zarr
+    from numcodecs import Blosc
+
+    per = rows_per_file(array)
+    start, stop, step = rows.indices(array.shape[0])
+    if not (_direct_shards(array) and step == 1 and start % per == 0 and (stop - start) % per == 0
+            and codes.shape == (stop - start, *array.shape[1:])):
+        with zarr.config.set(ZARR_WRITE):
+            array[rows] = codes
+        return
+    shuffle = {"noshuffle": Blosc.NOSHUFFLE, "shuffle": Blosc.SHUFFLE, "bitshuffle": Blosc.BITSHUFFLE}
+    blosc = Blosc(cname=COMPRESSOR["cname"], clevel=COMPRESSOR["clevel"], shuffle=shuffle[COMPRESSOR["shuffle"]],
+                  blocksize=0)
+    codes = np.ascontiguousarray(codes, dtype="<u2")
+    tail = (0,) * (array.ndim - 1)
+    for first in range(0, len(codes), per):
+        key = array.metadata.encode_chunk_key(((start + first) // per, *tail))
+        with atomic_path(Path(path) / "frames" / key) as tmp, open(tmp, "wb") as f:
+            index, offset = np.empty((per, 2), dtype="<u8"), 0
+            for k, row in enumerate(codes[first:first + per]):
+                chunk = blosc.encode(row)
+                f.write(chunk)
+                f.write(google_crc32c.value(chunk).to_bytes(CRC_BYTES, "little"))
+                index[k] = offset, len(chunk) + CRC_BYTES
+                offset += len(chunk) + CRC_BYTES
+            f.write(index.tobytes())
+            f.write(google_crc32c.value(index.tobytes()).to_bytes(CRC_BYTES, "little"))
+
+
+def _direct_shards(array) -> bool:
+    """Whether ``array`` is laid out as :func:`create_store` makes the frames array, which :func:`write_frames`
+    writes itself: uint16, sharded along the rows with one row per inner chunk, the chunk codecs bytes (little
+    endian), Blosc with :data:`COMPRESSOR` and CRC-32C, the index (little endian, CRC-32C) at the end."""
+    from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec, ShardingCodec, ShardingCodecIndexLocation
+
+    codecs = tuple(array.metadata.codecs)
+    if not (np.dtype(array.dtype) == np.uint16 and len(codecs) == 1 and type(codecs[0]) is ShardingCodec
+            and getattr(array, "shards", None) and tuple(array.shards[1:]) == tuple(array.shape[1:])
+            and tuple(array.chunks) == (1, *array.shape[1:])):
+        return False
+    sharding = codecs[0]
+    inner, index = tuple(sharding.codecs), tuple(sharding.index_codecs)
+    if [type(c) for c in inner] != [BytesCodec, BloscCodec, Crc32cCodec] or [type(c) for c in index] != [
+            BytesCodec, Crc32cCodec] or sharding.index_location != ShardingCodecIndexLocation.end:
+        return False
+    blosc = inner[1]
+    settings = (str(getattr(blosc.cname, "value", blosc.cname)), blosc.clevel,
+                str(getattr(blosc.shuffle, "value", blosc.shuffle)), blosc.typesize, blosc.blocksize)
+    little = all(str(getattr(c.endian, "value", c.endian)) == "little" for c in (inner[0], index[0]))
+    return little and settings == (COMPRESSOR["cname"], COMPRESSOR["clevel"], COMPRESSOR["shuffle"], 2, 0)
 
 
 def rows_per_file(array) -> int:

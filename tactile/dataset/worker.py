@@ -40,6 +40,7 @@ from tactile.dataset.store import (
     row_checksums,
     settings_digest,
     update_digest,
+    write_frames,
     write_record,
 )
 from tactile.sensor import FSRSensor
@@ -159,14 +160,17 @@ def explore_into_store(
                 np.isfinite(values).all()
             ):
                 raise ContourError(f"{spec.name} ({strategy}): {name} contain NaN or Inf; nothing was written")
-        with zarr.config.set(ZARR_WRITE):
-            for name, values in out.items():
-                started = time.perf_counter()
-                arrays[name][rows] = values
-                write_seconds += time.perf_counter() - started
-                update_digest(digests[name], values, arrays[name].dtype)  # strategies in row order
-                if name in ROW_CHECKED_ARRAYS:
-                    sums[name].append(row_checksums(values, arrays[name].dtype))
+        for name, values in out.items():
+            started = time.perf_counter()
+            if name == "frames":
+                write_frames(store, arrays[name], rows, values)
+            else:
+                with zarr.config.set(ZARR_WRITE):
+                    arrays[name][rows] = values
+            write_seconds += time.perf_counter() - started
+            update_digest(digests[name], values, arrays[name].dtype)  # strategies in row order
+            if name in ROW_CHECKED_ARRAYS:
+                sums[name].append(row_checksums(values, arrays[name].dtype))
     record = {
         "index": index,
         "name": spec.name,

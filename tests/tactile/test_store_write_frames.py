@@ -1,0 +1,105 @@
+"""store.write_frames: the frames shards written without zarr's codec pipeline are the bytes zarr writes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+from tactile.dataset import open_dataset
+from tactile.dataset import store as store_module
+from tactile.dataset.store import ZARR_WRITE, chunk_files, open_for_writing, write_frames
+
+
+def _codes(shape, seed: int) -> np.ndarray:
+    """Codes of mixed compressibility: smooth ramps, noise, a row of zeros and one of the largest code."""
+    rng = np.random.default_rng(seed)
+    codes = (np.arange(np.prod(shape[1:])).reshape(shape[1:]) * 37 % 4096).astype(np.uint16)[None].repeat(shape[0], 0)
+    codes[1::2] = rng.integers(0, 65536, (len(codes[1::2]), *shape[1:]), dtype=np.uint16)
+    codes[0] = 0
+    codes[-1] = 65535
+    return codes
+
+
+def _shard_bytes(path: Path, array, rows: slice) -> list[bytes]:
+    return [f.read_bytes() for f in chunk_files(path, "frames", array, rows.start, rows.stop)]
+
+
+def test_shard_files_are_the_bytes_zarr_writes(copy, tmp_path):
+    import shutil
+
+    other = Path(shutil.copytree(copy, tmp_path / "other.zarr"))
+    mine, theirs = open_for_writing(copy, "frames"), open_for_writing(other, "frames")
+    rows = slice(0, 2 * store_module.rows_per_file(mine))  # both objects' shards
+    codes = _codes((rows.stop, *mine.shape[1:]), 0)
+    write_frames(copy, mine, rows, codes)
+    with zarr.config.set(ZARR_WRITE):
+        theirs[rows] = codes
+    ours, zarrs = _shard_bytes(copy, mine, rows), _shard_bytes(other, theirs, rows)
+    assert len(ours) == 2 and ours == zarrs
+    assert np.array_equal(zarr.open_array(f"{copy}/frames", mode="r")[rows], codes)
+
+
+def test_store_generated_through_it_reads_back(store):
+    # The fixture's store was written by generate(), which writes frames through write_frames: zarr reads every
+    # shard, and each row's CRC-32C matches its record (open_dataset checks them).
+    data = open_dataset(store)
+    frames = data.frames(np.arange(len(data)))
+    assert frames.shape[0] == len(data) and np.isfinite(frames).all() and frames.max() > 0
+
+
+def test_rows_that_are_not_whole_shards_go_through_zarr(copy, monkeypatch):
+    array = open_for_writing(copy, "frames")
+    codes = _codes((2, *array.shape[1:]), 1)
+    monkeypatch.setattr(store_module, "atomic_path", lambda *a: pytest.fail("wrote a whole shard for 2 rows"))
+    write_frames(copy, array, slice(1, 3), codes)
+    assert np.array_equal(zarr.open_array(f"{copy}/frames", mode="r")[1:3], codes)
+
+
+def test_another_layout_goes_through_zarr(tmp_path, monkeypatch):
+    from zarr.codecs import BloscCodec, Crc32cCodec
+
+    monkeypatch.setattr(store_module, "atomic_path", lambda *a: pytest.fail("wrote a shard zarr would encode otherwise"))
+    for compressor in ({"cname": "lz4", "clevel": 5, "shuffle": "shuffle"},
+                       {"cname": "zstd", "clevel": 1, "shuffle": "bitshuffle"}):
+        path = tmp_path / f"{compressor['cname']}-{compressor['shuffle']}"
+        group = zarr.open_group(path, mode="w")
+        group.create_array("frames", shape=(4, 3, 2, 2), dtype="uint16", shards=(2, 3, 2, 2), chunks=(1, 3, 2, 2),
+                           compressors=[BloscCodec(**compressor), Crc32cCodec()], fill_value=0)
+        array = open_for_writing(path, "frames")
+        assert not store_module._direct_shards(array)
+        codes = _codes((4, 3, 2, 2), 2)
+        write_frames(path, array, slice(0, 4), codes)
+        assert np.array_equal(zarr.open_array(f"{path}/frames", mode="r")[:], codes)
+
+
+def test_the_other_arrays_are_not_laid_out_for_it(copy):
+    for name in ("positions", "labels", "pad_sides_mm"):
+        assert not store_module._direct_shards(open_for_writing(copy, name))
+    assert store_module._direct_shards(open_for_writing(copy, "frames"))
+
+
+def test_an_interrupted_write_leaves_the_old_shard_and_no_temporary_file(copy, monkeypatch):
+    from numcodecs import Blosc
+
+    array = open_for_writing(copy, "frames")
+    per = store_module.rows_per_file(array)
+    (shard,) = chunk_files(copy, "frames", array, 0, per)
+    before = shard.read_bytes()
+    calls = {"n": 0}
+    encode = Blosc.encode
+
+    def failing(self, buf):
+        calls["n"] += 1
+        if calls["n"] == per - 1:
+            raise KeyboardInterrupt
+        return encode(self, buf)
+
+    monkeypatch.setattr(Blosc, "encode", failing)
+    with pytest.raises(KeyboardInterrupt):
+        write_frames(copy, array, slice(0, per), _codes((per, *array.shape[1:]), 3))
+    assert calls["n"] == per - 1
+    assert shard.read_bytes() == before
+    assert sorted(p.name for p in shard.parent.iterdir()) == [shard.name]
