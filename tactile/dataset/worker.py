@@ -29,7 +29,6 @@ from tactile.dataset.objects import ObjectSpec
 from tactile.dataset.store import (
     ARRAYS,
     ROW_CHECKED_ARRAYS,
-    ZARR_WRITE,
     array_digest,
     contour_seed,
     encode_frames,
@@ -40,8 +39,8 @@ from tactile.dataset.store import (
     row_checksums,
     settings_digest,
     update_digest,
-    write_frames,
     write_record,
+    write_rows,
 )
 from tactile.sensor import FSRSensor
 from tactile.touching import Toucher
@@ -100,8 +99,6 @@ def explore_into_store(
     label = settings["class_names"].index(spec.label)
     model = spec.load()
     sampling.check_not_flat(model)  # as touch: a flat plate fails at once, not after MAX_DRAWS
-    import zarr
-
     # Named, not listed: listing the group would trip over the records folder (not a zarr node).
     arrays = {name: open_for_writing(store, name) for name in ARRAYS}
     digests = {name: array_digest() for name in ARRAYS}
@@ -162,11 +159,7 @@ def explore_into_store(
                 raise ContourError(f"{spec.name} ({strategy}): {name} contain NaN or Inf; nothing was written")
         for name, values in out.items():
             started = time.perf_counter()
-            if name == "frames":
-                write_frames(store, arrays[name], rows, values)
-            else:
-                with zarr.config.set(ZARR_WRITE):
-                    arrays[name][rows] = values
+            write_rows(store, name, arrays[name], rows, values)
             write_seconds += time.perf_counter() - started
             update_digest(digests[name], values, arrays[name].dtype)  # strategies in row order
             if name in ROW_CHECKED_ARRAYS:
