@@ -495,20 +495,13 @@ def test_write_seconds_add_up_every_write(tmp_path, monkeypatch):
 
     out = tmp_path / "store"
     generate([("box", 0)], out, workers=1, **BLIND)
-    real_open = worker.open_for_writing
+    real_write = worker.write_rows
 
-    class Slow:
-        def __init__(self, array):
-            self.array = array
+    def slow_write(*args):
+        time.sleep(0.005)
+        real_write(*args)
 
-        def __setitem__(self, key, value):
-            time.sleep(0.005)
-            self.array[key] = value
-
-        def __getattr__(self, name):
-            return getattr(self.array, name)
-
-    monkeypatch.setattr(worker, "open_for_writing", lambda *a, **k: Slow(real_open(*a, **k)))
+    monkeypatch.setattr(worker, "write_rows", slow_write)
     settings = read_attrs(out)["settings"]
     record = worker.explore_into_store(str(out), 0, ObjectSpec("box/0", "box", catalogue=("box", 0)), settings,
                                        FSRSensor.from_spec(settings["sensor"]))

@@ -85,8 +85,8 @@ def test_another_layout_goes_through_zarr(tmp_path, monkeypatch):
     from zarr.codecs import BloscCodec, Crc32cCodec
 
     monkeypatch.setattr(store_module, "atomic_path", lambda *a: pytest.fail("wrote a shard zarr would encode otherwise"))
-    for compressor in ({"cname": "lz4", "clevel": 5, "shuffle": "shuffle"},
-                       {"cname": "zstd", "clevel": 1, "shuffle": "bitshuffle"}):
+    for compressor in ({"cname": "zstd", "clevel": 1, "shuffle": "shuffle"},  # the stores written until 2026-11-27
+                       {"cname": "lz4", "clevel": 5, "shuffle": "bitshuffle"}):
         path = tmp_path / f"{compressor['cname']}-{compressor['shuffle']}"
         group = zarr.open_group(path, mode="w")
         group.create_array("frames", shape=(4, 3, 2, 2), dtype="uint16", shards=(2, 3, 2, 2), chunks=(1, 3, 2, 2),
@@ -133,3 +133,21 @@ def test_an_interrupted_write_leaves_the_old_shard_and_no_temporary_file(copy, m
     assert calls["n"] == per - 1
     assert shard.read_bytes() == before
     assert sorted(p.name for p in shard.parent.iterdir()) == [shard.name]
+
+
+def test_a_store_compressed_as_before_is_written_and_read_the_same(tmp_path, monkeypatch, store):
+    # Arrays created with zstd (the stores written until 2026-11-27): the workers see another layout and write through
+    # zarr, and the store reads the same values as the fixture's (LZ4) store; its chunk files are zstd frames.
+    from tests._small_store import small_store
+
+    monkeypatch.setattr(store_module, "COMPRESSOR", {"cname": "zstd", "clevel": 1, "shuffle": "shuffle"})
+    old = small_store(tmp_path / "zstd.zarr")
+    monkeypatch.undo()
+    frames = open_for_writing(old, "frames")
+    assert not store_module._direct_layout(frames)
+    blosc_codec = frames.metadata.codecs[0].codecs[1]
+    assert str(getattr(blosc_codec.cname, "value", blosc_codec.cname)) == "zstd"
+    a, b = open_dataset(old), open_dataset(store)
+    rows = np.arange(len(b))
+    assert np.array_equal(a.frames(rows), b.frames(rows))
+    assert np.array_equal(a.labels, b.labels)
