@@ -180,7 +180,9 @@ def write_model_file(path: str | Path, description: dict, arrays: dict[str, np.n
     from safetensors.numpy import save
 
     text = json.dumps(description, sort_keys=True, allow_nan=False, separators=(",", ":"))
-    arrays = {k: np.array(v, order="C", copy=True) for k, v in arrays.items()}
+    # Little-endian, as safetensors stores and the reader returns them: the digest is of what the file holds.
+    arrays = {k: np.array(v, dtype=np.asarray(v).dtype.newbyteorder("<"), order="C", copy=True)
+              for k, v in arrays.items()}
     data = save(arrays, metadata={FORMAT_NAME: f"{content_digest(text, arrays)} {text}"})
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)

@@ -97,6 +97,27 @@ def test_plain_data_state_round_trips_with_its_types(circles, tmp_path):
     assert type(notes["scale"]) is np.float32 and notes["scale"] == 0.5
 
 
+def test_big_endian_state_is_saved_as_little_endian_and_loads(circles, tmp_path):
+    # Fitted state in big-endian arrays (data read from a big-endian file) used to be written with a checksum of the
+    # big-endian bytes while the file holds little-endian ones: its own loader refused it as damaged.
+    model = Centroid().fit(circles)
+    little = model.centres_.copy()
+    model.centres_ = little.astype(little.dtype.newbyteorder(">"))
+    model.notes_["counts"] = np.array([3, -2, 70000], dtype=">i4")
+    model.notes_["scale"] = np.array(0.25, dtype=">f4")[()]  # a big-endian numpy scalar
+    path = model.save(tmp_path / "big.vtm")
+    loaded = load_model(path)
+    assert loaded.centres_.dtype == little.dtype.newbyteorder("<") and loaded.centres_.tobytes() == little.tobytes()
+    assert loaded.notes_["counts"].dtype == np.dtype("<i4") and loaded.notes_["counts"].tolist() == [3, -2, 70000]
+    assert loaded.notes_["scale"] == 0.25 and loaded.notes_["scale"].dtype == np.float32
+    assert loaded.predict_proba(circles).tobytes() == model.predict_proba(circles).tobytes()
+    # The same model in native byte order writes the same file.
+    model.centres_ = little
+    model.notes_["counts"] = np.array([3, -2, 70000], dtype="<i4")
+    model.notes_["scale"] = np.float32(0.25)
+    assert model.save(tmp_path / "little.vtm").read_bytes() == path.read_bytes()
+
+
 def test_model_files_are_safetensors_with_a_json_description(models, tmp_path):
     fitted, _ = models
     path = fitted["cnn"].save(tmp_path / "cnn.vtm")
