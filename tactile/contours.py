@@ -31,9 +31,9 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., i] * b[..., j] - a[..., j] * b[..., i]
 
 
-def _shifted(a: np.ndarray) -> np.ndarray:
-    """``np.roll(a, -1, axis=0)`` (the next row, cyclically) without np.roll's set-up cost."""
-    return np.concatenate((a[1:], a[:1]))
+def _shifted(a: np.ndarray, k: int = 1) -> np.ndarray:
+    """``np.roll(a, -k, axis=0)`` (row k first, cyclically; 0 <= k < len(a)) without np.roll's set-up cost."""
+    return np.concatenate((a[k:], a[:k]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,28 +221,28 @@ def _walk(edges: np.ndarray, n_nodes: int) -> list[tuple[list[int], list[int], b
 
 
 def _walk_loops(edges: np.ndarray, n_nodes: int) -> list[tuple[list[int], list[int], bool]]:
-    """:func:`_walk` when every node has two edges (the section of a closed manifold): disjoint loops,
-    followed with flat lists only (the usual case, so it is kept lean)."""
-    incident = (np.argsort(edges.ravel(), kind="stable") // 2).reshape(n_nodes, 2).tolist()
-    endpoints = edges.tolist()
-    used = [False] * len(edges)
+    """:func:`_walk` when every node has two edges (the section of a closed manifold): disjoint loops, each from
+    its first unused edge ``(a, b)``, a to b first (the usual case, so its step is lean: the other edge at a node
+    is the sum of its two edges less the one it came by, the next node the sum of the edge's ends less this one)."""
+    incident = (np.argsort(edges.ravel(), kind="stable") // 2).reshape(n_nodes, 2)
+    other_edge = incident.sum(axis=1).tolist()
+    other_end = edges.sum(axis=1).tolist()
+    used = np.zeros(len(edges), dtype=bool)
     walks = []
-    for first in range(len(edges)):
-        if used[first]:
-            continue
-        start, node = endpoints[first]
+    first = 0
+    while True:
+        start, node = edges[first].tolist()
         nodes, path, edge = [start], [first], first
-        used[first] = True
         while node != start:
             nodes.append(node)
-            a, b = incident[node]
-            edge = b if a == edge else a
-            used[edge] = True
+            edge = other_edge[node] - edge
             path.append(edge)
-            u, v = endpoints[edge]
-            node = v if u == node else u
+            node = other_end[edge] - node
         walks.append((nodes, path, True))  # segments are unique, so a loop has >= 3
-    return walks
+        used[path] = True
+        first = int(np.argmin(used))
+        if used[first]:
+            return walks
 
 
 def section_chains(model: ObjectModel, plane: Plane) -> list[Chain]:
@@ -277,7 +277,8 @@ def section(model: ObjectModel, plane: Plane) -> list[np.ndarray]:
 def signed_area(points: np.ndarray, plane: Plane) -> float:
     """Signed area (mm^2) enclosed by a closed polyline, counter-clockwise about the plane normal > 0."""
     u, v = plane.basis()
-    x, y = (points - plane.point) @ u, (points - plane.point) @ v
+    relative = points - plane.point
+    x, y = relative @ u, relative @ v
     return 0.5 * float(np.sum(x * _shifted(y) - _shifted(x) * y))
 
 
@@ -384,7 +385,7 @@ def choose_chain(chains: list[Chain], plane: Plane) -> Chain:
     loop = loops[best]
     if areas[best] < 0:
         # Reversed node order: segment k now runs between old nodes m-1-k and m-2-k.
-        loop = Chain(loop.points[::-1].copy(), True, np.roll(loop.triangle_ids[::-1], -1))
+        loop = Chain(loop.points[::-1].copy(), True, _shifted(loop.triangle_ids[::-1]))
     return loop
 
 
@@ -442,8 +443,8 @@ def make_contour(model: ObjectModel, plane: Plane, n_probes: int = 25, *, start=
             first = _furthest_start(points, plane.point)
         else:
             first = int(np.argmin(np.linalg.norm(points - np.asarray(start, dtype=np.float64), axis=1)))
-        points, tris = np.roll(points, -first, axis=0), np.roll(tris, -first)
-        ends = np.roll(points, -1, axis=0)
+        points, tris = _shifted(points, first), _shifted(tris, first)
+        ends = _shifted(points)
     else:
         ends = points[1:]
     starts = points[: len(ends)]

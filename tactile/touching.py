@@ -160,6 +160,7 @@ class Toucher:
         self.points = sampling.candidates(model, strategy, saliency)
         self._cuts: dict[tuple[bytes, bytes], Contour | ContourError] = {}
         self._pairs: list[Plane] | None = None
+        self._last_order: sampling.PairOrder | None = None
 
     @property
     def guided(self) -> bool:
@@ -187,7 +188,10 @@ class Toucher:
                     continue
                 usable.append(plane)
             self._pairs = usable
-        return sampling.PairOrder(self._pairs, seed, self.model.name)
+        last = self._last_order  # kept: a store asks for one position of the same order per row
+        if last is None or isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or last.seed != seed:
+            last = self._last_order = sampling.PairOrder(self._pairs, seed, self.model.name)
+        return last
 
     def cut(self, plane) -> Contour:
         """The contour of ``plane`` (cut once per plane).

@@ -363,3 +363,18 @@ def test_pair_setting_reads_one_name_or_several_and_refuses_unknown_ones():
     assert sampling.pair_setting("blind") == sampling.pair_setting(("blind",)) == {}
     with pytest.raises(InvalidArgumentError, match="bogus"):
         sampling.pair_setting(["blind", "bogus"])
+
+
+def test_toucher_keeps_its_last_pair_order_and_checks_every_seed(mug_guided):
+    model, sal = mug_guided
+    toucher = Toucher(model, "guided", probes=6, saliency=sal)
+    first = toucher.pair_order(7)
+    assert toucher.pair_order(7) is first and toucher.pair_order(np.int64(7)) is first
+    fresh = sampling.PairOrder(first.planes, 7, model.name)
+    assert [p.normal.tobytes() for p in first] == [p.normal.tobytes() for p in fresh]
+    other = toucher.pair_order(8)
+    assert other is not first and other.seed == 8 and toucher.pair_order(8) is other
+    assert [p.normal.tobytes() for p in toucher.pair_order(7)] == [p.normal.tobytes() for p in fresh]
+    for bad in (-1, True, 2**63, 7.0, [7]):
+        with pytest.raises(InvalidArgumentError, match="seed"):
+            toucher.pair_order(bad)
