@@ -589,10 +589,10 @@ def write_rows(path: str | Path, name: str, array, rows: slice, values: np.ndarr
     import zarr
     from numcodecs import Blosc
 
-    per = rows_per_file(array)
-    start, stop, step = rows.indices(array.shape[0])
+    per = rows_per_file(array) if _direct_layout(array) else 0
+    start, stop, step = rows.indices(array.shape[0]) if isinstance(rows, slice) else (0, 0, 0)
     values = np.asarray(values)
-    if not (_direct_layout(array) and step == 1 and start % per == 0 and (stop - start) % per == 0
+    if not (per and step == 1 and start % per == 0 and (stop - start) % per == 0
             and values.shape == (stop - start, *array.shape[1:])):
         with zarr.config.set(ZARR_WRITE):
             array[rows] = values
@@ -623,8 +623,8 @@ def write_rows(path: str | Path, name: str, array, rows: slice, values: np.ndarr
 
 
 def _direct_layout(array) -> bool:
-    """Whether ``array`` is laid out as :func:`create_store` makes it, which :func:`write_rows` writes itself: the
-    chunk codecs bytes (little endian), Blosc with :data:`COMPRESSOR` (type size the dtype's, automatic block
+    """Whether ``array`` (opened with :func:`open_for_writing`: writable, every chunk written) is laid out as
+    :func:`create_store` makes it, which :func:`write_rows` writes itself: the chunk codecs bytes (little endian), Blosc with :data:`COMPRESSOR` (type size the dtype's, automatic block
     size) and CRC-32C; chunks of whole rows; sharded (frames) only along the rows, one row per inner chunk, the
     index (little endian, CRC-32C) at the end."""
     from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec, ShardingCodec, ShardingCodecIndexLocation
@@ -632,6 +632,9 @@ def _direct_layout(array) -> bool:
     def value(setting):
         return str(getattr(setting, "value", setting))
 
+    # Read-only arrays, and arrays that skip empty chunks, are zarr's to write (or to refuse); zarr v2 has no codecs.
+    if array.read_only or not array.config.write_empty_chunks or not hasattr(array.metadata, "codecs"):
+        return False
     codecs = tuple(array.metadata.codecs)
     trailing = tuple(array.shape[1:])
     if getattr(array, "shards", None):
