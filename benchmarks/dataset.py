@@ -12,7 +12,7 @@ One run measures, on the same objects and cores:
     contours repeat (pairs of 10 interest points), and generation presses a repeated contour once, so the
     ratio can pass 1; the table also gives the raw time of the distinct contours alone and the ratio of
     that to the generation time (the share of generation that is the unavoidable ray casting).
-(c) Writing: the seconds the workers spent handing rows to zarr (encode, checksum, write) beside Blosc with
+(c) Writing: the seconds the workers spent writing rows (encode, checksum, write the files) beside Blosc with
     the store's settings encoding the same bytes chunk by chunk and nothing else (both summed over workers,
     / workers).
     Storage: bytes per sequence on disk, and the frame encoding compared on stored sequences: quantised
@@ -224,7 +224,7 @@ def storage(store: Path, n: int = 400) -> dict:
 
 
 def writing(store: Path, workers: int) -> dict:
-    """The generation's writing stage beside its limit: the seconds the workers spent handing rows to zarr
+    """The generation's writing stage beside its limit: the seconds the workers spent writing rows
     (each object's record, ``write_seconds``; summed, / workers) and Blosc with the store's settings encoding
     the same bytes, chunk by chunk as the store holds them, and nothing else (summed, / workers)."""
     import zarr

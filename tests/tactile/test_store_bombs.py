@@ -33,7 +33,8 @@ GROWTH_LIMIT = 12 << 20
 
 @pytest.fixture(scope="module")
 def bomb() -> bytes:
-    """A chunk as the store writes them (Blosc zstd level 1, byte shuffle; its CRC-32C) of BOMB_BYTES zeros."""
+    """A chunk as the stores written until 2026-11-27 hold them (Blosc zstd level 1, byte shuffle; its CRC-32C; any
+    Blosc codec reads) of BOMB_BYTES zeros."""
     from numcodecs import Blosc
 
     codec = Blosc(cname="zstd", clevel=1, shuffle=Blosc.SHUFFLE, blocksize=BOMB_BYTES)
