@@ -486,6 +486,52 @@ def test_records_time_the_writes_and_the_benchmark_encodes_every_stored_byte(bli
     assert found["blosc_seconds"] > 0 and found["ratio"] == pytest.approx(2 * found["blosc_seconds"] / sum(r["write_seconds"] for r in records))
 
 
+def test_the_benchmark_times_the_repeats_that_do_not_sample_memory(tmp_path, monkeypatch):
+    """With several repeats only the first generation samples memory (sampling slows it); the time is the median
+    of the others. The generation and the later stages are stand-ins: only the bookkeeping is under test."""
+    import benchmarks.dataset as bench
+    import tactile.dataset as dataset_module
+
+    seconds = iter([50.0, 10.0, 30.0, 20.0])
+    sampled = []
+
+    class Report:
+        failed, sequences = [], 100
+
+        def __init__(self):
+            self.seconds = next(seconds)
+
+    class Sampler:
+        def __init__(self):
+            self.peak = 123
+
+        def __enter__(self):
+            sampled.append(True)
+            return self
+
+        def __exit__(self, *exc):
+            return None
+
+    def fake_generate(objects, store, **kwargs):
+        Path(store).mkdir(parents=True)
+        return Report()
+
+    monkeypatch.setattr(dataset_module, "generate", fake_generate)
+    monkeypatch.setattr(bench, "PeakMemory", Sampler)
+    monkeypatch.setattr(bench, "raw_limit", lambda store, workers: {"sequences_per_s": 10.0,
+                                                                    "distinct_cast_seconds_sum": 8.0})
+    for stage in ("storage", "loader_epoch"):
+        monkeypatch.setattr(bench, stage, lambda store, *a: {})
+    monkeypatch.setattr(bench, "writing", lambda store, workers: {})
+    result = bench.run("quick", 2, tmp_path / "out", False, 4)
+    generation = result["generation"]
+    assert sampled == [True] and generation["peak_bytes"] == 123
+    assert generation["seconds_all"] == [50.0, 10.0, 30.0, 20.0] and generation["seconds"] == 20.0
+    assert generation["sequences_per_s"] == 5.0 and result["ratio_to_raw_distinct"] == 4.0 / 20.0
+    seconds = iter([7.0])
+    assert bench.run("quick", 2, tmp_path / "one", False, 1)["generation"]["seconds"] == 7.0  # one run: it samples
+
+
 def test_write_seconds_add_up_every_write(tmp_path, monkeypatch):
     """Each array's rows are timed into the record: slowing every write by 5 ms shows in the total (the worker run
     in this process, rewriting a stored object's rows)."""
