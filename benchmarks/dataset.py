@@ -191,11 +191,9 @@ def raw_limit(store: Path, workers: int) -> dict:
 # ----------------------------------------------------------------------------------- storage
 def _store_codec():
     """Blosc with the store's settings (:data:`tactile.dataset.store.COMPRESSOR`), alone."""
-    import numcodecs
+    from tactile.dataset.store import compressor
 
-    from tactile.dataset.store import COMPRESSOR
-
-    return numcodecs.Blosc(COMPRESSOR["cname"], COMPRESSOR["clevel"], numcodecs.Blosc.SHUFFLE)
+    return compressor()
 
 
 def storage(store: Path, n: int = 400) -> dict:

@@ -68,7 +68,7 @@ from fusion.calibration import (
     log_proba,
 )
 from perception.errors import DatasetError, InvalidArgumentError, ModelFileError
-from perception.limits import limit
+from perception.limits import check_bytes, limit
 
 log = logging.getLogger(__name__)
 
@@ -144,8 +144,6 @@ def class_distances(embedding: np.ndarray, reference: np.ndarray, reference_labe
             above the memory limit (:func:`perception.limits.check_bytes`).
     """
     from scipy.spatial import cKDTree
-
-    from perception.limits import check_bytes
 
     embedding, reference = np.asarray(embedding, dtype=np.float64), np.asarray(reference, dtype=np.float64)
     labels = np.asarray(reference_labels)

@@ -36,6 +36,7 @@ from tactile.dataset.store import (
     rows_per_file,
     settings_digest,
     update_digest,
+    written_with_other_settings,
 )
 
 log = logging.getLogger(__name__)
@@ -97,10 +98,9 @@ def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: 
     if not isinstance(digests, dict):
         return "its completion record holds no digests"
     problems = []
-    # Both absent in records written before they were kept (null is damage).
-    if "settings_sha256" in record and record["settings_sha256"] != settings_digest(settings):
+    if written_with_other_settings(record, settings_digest(settings)):
         problems.append("it was written with other settings than the store's zarr.json now holds")
-    kept = "row_checksums" in record
+    kept = "row_checksums" in record  # absent in records written before they were kept (null is damage)
     sums = record.get("row_checksums")
     with zarr.config.set(ZARR_READ):
         for array_name in ARRAYS:

@@ -30,6 +30,7 @@ from tactile.dataset.store import (
     rows_per_file,
     settings_digest,
     update_digest,
+    written_with_other_settings,
 )
 from tactile.explore import SequenceBatch, sequence_nbytes
 
@@ -178,8 +179,8 @@ class TactileDataset:
             DatasetError: naming the first object whose record holds another digest.
         """
         current = settings_digest(self._settings)
-        for i in complete:  # a record without the key was written before records held it; null is damage
-            if "settings_sha256" in self._records[i] and self._records[i]["settings_sha256"] != current:
+        for i in complete:
+            if written_with_other_settings(self._records[i], current):
                 raise DatasetError(
                     f"{self.path}: object {self._settings['objects'][i]['name']!r} was written with other settings "
                     "than the store's zarr.json now holds: the metadata was edited or the store is damaged; "

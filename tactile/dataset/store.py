@@ -577,6 +577,22 @@ def open_for_writing(path: str | Path, name: str):
     return zarr.open_array(f"{path}/{name}", mode="r+").with_config({"write_empty_chunks": True})
 
 
+def compressor():
+    """numcodecs' Blosc with :data:`COMPRESSOR` (type size from the data, automatic block size): what zarr's Blosc
+    codec of a store's arrays runs."""
+    from numcodecs import Blosc
+
+    shuffle = {"noshuffle": Blosc.NOSHUFFLE, "shuffle": Blosc.SHUFFLE, "bitshuffle": Blosc.BITSHUFFLE}
+    return Blosc(cname=COMPRESSOR["cname"], clevel=COMPRESSOR["clevel"], shuffle=shuffle[COMPRESSOR["shuffle"]],
+                 blocksize=0)
+
+
+def written_with_other_settings(record: dict, digest: str) -> bool:
+    """Whether a completion record holds the digest of other settings than ``digest`` (:func:`settings_digest` of
+    the store's settings now). A record without the key was written before records held it; null is damage."""
+    return "settings_sha256" in record and record["settings_sha256"] != digest
+
+
 def write_rows(path: str | Path, name: str, array, rows: slice, values: np.ndarray) -> None:
     """``array[rows] = values`` for array ``name`` of a store (opened with :func:`open_for_writing`), whole chunk
     files at a time, each replaced atomically, in the bytes zarr writes for them (tests compare) without its
@@ -587,7 +603,6 @@ def write_rows(path: str | Path, name: str, array, rows: slice, values: np.ndarr
     not laid out as :func:`create_store` makes it (an older store's codecs), are written by zarr."""
     import google_crc32c  # zarr's own crc32c codec uses it
     import zarr
-    from numcodecs import Blosc
 
     per = rows_per_file(array) if _direct_layout(array) else 0
     start, stop, step = rows.indices(array.shape[0]) if isinstance(rows, slice) else (0, 0, 0)
@@ -597,9 +612,7 @@ def write_rows(path: str | Path, name: str, array, rows: slice, values: np.ndarr
         with zarr.config.set(ZARR_WRITE):
             array[rows] = values
         return
-    shuffle = {"noshuffle": Blosc.NOSHUFFLE, "shuffle": Blosc.SHUFFLE, "bitshuffle": Blosc.BITSHUFFLE}
-    blosc = Blosc(cname=COMPRESSOR["cname"], clevel=COMPRESSOR["clevel"], shuffle=shuffle[COMPRESSOR["shuffle"]],
-                  blocksize=0)
+    blosc = compressor()
     values = np.ascontiguousarray(values, dtype=np.dtype(array.dtype).newbyteorder("<"))
     sharded = bool(getattr(array, "shards", None))
     tail = (0,) * (array.ndim - 1)
@@ -951,6 +964,7 @@ __all__ = [
     "check_settings",
     "check_store_files",
     "chunk_files",
+    "compressor",
     "contour_seed",
     "create_store",
     "decode_frames",
@@ -974,4 +988,6 @@ __all__ = [
     "store_lock",
     "update_digest",
     "write_record",
+    "write_rows",
+    "written_with_other_settings",
 ]
