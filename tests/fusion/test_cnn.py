@@ -337,23 +337,22 @@ def test_steps_per_epoch_counts_the_batches_the_loop_runs(n_train, batch_size, s
     assert CNNClassifier(batch_size=batch_size)._steps_per_epoch(n_train) == steps
 
 
-@pytest.mark.parametrize("n_train,epochs", [(18240, 35), (4752, 100), (3168, 100), (2112, 100), (64, 100)])
+@pytest.mark.parametrize("n_train,epochs", [(18240, 18), (4752, 67), (3168, 100), (2112, 100), (64, 100)])
 def test_default_recipe_epochs_by_training_set_size(n_train, epochs):
-    # Default: 100 epochs of batches of 128, at most 5,000 steps. The paper protocol's training part (18,240
-    # sequences: 142 batches + 64, 143 steps an epoch) stops after ceil(5000 / 143) = 35 epochs; new_instances'
-    # training set (99 objects x 48 = 4,752: 37 batches + 16, 38 steps: 3,800 in 100 epochs), an unseen-objects
-    # fold (66 x 48 = 3,168: 25 steps) and smaller sets train all 100.
+    # Default: 100 epochs of batches of 64, at most 5,000 steps. The paper protocol's training part (18,240
+    # sequences: 285 steps an epoch) stops after ceil(5000 / 285) = 18 epochs, as it did with 50; new_instances'
+    # training set (99 objects x 48 = 4,752: 74 batches + 16, 75 steps) after ceil(5000 / 75) = 67; an
+    # unseen-objects fold (66 x 48 = 3,168: 49 batches + 32, 50 steps) and smaller sets train all 100.
     assert CNNClassifier().epochs_for(n_train) == epochs
 
 
 def test_epoch_projection_takes_the_default_epochs_cut_at_the_step_cap():
-    # The paper's 18,240 training sequences: 143 steps an epoch at batch 128, so the 5,000-step cap allows
-    # ceil(5000 / 143) = 35 of the default 100 epochs; a net that ran fewer in the benchmark's fit is projected with
-    # those.
+    # The paper's 18,240 training sequences: 285 steps an epoch, so the 5,000-step cap allows ceil(5000 / 285) = 18
+    # of the default 100 epochs; a net that ran fewer in the benchmark's fit is projected with those.
     from benchmarks.classifiers import epoch_projection
 
-    assert epoch_projection(16, None, 0, 1)["epochs"] == {"cutaneous": 35, "kinesthetic": 35}
-    assert epoch_projection(16, {"cutaneous": 40, "kinesthetic": 12}, 0, 1)["epochs"] == {"cutaneous": 35,
+    assert epoch_projection(16, None, 0, 1)["epochs"] == {"cutaneous": 18, "kinesthetic": 18}
+    assert epoch_projection(16, {"cutaneous": 30, "kinesthetic": 12}, 0, 1)["epochs"] == {"cutaneous": 18,
                                                                                        "kinesthetic": 12}
 
 
