@@ -17,9 +17,9 @@ from perception.errors import DataLeakError, DatasetError, InvalidArgumentError
 from tactile.dataset.store import (
     ROW_CHECKED_ARRAYS,
     ZARR_READ,
-    _damage,
     array_digest,
     check_arrays,
+    damage_message,
     decode_frames,
     decode_row_checksums,
     layout_of,
@@ -235,7 +235,7 @@ class TactileDataset:
         bad = np.flatnonzero(found != expected[known])
         if len(bad):
             row = int(rows[known][bad[0]])
-            raise DatasetError(_damage(self.path, self._owner(row), f"its {name} row {row % self._layout.block} "
+            raise DatasetError(damage_message(self.path, self._owner(row), f"its {name} row {row % self._layout.block} "
                                                                     "differs from the checksum in its record (a chunk "
                                                                     "moved from elsewhere or missing)"))
 
@@ -277,7 +277,7 @@ class TactileDataset:
             update_digest(digest, values[order[pos]], dtype)
             expected = self._records.get(int(obj), {}).get("digests")
             if not isinstance(expected, dict) or digest.hexdigest() != expected.get(name):
-                raise DatasetError(_damage(self.path, self._owner(obj * block),
+                raise DatasetError(damage_message(self.path, self._owner(obj * block),
                                            f"its {name} rows differ from the digest in its record"))
 
     def __len__(self) -> int:

@@ -712,20 +712,20 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.
         except (FileNotFoundError, NotADirectoryError):
             fd = None
         except OSError as exc:
-            raise DatasetError(_damage(path, owner, f"its {name} chunk {_key_of(path, file)} cannot be read "
+            raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} cannot be read "
                                                     f"({exc.strerror})")) from None
         try:
             info = os.fstat(fd) if fd is not None else None
             size = info.st_size if info is not None and stat.S_ISREG(info.st_mode) else 0
             if size == 0:
-                raise DatasetError(_damage(path, owner, f"its {name} chunk {_key_of(path, file)} is missing"))
+                raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} is missing"))
             if size > plan.most:
-                raise DatasetError(_damage(path, owner, f"its {name} chunk {_key_of(path, file)} is {size} bytes, "
+                raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} is {size} bytes, "
                                                         f"more than its rows can take ({plan.most})"))
             first = index * per
             problem = _header_problem(fd, size, plan, max(lo, first) - first, min(hi, first + per) - first)
             if problem:
-                raise DatasetError(_damage(path, owner, f"its {name} chunk {_key_of(path, file)} {problem}"))
+                raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} {problem}"))
         finally:
             if fd is not None:
                 os.close(fd)
@@ -734,7 +734,7 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.
     except MemoryError:
         raise
     except Exception as exc:  # noqa: BLE001 -- zarr and its codecs raise several types for damaged chunks
-        raise DatasetError(_damage(path, owner, f"its {name} rows {lo}..{hi - 1} do not read back "
+        raise DatasetError(damage_message(path, owner, f"its {name} rows {lo}..{hi - 1} do not read back "
                                                 f"({type(exc).__name__}: {str(exc)[:160]})")) from None
 
 
@@ -867,7 +867,8 @@ def _key_of(path: Path, file: Path) -> str:
     return file.relative_to(path).as_posix()
 
 
-def _damage(path: Path, owner: str, problem: str) -> str:
+def damage_message(path: Path, owner: str, problem: str) -> str:
+    """The message of a store object's damage: the store, the object, the problem, and how to repair it."""
     return (f"{path}: object {owner!r} is damaged: {problem}; `visuotactile verify {path}` lists the damaged "
             "objects and re-running generate re-explores them")
 
@@ -967,6 +968,7 @@ __all__ = [
     "compressor",
     "contour_seed",
     "create_store",
+    "damage_message",
     "decode_frames",
     "decode_row_checksums",
     "encode_frames",

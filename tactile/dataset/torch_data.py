@@ -9,7 +9,7 @@ import torch
 from torch.utils.data import Dataset
 
 from perception.errors import DatasetError
-from tactile.dataset.store import _damage, decode_frames, read_rows, row_checksums
+from tactile.dataset.store import damage_message, decode_frames, read_rows, row_checksums
 
 
 class TorchTactileDataset(Dataset):
@@ -46,7 +46,7 @@ class TorchTactileDataset(Dataset):
         codes = read_rows(Path(self.path), "frames", self._frames, row, row + 1, self.owners[i])
         if self.checksums is not None and self.checksums[1][i] and row_checksums(codes, codes.dtype)[0] != (
                 self.checksums[0][i]):
-            raise DatasetError(_damage(Path(self.path), self.owners[i], "its frames row differs from the checksum in "
+            raise DatasetError(damage_message(Path(self.path), self.owners[i], "its frames row differs from the checksum in "
                                                                         "its record (a chunk moved from elsewhere or "
                                                                         "missing)"))
         frames = decode_frames(codes[0], self.encoding)
