@@ -235,9 +235,9 @@ class TactileDataset:
         bad = np.flatnonzero(found != expected[known])
         if len(bad):
             row = int(rows[known][bad[0]])
-            raise DatasetError(damage_message(self.path, self._owner(row), f"its {name} row {row % self._layout.block} "
-                                                                    "differs from the checksum in its record (a chunk "
-                                                                    "moved from elsewhere or missing)"))
+            problem = (f"its {name} row {row % self._layout.block} differs from the checksum in its record (a chunk "
+                       "moved from elsewhere or missing)")
+            raise DatasetError(damage_message(self.path, self._owner(row), problem))
 
     def _column(self, name: str) -> np.ndarray:
         return self._read(name, self._rows)
@@ -278,7 +278,7 @@ class TactileDataset:
             expected = self._records.get(int(obj), {}).get("digests")
             if not isinstance(expected, dict) or digest.hexdigest() != expected.get(name):
                 raise DatasetError(damage_message(self.path, self._owner(obj * block),
-                                           f"its {name} rows differ from the digest in its record"))
+                                                  f"its {name} rows differ from the digest in its record"))
 
     def __len__(self) -> int:
         return len(self._rows)

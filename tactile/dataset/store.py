@@ -712,16 +712,16 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.
         except (FileNotFoundError, NotADirectoryError):
             fd = None
         except OSError as exc:
-            raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} cannot be read "
-                                                    f"({exc.strerror})")) from None
+            problem = f"its {name} chunk {_key_of(path, file)} cannot be read ({exc.strerror})"
+            raise DatasetError(damage_message(path, owner, problem)) from None
         try:
             info = os.fstat(fd) if fd is not None else None
             size = info.st_size if info is not None and stat.S_ISREG(info.st_mode) else 0
             if size == 0:
                 raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} is missing"))
             if size > plan.most:
-                raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} is {size} bytes, "
-                                                        f"more than its rows can take ({plan.most})"))
+                problem = f"its {name} chunk {_key_of(path, file)} is {size} bytes, more than its rows can take ({plan.most})"
+                raise DatasetError(damage_message(path, owner, problem))
             first = index * per
             problem = _header_problem(fd, size, plan, max(lo, first) - first, min(hi, first + per) - first)
             if problem:
@@ -734,8 +734,8 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.
     except MemoryError:
         raise
     except Exception as exc:  # noqa: BLE001 -- zarr and its codecs raise several types for damaged chunks
-        raise DatasetError(damage_message(path, owner, f"its {name} rows {lo}..{hi - 1} do not read back "
-                                                f"({type(exc).__name__}: {str(exc)[:160]})")) from None
+        problem = f"its {name} rows {lo}..{hi - 1} do not read back ({type(exc).__name__}: {str(exc)[:160]})"
+        raise DatasetError(damage_message(path, owner, problem)) from None
 
 
 @dataclass(frozen=True)

@@ -46,9 +46,8 @@ class TorchTactileDataset(Dataset):
         codes = read_rows(Path(self.path), "frames", self._frames, row, row + 1, self.owners[i])
         if self.checksums is not None and self.checksums[1][i] and row_checksums(codes, codes.dtype)[0] != (
                 self.checksums[0][i]):
-            raise DatasetError(damage_message(Path(self.path), self.owners[i], "its frames row differs from the checksum in "
-                                                                        "its record (a chunk moved from elsewhere or "
-                                                                        "missing)"))
+            problem = "its frames row differs from the checksum in its record (a chunk moved from elsewhere or missing)"
+            raise DatasetError(damage_message(Path(self.path), self.owners[i], problem))
         frames = decode_frames(codes[0], self.encoding)
         probe = {name: values[i] for name, values in self.probe.items()}
         return torch.from_numpy(frames), probe, torch.tensor(self.labels[i], dtype=torch.int64)
