@@ -304,7 +304,8 @@ def run(mode: str, workers: int, out: Path | None, keep: bool, repeats: int) -> 
             if report.failed:
                 result["failed"] = report.failed
             gen_times.append(report.seconds)
-            peak = mem.peak if r == 0 else peak
+            if r == 0:
+                peak = mem.peak
             if r:
                 shutil.rmtree(store)  # keep the first for the other measurements
         store = folder / "store-0"

@@ -43,9 +43,10 @@ protocol's training part (as for the cap) 99.75 against 99.70 % for batch 64 at 
 then end to end (`reproduce`, commit 21a4c8e): the blind paper pair 99.58 % [99.41, 99.76] in 217 s (guided 100 %,
 203 s), against 99.78 % for the paper's 50 epochs of 64 (388 s) on the same test sequences, paired -0.20
 [-0.37, -0.04] points; unseen objects K = 1 / 8 guided 90.7 / 96.0 %, blind 90.4 / 96.1 % (batch 64 on the same
-machine, commit ae7e8bd: 91.5 / 96.6, 91.2 / 97.4); and the full default run took 31.4 min (30.7 with 64). Early stopping is optional
-(``val_fraction > 0``: whole training objects held out, stopping on their accuracy, ties broken by loss, the best
-epoch's weights restored). It is off by default because on objects never trained on it cost more than it saved:
+machine, commit ae7e8bd: 91.5 / 96.6, 91.2 / 97.4); and the full default run took 31.4 min (30.7 with 64).
+Early stopping is optional (``val_fraction > 0``: whole training objects held out, stopping on their accuracy, ties
+broken by loss, the best epoch's weights restored). It is off by default because on objects never trained on it
+cost more than it saved:
 unseen SHREC objects (grouped 3-fold, blind, one fold), K = 1 / 8: 73.5 / 88.9 % with it (nets stopped after 9-43
 epochs, noisy validation on about ten held-out objects) against 85.0 / 91.9 % for 30 epochs on all the data; its
 validation curves were still rising at 40 epochs. Input statistics (frames: one mean and std; cues: per channel)

@@ -11,6 +11,7 @@ a damaged object loses its record and is explored again, so the store ends as an
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import shlex
@@ -326,8 +327,10 @@ def _child(conn, store: str, index: int, spec: ObjectSpec, settings: dict, senso
         conn.close()
 
 
+@functools.cache
 def _libc():
-    """The C library's functions as ctypes sees them (the process's own symbols), or None where it cannot."""
+    """The C library's functions as ctypes sees them (the process's own symbols), or None where it cannot; loaded
+    once per process."""
     try:
         import ctypes
 

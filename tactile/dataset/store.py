@@ -637,8 +637,8 @@ def write_rows(path: str | Path, name: str, array, rows: slice, values: np.ndarr
 
 def _direct_layout(array) -> bool:
     """Whether ``array`` (opened with :func:`open_for_writing`: writable, every chunk written) is laid out as
-    :func:`create_store` makes it, which :func:`write_rows` writes itself: the chunk codecs bytes (little endian), Blosc with :data:`COMPRESSOR` (type size the dtype's, automatic block
-    size) and CRC-32C; chunks of whole rows; sharded (frames) only along the rows, one row per inner chunk, the
+    :func:`create_store` makes it, which :func:`write_rows` writes itself: the chunk codecs bytes (little endian),
+    Blosc with :data:`COMPRESSOR` (type size the dtype's, automatic block size) and CRC-32C; chunks of whole rows; sharded (frames) only along the rows, one row per inner chunk, the
     index (little endian, CRC-32C) at the end."""
     from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec, ShardingCodec, ShardingCodecIndexLocation
 
@@ -707,25 +707,27 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.
     plan = _chunk_plan(path, name, array)
     per = plan.per
     for index, file in enumerate(chunk_files(path, name, array, lo, hi), start=lo // per):
+
+        def damaged(problem: str, file=file) -> DatasetError:
+            return DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} {problem}"))
+
         try:
             fd = os.open(file, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
         except (FileNotFoundError, NotADirectoryError):
             fd = None
         except OSError as exc:
-            problem = f"its {name} chunk {_key_of(path, file)} cannot be read ({exc.strerror})"
-            raise DatasetError(damage_message(path, owner, problem)) from None
+            raise damaged(f"cannot be read ({exc.strerror})") from None
         try:
             info = os.fstat(fd) if fd is not None else None
             size = info.st_size if info is not None and stat.S_ISREG(info.st_mode) else 0
             if size == 0:
-                raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} is missing"))
+                raise damaged("is missing")
             if size > plan.most:
-                problem = f"its {name} chunk {_key_of(path, file)} is {size} bytes, more than its rows can take ({plan.most})"
-                raise DatasetError(damage_message(path, owner, problem))
+                raise damaged(f"is {size} bytes, more than its rows can take ({plan.most})")
             first = index * per
             problem = _header_problem(fd, size, plan, max(lo, first) - first, min(hi, first + per) - first)
             if problem:
-                raise DatasetError(damage_message(path, owner, f"its {name} chunk {_key_of(path, file)} {problem}"))
+                raise damaged(problem)
         finally:
             if fd is not None:
                 os.close(fd)
