@@ -150,3 +150,11 @@ def test_an_oversized_chunk_file_is_damage_and_not_read(copy, model, array):
     assert f"box/0: its {array} chunk {array}/c/0/0" in proc.stdout and "more than" in proc.stdout, proc.stdout
     proc = cli(["evaluate", "--model", str(model), "--store", str(copy)], extra_memory_mb=1024)
     assert_clean(proc, 2, "box/0", "is damaged", "bytes")
+
+
+def test_a_damage_message_names_the_store_the_object_the_problem_and_the_repair():
+    from tactile.dataset.store import damage_message
+
+    assert damage_message(Path("runs/s.zarr"), "Cup/021", "its frames chunk frames/c/0/0/0 is missing") == (
+        "runs/s.zarr: object 'Cup/021' is damaged: its frames chunk frames/c/0/0/0 is missing; "
+        "`visuotactile verify runs/s.zarr` lists the damaged objects and re-running generate re-explores them")

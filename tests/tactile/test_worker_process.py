@@ -26,7 +26,9 @@ def _alive(pid: int) -> bool:
 @pytest.mark.parametrize("dies", [True, False])
 def test_a_worker_dies_with_its_parent(dies):
     # parent -> child; the child calls _die_with_parent (or not) and sleeps; killing the parent must kill it
-    child = ("import time; from tactile.dataset.generate import _die_with_parent; "
+    # like the real worker, the child ignores SIGINT and SIGTERM: only the SIGKILL it asked for may end it
+    child = ("import signal, time; from tactile.dataset.generate import _die_with_parent; "
+             "signal.signal(signal.SIGINT, signal.SIG_IGN); signal.signal(signal.SIGTERM, signal.SIG_IGN); "
              + ("_die_with_parent(); " if dies else "") + "print('ready', flush=True); time.sleep(30)")
     parent = textwrap.dedent(f"""
         import subprocess, sys, time
@@ -52,9 +54,8 @@ def test_a_worker_dies_with_its_parent(dies):
 
 
 def test_freed_heap_memory_is_kept_after_the_call():
-    # 16 blocks of 16 MiB come from the heap (imports have raised glibc's dynamic mmap threshold to its 32 MiB
-    # ceiling); freed, glibc gives them back to the system above its trim threshold (twice that: 64 MiB) unless
-    # told to keep up to 1 GiB. The heap's size (mallinfo2's arena, glibc >= 2.33) after the frees, in MiB.
+    # 16 blocks of 16 MiB: at glibc's initial mmap threshold (128 KiB) each is mapped and unmapped on its own; after
+    # the call they come from the heap (threshold 32 MiB) and stay there when freed (trim threshold 1 GiB). The heap's size (mallinfo2's arena, glibc >= 2.33) after the frees, in MiB.
     script = textwrap.dedent("""
         import ctypes
         from tactile.dataset.generate import _keep_freed_memory
@@ -77,6 +78,7 @@ def test_freed_heap_memory_is_kept_after_the_call():
                 libc.free(block)
             return (libc.mallinfo2().arena - before) >> 20
 
+        libc.mallopt(-3, 128 << 10)  # glibc's initial mmap threshold again (imports may have raised it)
         print(kept_mib(), end=" ")
         _keep_freed_memory()
         print(kept_mib())
