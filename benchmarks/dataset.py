@@ -18,6 +18,8 @@ One run measures, on the same objects and cores:
     / workers).
     Storage: bytes per sequence on disk, and the frame encoding compared on stored sequences: quantised
     uint16 (the store's) against float16, each with the store's Blosc codec: max |error| and bytes.
+    Reading: loading the whole store (every array, checked, frames to float32) beside zarr reading the frames codes
+    alone and Blosc decoding them alone (the limit).
 (d) One full DataLoader epoch (shuffled, batch 64, ``--workers`` loader processes) over the store:
     wall time, sequences/s, peak memory of the process tree.
 
@@ -252,6 +254,44 @@ def writing(store: Path, workers: int) -> dict:
             "ratio": (encode_s / write_s) if write_s > 0 else None}
 
 
+# ------------------------------------------------------------------------------------------ reading
+def reading(store: Path, repeats: int = 3) -> dict:
+    """Loading the whole store (``TactileDataset.load``: every array, checked, frames decoded to float32; median of
+    ``repeats``) beside two references on the same files: zarr reading the frames codes alone (object by object, as
+    loading did until 2026-11-28) and the limit, Blosc decoding every frames chunk from bytes already in memory and
+    nothing else."""
+    import zarr
+
+    from tactile.dataset import open_dataset
+    from tactile.dataset.store import CRC_BYTES, SHARD_ENTRY_BYTES, ZARR_READ, compressor, rows_per_file
+
+    ds = open_dataset(store)
+    load_s = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        ds.load()
+        load_s.append(time.perf_counter() - started)
+    frames = zarr.open_array(f"{store}/frames", mode="r")
+    per = rows_per_file(frames)
+    started = time.perf_counter()
+    with zarr.config.set(ZARR_READ):
+        for lo in range(0, frames.shape[0], per):
+            frames[lo:lo + per]
+    zarr_s = time.perf_counter() - started
+    codec, blosc_s, raw_bytes = compressor(), 0.0, 0
+    for shard in sorted(p for p in (store / "frames").rglob("*") if p.is_file() and p.name != "zarr.json"):
+        data = shard.read_bytes()
+        index = np.frombuffer(data[-(per * SHARD_ENTRY_BYTES + CRC_BYTES):-CRC_BYTES], dtype="<u8").reshape(-1, 2)
+        chunks = [data[o:o + n - CRC_BYTES] for o, n in index.tolist() if n != 2**64 - 1]
+        started = time.perf_counter()
+        for chunk in chunks:
+            raw_bytes += len(codec.decode(chunk))
+        blosc_s += time.perf_counter() - started
+    load = statistics.median(load_s)
+    return {"sequences": len(ds), "load_seconds": load, "load_seconds_all": load_s, "zarr_frames_seconds": zarr_s,
+            "blosc_seconds": blosc_s, "raw_bytes": raw_bytes, "ratio": blosc_s / load}
+
+
 # ---------------------------------------------------------------------------------- DataLoader
 def loader_epoch(store: Path, workers: int, batch_size: int = 64) -> dict:
     import torch
@@ -321,6 +361,7 @@ def run(mode: str, workers: int, out: Path | None, keep: bool, repeats: int) -> 
         result["ratio_to_raw_distinct"] = raw_distinct_wall / wall
         result["storage"] = storage(store)
         result["writing"] = writing(store, workers)
+        result["reading"] = reading(store)
         result["loader"] = loader_epoch(store, workers)
     finally:
         if not keep:  # only what this run made: --out may hold other files
@@ -346,6 +387,10 @@ def _print(result: dict) -> None:
     ratio = "n/a" if w["ratio"] is None else f"{w['ratio']:.2f}"
     print(f"  writing         {w['write_seconds']:8.2f} s  raw Blosc of the same {w['raw_bytes'] / 1e6:.0f} MB "
           f"{w['blosc_seconds']:.2f} s, ratio {ratio}")
+    r = result["reading"]
+    print(f"  loading         {r['load_seconds']:8.2f} s  (all {r['sequences']} sequences, checked, float32) zarr "
+          f"reading the frames alone {r['zarr_frames_seconds']:.2f} s, raw Blosc decoding them "
+          f"{r['blosc_seconds']:.2f} s, ratio {r['ratio']:.2f}")
     print(f"  store           {s['bytes_per_sequence']:8.0f} bytes/sequence ({s['frame_bytes_per_sequence']:.0f} "
           f"of them frames), {s['store_bytes'] / 1e6:.1f} MB")
     for e in s["encodings"]:

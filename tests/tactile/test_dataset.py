@@ -486,6 +486,21 @@ def test_records_time_the_writes_and_the_benchmark_encodes_every_stored_byte(bli
     assert found["blosc_seconds"] > 0 and found["ratio"] == pytest.approx(2 * found["blosc_seconds"] / sum(r["write_seconds"] for r in records))
 
 
+def test_reading_benchmark_decodes_every_stored_frame_byte_for_its_limit(blind_store):
+    """benchmarks.dataset.reading sets loading the store beside Blosc decoding all of its frames (their raw bytes
+    counted here from the array's shape and type) and zarr reading them."""
+    import zarr
+
+    from benchmarks.dataset import reading
+
+    frames = zarr.open_array(f"{blind_store}/frames", mode="r")
+    found = reading(blind_store, repeats=2)
+    assert found["raw_bytes"] == int(np.prod(frames.shape)) * frames.dtype.itemsize
+    assert found["sequences"] == frames.shape[0] and len(found["load_seconds_all"]) == 2
+    assert found["ratio"] == pytest.approx(found["blosc_seconds"] / found["load_seconds"])
+    assert found["zarr_frames_seconds"] > 0
+
+
 def test_the_benchmark_times_the_repeats_that_do_not_sample_memory(tmp_path, monkeypatch):
     """With several repeats only the first generation samples memory (sampling slows it); the time is the median
     of the others. The generation and the later stages are stand-ins: only the bookkeeping is under test."""
@@ -520,7 +535,7 @@ def test_the_benchmark_times_the_repeats_that_do_not_sample_memory(tmp_path, mon
     monkeypatch.setattr(bench, "PeakMemory", Sampler)
     monkeypatch.setattr(bench, "raw_limit", lambda store, workers: {"sequences_per_s": 10.0,
                                                                     "distinct_cast_seconds_sum": 8.0})
-    for stage in ("storage", "loader_epoch"):
+    for stage in ("storage", "loader_epoch", "reading"):
         monkeypatch.setattr(bench, stage, lambda store, *a: {})
     monkeypatch.setattr(bench, "writing", lambda store, workers: {})
     result = bench.run("quick", 2, tmp_path / "out", False, 4)
