@@ -28,13 +28,16 @@ of 16 x 16 and 16 of 32 x 32 (the finest), plus an 8 x 8 low-pass image.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
 import pywt
+from threadpoolctl import threadpool_limits
 
 from perception.errors import DatasetError, InvalidArgumentError
+from perception.runtime import usable_cores
 
 #: DFB levels per pyramid level, coarse to fine (Do's toolbox ``nlevs``): 8 then 16 directions.
 DEFAULT_LEVELS = (3, 4)
@@ -269,7 +272,8 @@ def subband_std(frames, levels: int = 4, chunk: int = CHUNK) -> np.ndarray:
     dc_gain = dfb_windows(rows, cols, levels)[:, 0, 0]
     out = np.empty((len(x), k_dirs))
     exponents = np.zeros(len(x), dtype=np.int64)
-    for start in range(0, len(x), chunk):
+
+    def one_chunk(start: int) -> None:
         block = x[start : start + chunk].astype(np.float64)
         peak = np.abs(block).max(axis=(1, 2))
         if not np.isfinite(peak).all():
@@ -285,6 +289,18 @@ def subband_std(frames, levels: int = 4, chunk: int = CHUNK) -> np.ndarray:
         power = (spectrum.real**2 + spectrum.imag**2).reshape(len(band), -1)
         mean = spectrum[:, 0, 0].real[:, None] * dc_gain / (rows * cols)
         out[start : start + chunk] = power @ energy - mean**2
+
+    starts = range(0, len(x), chunk)
+    workers = min(usable_cores(), len(starts))
+    if workers > 1:
+        # The FFTs and products release the GIL: one thread per core, each with one BLAS thread (18,240 SHREC
+        # sequences of 25 frames on 2 cores: 9.4 -> 4.5 s; the same bits, each chunk computed alone either way).
+        with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(workers) as pool:
+            for _ in pool.map(one_chunk, starts):  # in order: the first chunk with NaN / Inf raises, as in a loop
+                pass
+    else:
+        for start in starts:
+            one_chunk(start)
     std = np.sqrt(np.maximum(out, 0.0))  # rounding can dip a zero variance below 0
     if exponents.any():
         with np.errstate(over="ignore"):  # overflow is caught just below

@@ -113,6 +113,37 @@ def test_subband_std_equals_direct_std():
                                contourlet(frames[0, 0, :16, :16], (3,)).bands[-1].std(axis=(-2, -1)), rtol=1e-9)
 
 
+@pytest.mark.parametrize("cores", [1, 3])
+def test_subband_std_in_threads_equals_direct_std_and_the_one_thread_bits(monkeypatch, cores):
+    """Chunks run on one thread per core: the same numbers as the direct std, and the same bits as one thread; with
+    frames large enough that some chunks are rescaled (their squares would overflow) and others not."""
+    import fusion.contourlet as module
+
+    rng = np.random.default_rng(5)
+    frames = rng.standard_normal((23, N, N))
+    frames[9:13] *= 1e200  # chunks of 4: chunk 2 rescaled, chunk 3 in part
+    direct = np.concatenate([contourlet(frames[:9]).bands[-1].std(axis=(-2, -1)),
+                             1e200 * contourlet(frames[9:13] / 1e200).bands[-1].std(axis=(-2, -1)),
+                             contourlet(frames[13:]).bands[-1].std(axis=(-2, -1))])
+    monkeypatch.setattr(module, "usable_cores", lambda: 1)
+    alone = subband_std(frames, chunk=4)
+    monkeypatch.setattr(module, "usable_cores", lambda: cores)
+    threaded = subband_std(frames, chunk=4)
+    np.testing.assert_allclose(threaded, direct, rtol=1e-9)
+    assert threaded.tobytes() == alone.tobytes()
+
+
+def test_subband_std_in_threads_names_the_first_chunk_with_nan(monkeypatch):
+    import fusion.contourlet as module
+
+    monkeypatch.setattr(module, "usable_cores", lambda: 4)
+    frames = np.zeros((20, N, N))
+    frames[17, 3, 3] = np.nan
+    frames[6, 0, 0] = np.inf
+    with pytest.raises(DatasetError, match=r"frames 4\.\.7 contain NaN or Inf"):
+        subband_std(frames, chunk=4)
+
+
 def test_constant_and_spike_images_are_finite():
     flat = np.full((N, N), 7.0)
     coeffs = contourlet(flat)

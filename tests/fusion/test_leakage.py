@@ -314,3 +314,26 @@ def test_a_clean_cache_without_seeds_is_touched_again(tmp_path):
                              seed=4 + robustness.TEST_SEED_OFFSET)
     assert got.frames.tobytes() == expected.frames.tobytes()
     assert load_batch_with_seeds(clean_file, key) is not None
+
+
+@pytest.mark.parametrize("cores", [1, 3])
+def test_fingerprints_are_each_sequences_blake2b_whatever_the_threads(monkeypatch, cores):
+    """Each fingerprint is the 64-bit BLAKE2b of the sequence's frames, normals, positions and pad sides as float32
+    bytes, in that order (computed here with hashlib on the concatenated bytes), on one thread or several."""
+    import hashlib
+
+    import fusion.leakage as module
+
+    rng = np.random.default_rng(3)
+    n = 1100  # several threads' worth of rows (256 each)
+    arrays = {"frames": rng.random((n, 4, 3, 3)), "normals": rng.random((n, 4, 3)).astype(np.float32),
+              "positions": rng.random((n, 4, 3)), "pad_sides_mm": rng.random((n, 4)).astype(np.float32)}
+    batch = type("Batch", (), {**arrays, "__len__": lambda self: n})()
+    monkeypatch.setattr(module, "usable_cores", lambda: cores)
+    found = sequence_fingerprints(batch)
+    for i in (0, 1, 255, 256, 257, 700, n - 1):
+        data = b"".join(np.asarray(arrays[k][i], dtype=np.float32).tobytes()
+                        for k in ("frames", "normals", "positions", "pad_sides_mm"))
+        expected = int.from_bytes(hashlib.blake2b(data, digest_size=8).digest(), "little", signed=True)
+        assert found[i] == expected, i
+    assert len(set(found.tolist())) == n
