@@ -117,7 +117,7 @@ def conventional_rows(train, test, args) -> list[dict]:
 def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | None) -> dict:
     """One epoch of each net on ``n`` synthetic 25 x 32 x 32 sequences, scaled to the paper's 18,240 and
     multiplied by the epochs each net would run on those 18,240: the epochs it ran in the benchmark's fit
-    (``epochs_run``; the default ``CNNClassifier.epochs`` without one), cut to what the default step cap
+    (``epochs_run``; the default ``CNNClassifier.epochs`` without one), cut to what the net's default step cap
     (``CNNClassifier.max_steps``) allows."""
     from fusion.cnn import CNNClassifier
     from tactile.explore import SequenceBatch
@@ -138,8 +138,9 @@ def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | 
     model.fit(batch)
     paper_epoch_s = {k: h["epoch_seconds"] * PAPER_TRAIN / n for k, h in model.history_.items()}
     default = CNNClassifier()
-    capped = default.epochs_for(PAPER_TRAIN)  # the default epochs, or fewer under the step cap
-    epochs = {k: min((epochs_run or {}).get(k) or default.epochs, capped) for k in paper_epoch_s}
+    # the default epochs, or fewer under each net's step cap
+    epochs = {k: min((epochs_run or {}).get(k) or default.epochs, default.epochs_for(PAPER_TRAIN, k))
+              for k in paper_epoch_s}
     total_s = sum(paper_epoch_s[k] * epochs[k] for k in paper_epoch_s)
     return {"sequences": n, "paper_epoch_s": paper_epoch_s, "epochs": epochs, "projected_train_min": total_s / 60}
 

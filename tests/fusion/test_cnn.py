@@ -337,21 +337,51 @@ def test_steps_per_epoch_counts_the_batches_the_loop_runs(n_train, batch_size, s
     assert CNNClassifier(batch_size=batch_size)._steps_per_epoch(n_train) == steps
 
 
-@pytest.mark.parametrize("n_train,epochs", [(18240, 18), (4752, 67), (3168, 100), (2112, 100), (64, 100)])
-def test_default_recipe_epochs_by_training_set_size(n_train, epochs):
-    # Default: 100 epochs of batches of 64, at most 5,000 steps. The paper protocol's training part (18,240
-    # sequences: 285 steps an epoch) stops after ceil(5000 / 285) = 18 epochs, as it did with 50; new_instances'
-    # training set (99 objects x 48 = 4,752: 74 batches + 16, 75 steps) after ceil(5000 / 75) = 67; an
-    # unseen-objects fold (66 x 48 = 3,168: 49 batches + 32, 50 steps) and smaller sets train all 100.
-    assert CNNClassifier().epochs_for(n_train) == epochs
+@pytest.mark.parametrize("n_train,cutaneous,kinesthetic", [(18240, 18, 50), (4752, 67, 100), (3168, 100, 100),
+                                                             (2112, 100, 100), (64, 100, 100)])
+def test_default_recipe_epochs_by_training_set_size(n_train, cutaneous, kinesthetic):
+    # Default: 100 epochs of batches of 64, at most 5,000 steps of the cutaneous net and 14,000 of the kinesthetic
+    # one. The paper protocol's training part (18,240 sequences: 285 steps an epoch) stops after ceil(5000 / 285) =
+    # 18 cutaneous epochs and ceil(14000 / 285) = 50 kinesthetic ones; new_instances' training set (99 objects x 48 =
+    # 4,752: 74 batches + 16, 75 steps) after ceil(5000 / 75) = 67 cutaneous epochs (kinesthetic: all 100, 7,500
+    # steps); an unseen-objects fold (66 x 48 = 3,168: 49 batches + 32, 50 steps) and smaller sets train all 100.
+    model = CNNClassifier()
+    assert model.max_steps == (5000, 14000)
+    assert model.epochs_for(n_train, "cutaneous") == cutaneous
+    assert model.epochs_for(n_train, "kinesthetic") == kinesthetic
+
+
+@pytest.mark.parametrize("max_steps,cutaneous,kinesthetic", [(5000, 18, 18), (None, 100, 100), ((None, 300), 100, 2),
+                                                               ((570, None), 2, 100), ([286, 285], 2, 1)])
+def test_a_step_cap_is_one_for_both_nets_or_a_pair(max_steps, cutaneous, kinesthetic):
+    # 18,240 sequences: 285 steps an epoch.
+    model = CNNClassifier(max_steps=max_steps)
+    assert (model.epochs_for(18240, "cutaneous"), model.epochs_for(18240, "kinesthetic")) == (cutaneous, kinesthetic)
+
+
+@pytest.mark.parametrize("bad", [(5000,), (1, 2, 3), (0, 5000), (5000, -1), (5000, 2.5), (True, 5000), ("a", None), {}])
+def test_a_step_cap_pair_of_anything_else_is_refused(bad):
+    with pytest.raises(InvalidArgumentError, match="max_steps must be a positive integer"):
+        CNNClassifier(max_steps=bad).epochs_for(100, "cutaneous")
+
+
+def test_each_net_trains_under_its_own_cap(step_rates):
+    # 30 sequences in batches of 16: 2 steps per epoch. Caps (3, 8): the cutaneous net runs ceil(3 / 2) = 2 epochs
+    # (4 steps), the kinesthetic net ceil(8 / 2) = 4 (8 steps); each one-cycle schedule spans its own steps.
+    model = CNNClassifier(**{**FAST, "epochs": 10, "lr": 2e-3, "max_steps": (3, 8)}).fit(make_batch(n_per_class=10))
+    assert model.history_["cutaneous"]["epochs"] == 2 and model.history_["kinesthetic"]["epochs"] == 4
+    assert len(step_rates) == 4 + 8
+    assert step_rates[0] == step_rates[4] == pytest.approx(2e-3 / 25)  # each net's schedule starts anew
+    assert step_rates[3] < 2e-3 / 100 and step_rates[-1] < 2e-3 / 100  # and ends at its own last step
 
 
 def test_epoch_projection_takes_the_default_epochs_cut_at_the_step_cap():
-    # The paper's 18,240 training sequences: 285 steps an epoch, so the 5,000-step cap allows ceil(5000 / 285) = 18
-    # of the default 100 epochs; a net that ran fewer in the benchmark's fit is projected with those.
+    # The paper's 18,240 training sequences: 285 steps an epoch, so the caps allow ceil(5000 / 285) = 18 (cutaneous)
+    # and ceil(14000 / 285) = 50 (kinesthetic) of the default 100 epochs; a net that ran fewer in the benchmark's fit
+    # is projected with those.
     from benchmarks.classifiers import epoch_projection
 
-    assert epoch_projection(16, None, 0, 1)["epochs"] == {"cutaneous": 18, "kinesthetic": 18}
+    assert epoch_projection(16, None, 0, 1)["epochs"] == {"cutaneous": 18, "kinesthetic": 50}
     assert epoch_projection(16, {"cutaneous": 30, "kinesthetic": 12}, 0, 1)["epochs"] == {"cutaneous": 18,
                                                                                        "kinesthetic": 12}
 
@@ -408,11 +438,13 @@ def test_counts_must_be_positive_integers(name, bad):
 
 def test_older_model_files_load_as_trained_without_a_step_cap(tmp_path):
     model = CNNClassifier(**{**FAST, "epochs": 1}).fit(make_batch(n_per_class=4))
-    assert model.max_steps == 5000  # the default cap
+    assert model.max_steps == (5000, 14000)  # the default caps
     from fusion.modelfile import read_model_file, write_model_file
 
     description, arrays = read_model_file(model.save(tmp_path / "new.vtm"))
-    assert load_model(tmp_path / "new.vtm").max_steps == 5000
+    assert load_model(tmp_path / "new.vtm").max_steps == (5000, 14000)
+    description["params"]["dict"]["max_steps"] = 5000  # a file written when one cap held for both nets
+    assert load_model(write_model_file(tmp_path / "one.vtm", description, arrays)).max_steps == 5000
     del description["params"]["dict"]["max_steps"]  # a file written before the cap was a parameter
     assert load_model(write_model_file(tmp_path / "old.vtm", description, arrays)).max_steps is None
 
@@ -603,4 +635,9 @@ def test_embed_of_a_silent_net_adds_zeros_not_nan():
                                             ({"max_steps": 0}, 10)])
 def test_epochs_for_refuses_what_it_cannot_count(params, n_train):
     with pytest.raises(InvalidArgumentError):
-        CNNClassifier(**params).epochs_for(n_train)
+        CNNClassifier(**params).epochs_for(n_train, "cutaneous")
+
+
+def test_epochs_for_names_the_nets_it_counts_for():
+    with pytest.raises(InvalidArgumentError, match="net must be one of"):
+        CNNClassifier().epochs_for(100, "fusion")
