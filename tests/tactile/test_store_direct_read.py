@@ -159,3 +159,14 @@ def test_a_layout_decoded_here_and_one_left_to_zarr_read_the_same(tmp_path):
         assert store_module._chunk_plan(tmp_path, name, array).direct is direct, name
         for lo, hi in ((0, 2), (2, 4), (1, 2)):
             np.testing.assert_array_equal(read_rows(tmp_path, name, array, lo, hi, "x"), values[lo:hi])
+
+
+def test_row_checksums_of_no_rows_and_of_empty_rows():
+    from tactile.dataset.store import row_checksums
+
+    assert row_checksums(np.zeros((0, 25, 3), np.float32), np.float32).tolist() == []
+    assert row_checksums(np.zeros((2, 0)), np.float32).tolist() == [0, 0]  # CRC-32C of no bytes
+    # labels (1-D): each row is its int64's 8 bytes; the check value of b"123456789" (RFC 3720) as a uint8 row
+    assert row_checksums(np.frombuffer(b"123456789", np.uint8)[None], np.uint8).tolist() == [0xE3069283]
+    assert row_checksums(np.array([1, 2]), np.int64).tolist() == [
+        google_crc32c.value(np.int64(v).tobytes()) for v in (1, 2)]
