@@ -36,13 +36,14 @@ the probabilities summed afterwards): kinesthetic alone 98.71 / 99.51 / 99.67 % 
 99.70 / 99.75 / 99.81 %, and at 3,000 / 4,000 cutaneous steps 99.84 / 99.89 % with 14,000 kinesthetic ones (not
 taken: a lower cutaneous cap would also cut the unseen-objects folds, whose 100 epochs were chosen below). End to end
 (``reproduce --parts paper``, commit 4fb53a4): the blind pair 99.67 % [99.5, 99.8] in 192 s (guided 100 %, 206 s),
-against 99.52 % in 142 s with 5,000 kinesthetic steps, paired +0.15 [+0.04, +0.29] points over the test sequences. The 100 epochs were chosen by nested cross-validation (inner grouped 3-fold inside each of
-the three unseen-SHREC training folds, guided + blind contours pooled, 9 inner models per variant, scored on the inner
+against 99.52 % in 142 s with 5,000 kinesthetic steps, paired +0.15 [+0.04, +0.29] points over the test sequences.
+The 100 epochs were chosen by nested cross-validation (inner grouped 3-fold inside each of the three unseen-SHREC
+training folds, guided + blind contours pooled, 9 inner models per variant, scored on the inner
 validation objects; the rule, set before: adopt if K = 8 decisions rise by >= 0.5 points, guided and blind averaged,
 single touches do not fall, and no outer fold's K = 8 falls by more than 0.5): 50 -> 100 epochs raised single
 touches from 85.9 to 87.0 % and K = 8 decisions from 92.4 to 93.0 % (+1.1 / +0.7 points; +1.1 / +0.9 / -0.1 at K = 8
 per outer fold), at twice the training time on sets under 3,200 sequences (larger ones reach the step cap as before:
-the paper-scale models train exactly as they did). Compared the same way and not taken (K = 1 / K = 8 change):
+the paper-scale models trained exactly as they did). Compared the same way and not taken (K = 1 / K = 8 change):
 peak lr 6e-3 +0.4 / +0.0, batch 32 +0.5 / +0.0, the mean of two seeds +0.5 / +0.0; batch 128 for 100 epochs
 (+0.9 / +0.6, 13 % less fit time on these folds) was not taken either: under the same step cap it would feed the
 paper-scale stores 1.7 times the sequences. Measured there since (2026-11-27, not taken): inside the paper
