@@ -789,7 +789,17 @@ def _decode_rows(fd: int, size: int, plan: _ChunkPlan, lo: int, hi: int, out: np
     out[~present] = plan.fill
     if not present.any():
         return
-    start, stop = int(entries[present, 0].min()), int((entries[present, 0] + entries[present, 1]).max())
+    # Every entry inside the chunk data before anything is read: _header_problem stops at its first damaged chunk,
+    # so the entries after it may be unchecked (and their sums overflow uint64).
+    data_end = size - index_bytes
+    offsets, lengths = entries[present, 0], entries[present, 1]
+    outside = (offsets > data_end) | (lengths > data_end - np.minimum(offsets, data_end))
+    if outside.any():
+        k = int(np.flatnonzero(present)[np.argmax(outside)])
+        offset, length = int(entries[k, 0]), int(entries[k, 1])
+        raise _Unreadable(f"inner chunk {lo + k} lies at bytes {offset}..{offset + length}, outside its {data_end} "
+                          "bytes of chunk data")
+    start, stop = int(offsets.min()), int((offsets + lengths).max())
     data = np.frombuffer(os.pread(fd, stop - start, start), dtype=np.uint8)
     for k in np.flatnonzero(present):
         offset, length = int(entries[k, 0]) - start, int(entries[k, 1])

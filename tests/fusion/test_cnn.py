@@ -19,7 +19,8 @@ from fusion.cnn import (
     pool_frames,
 )
 from fusion.cues import kinesthetic_cues
-from perception.errors import DatasetError, InvalidArgumentError, ModelMismatchError
+from fusion.modelfile import read_model_file, write_model_file
+from perception.errors import DatasetError, InvalidArgumentError, ModelFileError, ModelMismatchError
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 
@@ -641,3 +642,31 @@ def test_epochs_for_refuses_what_it_cannot_count(params, n_train):
 def test_epochs_for_names_the_nets_it_counts_for():
     with pytest.raises(InvalidArgumentError, match="net must be one of"):
         CNNClassifier().epochs_for(100, "fusion")
+
+
+# ------------------------------------- step caps read from model files (from a break attempt)
+
+@pytest.fixture(scope="module")
+def saved_model(tmp_path_factory):
+    path = tmp_path_factory.mktemp("caps") / "m.vtm"
+    CNNClassifier(**{**FAST, "epochs": 1}).fit(make_batch(n_per_class=4)).save(path)
+    return read_model_file(path)
+
+
+@pytest.mark.parametrize("caps", [[1, 2, 3], {"tuple": [1, 2, 3]}, {"dict": {"a": 1}}, "x", [0, 5], [True, 5],
+                                  [5, 2.5], [], {"float": "nan"}])
+def test_a_model_file_with_bad_step_caps_is_refused_on_loading(saved_model, tmp_path, caps):
+    description, arrays = saved_model
+    description = {**description, "params": {"dict": {**description["params"]["dict"], "max_steps": caps}}}
+    path = write_model_file(tmp_path / "bad.vtm", description, arrays)
+    with pytest.raises(ModelFileError, match="max_steps must be a positive integer"):
+        load_model(path)
+
+
+@pytest.mark.parametrize("caps,expected", [([300, None], [300, None]), ({"tuple": [300, 400]}, (300, 400)),
+                                           (None, None), (7, 7)])
+def test_a_model_file_with_good_step_caps_loads_them(saved_model, tmp_path, caps, expected):
+    description, arrays = saved_model
+    description = {**description, "params": {"dict": {**description["params"]["dict"], "max_steps": caps}}}
+    model = load_model(write_model_file(tmp_path / "ok.vtm", description, arrays))
+    assert model.max_steps == expected

@@ -4,11 +4,13 @@ experiment's noisy and repaired frames differing from the clean ones."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 
 import numpy as np
 import pytest
 
+import fusion.leakage as leakage_module
 from fusion.base import load_model
 from fusion.cli import main
 from fusion.decide import touch_groups
@@ -316,24 +318,43 @@ def test_a_clean_cache_without_seeds_is_touched_again(tmp_path):
     assert load_batch_with_seeds(clean_file, key) is not None
 
 
-@pytest.mark.parametrize("cores", [1, 3])
-def test_fingerprints_are_each_sequences_blake2b_whatever_the_threads(monkeypatch, cores):
-    """Each fingerprint is the 64-bit BLAKE2b of the sequence's frames, normals, positions and pad sides as float32
-    bytes, in that order (computed here with hashlib on the concatenated bytes), on one thread or several."""
-    import hashlib
+# ------------------------------------------------------------------ fingerprints on threads (from a break attempt)
+#: What a fingerprint hashes, in order: each sequence's arrays as float32 bytes.
+NAMES = ("frames", "normals", "positions", "pad_sides_mm")
 
-    import fusion.leakage as module
 
-    rng = np.random.default_rng(3)
-    n = 1100  # several threads' worth of rows (256 each)
-    arrays = {"frames": rng.random((n, 4, 3, 3)), "normals": rng.random((n, 4, 3)).astype(np.float32),
-              "positions": rng.random((n, 4, 3)), "pad_sides_mm": rng.random((n, 4)).astype(np.float32)}
-    batch = type("Batch", (), {**arrays, "__len__": lambda self: n})()
-    monkeypatch.setattr(module, "usable_cores", lambda: cores)
-    found = sequence_fingerprints(batch)
-    for i in (0, 1, 255, 256, 257, 700, n - 1):
-        data = b"".join(np.asarray(arrays[k][i], dtype=np.float32).tobytes()
-                        for k in ("frames", "normals", "positions", "pad_sides_mm"))
-        expected = int.from_bytes(hashlib.blake2b(data, digest_size=8).digest(), "little", signed=True)
-        assert found[i] == expected, i
-    assert len(set(found.tolist())) == n
+def _batch(arrays: dict, n: int):
+    return type("Batch", (), {**arrays, "__len__": lambda self: n})()
+
+
+def _expected(arrays: dict, i: int) -> int:
+    """The 64-bit BLAKE2b of sequence ``i``'s float32 bytes, computed with hashlib alone."""
+    data = b"".join(np.ascontiguousarray(np.asarray(arrays[k][i], dtype=np.float32)).tobytes() for k in NAMES)
+    return int.from_bytes(hashlib.blake2b(data, digest_size=8).digest(), "little", signed=True)
+
+
+def _arrays(rng, n: int) -> dict:
+    return {"frames": rng.random((n, 2, 3, 3)), "normals": rng.random((n, 2, 3)).astype(np.float32),
+            "positions": rng.random((n, 2, 3)), "pad_sides_mm": rng.random((n, 2)).astype(np.float32)}
+
+
+@pytest.mark.parametrize("cores", [1, 2, 3, 5])
+def test_every_row_is_hashed_whatever_the_threads(monkeypatch, cores):
+    monkeypatch.setattr(leakage_module, "usable_cores", lambda: cores)
+    rng = np.random.default_rng(11)
+    n = 1300  # 5 threads' worth of rows
+    sequence_fingerprints(_batch(_arrays(rng, n), n))  # leaves its fingerprints in memory numpy may hand out again
+    arrays = _arrays(rng, n)
+    found = sequence_fingerprints(_batch(arrays, n))
+    assert found.tolist() == [_expected(arrays, i) for i in range(n)]
+
+
+def test_rows_not_contiguous_in_memory_are_hashed_as_their_float32_bytes(monkeypatch):
+    monkeypatch.setattr(leakage_module, "usable_cores", lambda: 2)
+    rng = np.random.default_rng(12)
+    n = 600
+    arrays = _arrays(rng, n)
+    arrays["pad_sides_mm"] = rng.random((n, 4)).astype(np.float32)[:, ::2]  # strided rows, float32 already
+    arrays["normals"] = np.asfortranarray(arrays["normals"])
+    found = sequence_fingerprints(_batch(arrays, n))
+    assert found.tolist() == [_expected(arrays, i) for i in range(n)]

@@ -501,6 +501,25 @@ def test_reading_benchmark_decodes_every_stored_frame_byte_for_its_limit(blind_s
     assert found["zarr_frames_seconds"] > 0
 
 
+def test_reading_loads_the_store_once_per_repeat(tmp_path, monkeypatch):
+    from benchmarks.dataset import reading
+    from tactile.dataset.reader import TactileDataset
+    from tests._small_store import small_store
+
+    store = small_store(tmp_path / "s.zarr")
+    calls = []
+    load = TactileDataset.load
+
+    def counted(self, *args, **kwargs):
+        calls.append(Path(self.path))
+        return load(self, *args, **kwargs)
+
+    monkeypatch.setattr(TactileDataset, "load", counted)
+    found = reading(store, repeats=3)
+    assert len(calls) == 3 and len(found["load_seconds_all"]) == 3
+    assert found["sequences"] == 12 and found["raw_bytes"] == 12 * 6 * 8 * 8 * 2
+
+
 def test_the_benchmark_times_the_repeats_that_do_not_sample_memory(tmp_path, monkeypatch):
     """With several repeats only the first generation samples memory (sampling slows it); the time is the median
     of the others. The generation and the later stages are stand-ins: only the bookkeeping is under test."""

@@ -1,9 +1,11 @@
 """Reading a store's chunks without zarr's per-chunk pipeline (``store._decode_rows``): the same values as zarr reads,
 absent inner chunks as the fill value as zarr reads them, and every chunk or shard index whose checksum fails, or
-whose Blosc frame does not decode, refused as damage naming the object; layouts it does not decode go to zarr."""
+whose Blosc frame does not decode, or whose index entries lie outside the chunk data, refused as damage naming the
+object; layouts it does not decode go to zarr. Several tests come from a break attempt (2026-11-28)."""
 
 from __future__ import annotations
 
+import hashlib
 import struct
 from pathlib import Path
 
@@ -14,7 +16,7 @@ import zarr
 
 from perception.errors import DatasetError
 from tactile.dataset import store as store_module
-from tactile.dataset.store import ARRAYS, SHARD_ENTRY_BYTES, chunk_files, read_rows
+from tactile.dataset.store import ARRAYS, SHARD_ENTRY_BYTES, chunk_files, read_rows, update_digest
 
 ROWS = 6  # rows per object in the small store (tests/_small_store.py)
 INDEX_BYTES = ROWS * SHARD_ENTRY_BYTES + 4
@@ -170,3 +172,76 @@ def test_row_checksums_of_no_rows_and_of_empty_rows():
     assert row_checksums(np.frombuffer(b"123456789", np.uint8)[None], np.uint8).tolist() == [0xE3069283]
     assert row_checksums(np.array([1, 2]), np.int64).tolist() == [
         google_crc32c.value(np.int64(v).tobytes()) for v in (1, 2)]
+
+def _array(path: Path, values: np.ndarray, inner: tuple, shard_rows: int, fill):
+    from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec, ShardingCodec
+
+    codecs = [BytesCodec(endian="little"), BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"), Crc32cCodec()]
+    sharding = ShardingCodec(chunk_shape=inner, codecs=codecs, index_codecs=[BytesCodec(endian="little"), Crc32cCodec()])
+    array = zarr.create_array(path, shape=values.shape, chunks=(shard_rows, *values.shape[1:]), dtype=values.dtype,
+                              serializer=sharding, compressors=None, fill_value=fill,
+                              config={"write_empty_chunks": True})
+    array[:] = values
+    return zarr.open_array(path, mode="r")
+
+
+def test_an_absent_inner_chunk_reads_as_the_arrays_own_fill_value(tmp_path):
+    """An array whose fill value is not 0: an inner chunk marked absent reads as that value, as zarr reads it."""
+    values = (np.arange(4 * 3 * 4, dtype=np.uint16).reshape(4, 3, 4) + 1) * 3
+    array = _array(tmp_path / "a", values, (1, 3, 4), 4, 7)
+    assert store_module._chunk_plan(tmp_path, "a", array).direct
+    (shard,) = [p for p in (tmp_path / "a").rglob("*") if p.is_file() and p.name != "zarr.json"]
+    data = bytearray(shard.read_bytes())
+    index = 4 * SHARD_ENTRY_BYTES + 4
+    struct.pack_into("<QQ", data, len(data) - index + 2 * SHARD_ENTRY_BYTES, 2**64 - 1, 2**64 - 1)
+    data[-4:] = google_crc32c.value(bytes(data[-index:-4])).to_bytes(4, "little")
+    shard.write_bytes(bytes(data))
+    by_zarr = zarr.open_array(tmp_path / "a", mode="r")[0:4]
+    assert (by_zarr[2] == 7).all() and (by_zarr[1] == values[1]).all()
+    np.testing.assert_array_equal(read_rows(tmp_path, "a", array, 0, 4, "x"), by_zarr)
+    np.testing.assert_array_equal(read_rows(tmp_path, "a", array, 2, 3, "x"), by_zarr[2:3])
+
+
+def test_shards_of_inner_chunks_holding_several_rows_are_left_to_zarr_and_read_as_it_reads_them(tmp_path):
+    values = np.arange(8 * 3 * 4, dtype=np.uint16).reshape(8, 3, 4) * 5
+    array = _array(tmp_path / "m", values, (2, 3, 4), 4, 0)
+    assert store_module._chunk_plan(tmp_path, "m", array).direct is False
+    for lo, hi in ((0, 4), (4, 8), (1, 3), (5, 6)):
+        np.testing.assert_array_equal(read_rows(tmp_path, "m", array, lo, hi, "x"), values[lo:hi])
+
+
+def test_update_digest_hashes_the_values_as_the_dtype_it_is_given():
+    """Values in float64 added as float32: the digest of the float32 bytes (the store's), not of the float64 ones."""
+    values = np.linspace(0, 1, 24).reshape(4, 6)  # float64
+    digest = hashlib.sha256()
+    update_digest(digest, values, np.float32)
+    assert digest.hexdigest() == hashlib.sha256(values.astype(np.float32).tobytes()).hexdigest()
+    digest = hashlib.sha256()
+    update_digest(digest, values[:, ::2], np.float32)  # not contiguous
+    assert digest.hexdigest() == hashlib.sha256(np.ascontiguousarray(values[:, ::2], np.float32).tobytes()).hexdigest()
+
+
+
+def _early_return_then_far_entry(copy: Path, entry: tuple[int, int]) -> None:
+    """Frames shard of object 0: inner chunk 0's Blosc header damaged without its CRC fixed (``_header_problem``
+    then stops at it, leaving the later entries unchecked), and inner chunk 1's index entry set to ``entry`` with
+    the index's CRC fixed."""
+    (shard,) = store_module.chunk_files(copy, "frames", zarr.open_array(copy / "frames", mode="r"), 0, ROWS)
+    data = bytearray(shard.read_bytes())
+    entries = np.frombuffer(bytes(data[-INDEX_BYTES:-4]), dtype="<u8").reshape(ROWS, 2).copy()
+    struct.pack_into("<I", data, int(entries[0, 0]) + 4, 12345)  # nbytes of inner chunk 0
+    entries[1] = entry
+    data[-INDEX_BYTES:-4] = entries.tobytes()
+    data[-4:] = google_crc32c.value(bytes(data[-INDEX_BYTES:-4])).to_bytes(4, "little")
+    shard.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("entry", [(2**63, 16), (0, 2**64 - 2), (0, 2**62), (0, 2**30)])
+def test_an_entry_far_outside_after_a_damaged_chunk_is_damage_not_a_foreign_error(copy, entry):
+    """Found by a break attempt: the rows' span was read in one go from entries never checked (OverflowError,
+    MemoryError, or a 1 GiB read); every entry is now checked against the chunk data first."""
+    _early_return_then_far_entry(copy, entry)
+    with pytest.raises(DatasetError, match=r"'box/0' is damaged: its frames rows 0\.\.5 do not read back \(inner "
+                                           r"chunk 1 lies at bytes \d+\.\.\d+, outside its \d+ bytes of chunk data\)"):
+        read_rows(copy, "frames", zarr.open_array(copy / "frames", mode="r"), 0, ROWS, "box/0")
+
