@@ -263,7 +263,7 @@ def reading(store: Path, repeats: int = 3) -> dict:
     import zarr
 
     from tactile.dataset import open_dataset
-    from tactile.dataset.store import CRC_BYTES, SHARD_ENTRY_BYTES, ZARR_READ, compressor, rows_per_file
+    from tactile.dataset.store import CRC_BYTES, SHARD_ENTRY_BYTES, ZARR_READ, rows_per_file
 
     ds = open_dataset(store)
     load_s = []
@@ -278,7 +278,7 @@ def reading(store: Path, repeats: int = 3) -> dict:
         for lo in range(0, frames.shape[0], per):
             frames[lo:lo + per]
     zarr_s = time.perf_counter() - started
-    codec, blosc_s, raw_bytes = compressor(), 0.0, 0
+    codec, blosc_s, raw_bytes = _store_codec(), 0.0, 0
     for shard in sorted(p for p in (store / "frames").rglob("*") if p.is_file() and p.name != "zarr.json"):
         data = shard.read_bytes()
         index = np.frombuffer(data[-(per * SHARD_ENTRY_BYTES + CRC_BYTES):-CRC_BYTES], dtype="<u8").reshape(-1, 2)
