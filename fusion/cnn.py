@@ -88,7 +88,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import logging
-import os
 import time
 from collections.abc import Iterator
 from typing import ClassVar
@@ -102,7 +101,7 @@ from fusion.base import TactileClassifier, renamed_seed
 from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
 from fusion.decide import PROBA_FLOOR
 from perception.errors import DatasetError, InvalidArgumentError
-from perception.runtime import progress_bar
+from perception.runtime import progress_bar, usable_cores
 from tactile.explore import SequenceBatch
 
 log = logging.getLogger(__name__)
@@ -231,11 +230,6 @@ def _torch_settings(threads: int | None, deterministic: bool) -> Iterator[None]:
         torch.use_deterministic_algorithms(old_det)
         torch.backends.cudnn.benchmark = old_cudnn
         torch.utils.deterministic.fill_uninitialized_memory = old_fill
-
-
-def default_threads() -> int:
-    """The CPU cores this process may use (the affinity mask where the platform has one)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def fuse_modalities(cutaneous: np.ndarray, kinesthetic: np.ndarray, rule: str = "product") -> np.ndarray:
@@ -627,7 +621,7 @@ class CNNClassifier(TactileClassifier):
         self.cutaneous_net_ = self.kinesthetic_net_ = None
         self.history_ = {}
         # fork_rng: seeding here must not change the caller's global random stream
-        with _torch_settings(self.threads or default_threads(), deterministic=True), torch.random.fork_rng([]):
+        with _torch_settings(self.threads or usable_cores(), deterministic=True), torch.random.fork_rng([]):
             if self._uses("cutaneous"):
                 x = self._frames(batch, pooled)
                 torch.manual_seed(self.random_state)
@@ -647,7 +641,7 @@ class CNNClassifier(TactileClassifier):
         """Softmax probabilities (S, C) float64 of every trained net, and their fusion."""
         out = {}
         device = self._device()
-        with _torch_settings(self.threads or default_threads(), deterministic=False):
+        with _torch_settings(self.threads or usable_cores(), deterministic=False):
             if self.cutaneous_net_ is not None:
                 net = self.cutaneous_net_.to(device)
                 out["cutaneous"] = self._proba(net, self._frames(batch), "cutaneous", device)
@@ -695,7 +689,7 @@ class CNNClassifier(TactileClassifier):
         self.check_compatible(batch)
         device = self._device()
         parts = []
-        with _torch_settings(self.threads or default_threads(), deterministic=False):
+        with _torch_settings(self.threads or usable_cores(), deterministic=False):
             for net, inputs in ((self.cutaneous_net_, self._frames), (self.kinesthetic_net_, self._cues)):
                 if net is None:
                     continue

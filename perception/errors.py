@@ -61,6 +61,10 @@ class NotFittedError(VisuotactileError, ValueError, AttributeError):
     ``AttributeError``, as scikit-learn's ``NotFittedError`` that it replaces."""
 
 
+class WorkerError(VisuotactileError, RuntimeError):
+    """A worker process died (crashed, killed or out of memory) before it finished its task; the caller lives on."""
+
+
 class DeviceNotFoundError(VisuotactileError):
     """No depth camera is connected (or it cannot be opened)."""
 
@@ -79,4 +83,5 @@ __all__ = [
     "SaliencyError",
     "SensorSpecError",
     "VisuotactileError",
+    "WorkerError",
 ]

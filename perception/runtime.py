@@ -12,8 +12,10 @@ variable ``VISUOTACTILE_PROGRESS=0``.
 from __future__ import annotations
 
 import configparser
+import contextlib
 import os
 import platform
+from collections.abc import Iterator
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -65,11 +67,57 @@ def versions(*distributions: str) -> dict[str, str]:
     return found
 
 
+#: At most this many cores for this process's own parallel work (None: no limit; :func:`limit_cores`).
+_core_limit: int | None = None
+
+
 def usable_cores() -> int:
-    """CPU cores this process may run on (its affinity), at least 1."""
+    """CPU cores this process may run on (its affinity, and at most :func:`limit_cores`'s), at least 1."""
     if hasattr(os, "sched_getaffinity"):
-        return max(1, len(os.sched_getaffinity(0)))
-    return max(1, os.cpu_count() or 1)
+        cores = len(os.sched_getaffinity(0))
+    else:
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, _core_limit or cores))
+
+
+def limit_cores(n: int | None) -> None:
+    """Let this process's thread pools (ours, BLAS and OpenMP's) use at most ``n`` cores; None lifts our limit.
+
+    A worker process that runs beside others on the same machine calls this so that the workers together use
+    each core once instead of each spreading over all of them.
+    """
+    global _core_limit
+    _core_limit = None if n is None else max(1, int(n))
+    if n is not None:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(_core_limit)
+
+
+@contextlib.contextmanager
+def without_main_module() -> Iterator[None]:
+    """Start ``multiprocessing`` children (spawn, forkserver) that do not re-import the caller's main module.
+
+    Such children run the parent's ``__main__`` again so that objects defined there can be unpickled; a script
+    without an ``if __name__ == "__main__":`` guard would then run its work again in every child. Our children
+    need nothing from ``__main__`` (their targets and arguments live in importable modules), so the preparation
+    data leaves it out while the block starts them.
+    """
+    from multiprocessing import spawn
+
+    original = spawn.get_preparation_data
+
+    def without_main(name):
+        data = original(name)
+        data.pop("init_main_from_path", None)
+        data.pop("init_main_from_name", None)
+        return data
+
+    spawn.get_preparation_data = without_main
+    try:
+        yield
+    finally:
+        spawn.get_preparation_data = original
 
 
 def machine() -> dict:
@@ -112,5 +160,5 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     return tqdm(iterable, disable=not progress_enabled(enabled), **options)
 
 
-__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "machine", "machine_line", "package_version", "progress_bar",
-           "progress_enabled", "set_progress", "usable_cores", "versions"]
+__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "limit_cores", "machine", "machine_line", "package_version",
+           "progress_bar", "progress_enabled", "set_progress", "usable_cores", "versions", "without_main_module"]

@@ -25,7 +25,7 @@ class Context:
         sizes: :class:`Sizes` of the parts.
         classifiers: name -> factory of an unfitted classifier.
         progress: tqdm bars.
-        workers: store generation workers (None: the usable cores).
+        workers: worker processes of store generation and of model fits (None: the usable cores).
         timings: wall seconds of each part in this process (not cached: they say how long *this* run took).
         stores: the stores this run has generated or checked, by their record's digest (:meth:`store`): each is
             verified and opened once per run, however many parts read it.
@@ -59,6 +59,13 @@ class Context:
         write_text(path, json.dumps({"key": key, "record": record, "result": result}, indent=2, default=str))
         return result
 
+
+    def run(self, tasks: list) -> list:
+        """The predictions of :class:`fusion.experiments.parallel.FitTask` ``tasks``, in their order, trained side
+        by side on the run's workers; the first failure is raised once all have run."""
+        from fusion.experiments.parallel import raise_failures, run_tasks
+
+        return raise_failures(run_tasks(tasks, self.workers, self.progress))
 
     def store(self, objects, *, strategies, contours: int) -> tuple:
         """(the opened dataset, its record) of ``objects`` with these settings and the run's seed, generated,

@@ -40,13 +40,19 @@ DISPLAY = {"cnn": "CNN fusion", "svm": "SVM", "knn": "kNN", "cnn-normals": "CNN 
 MODALITY_DISPLAY = {"cutaneous": "CNN cutaneous", "kinesthetic": "CNN kinesthetic"}
 
 
-def default_classifiers(seed: int = 0, epochs: int | None = None, progress: bool = False) -> dict[str, Factory]:
+def default_classifiers(seed: int = 0, epochs: int | None = None, progress: bool = False,
+                        threads: int | None = None) -> dict[str, Factory]:
     """Factories of the toolkit's classifiers by name: ``cnn`` (CNN pair), ``svm``, ``knn`` (contourlet +
     wavelet features), all with the pose-free kinesthetic cues, and the same with the paper's normals cue
-    (``cnn-normals``, ``svm-normals``, ``knn-normals``), which depends on how each object is posed."""
+    (``cnn-normals``, ``svm-normals``, ``knn-normals``), which depends on how each object is posed.
+
+    ``threads``: the CNNs' CPU threads (None: the cores of the process that trains them). A fixed count makes the
+    trained weights the same bytes on any machine (the kernels' sums depend on it); ``reproduce`` uses 1 and
+    trains several models side by side (:mod:`fusion.experiments.parallel`).
+    """
     from fusion.classifiers import make_classifier
 
-    cnn = {"epochs": epochs} if epochs else {}
+    cnn = ({"epochs": epochs} if epochs else {}) | ({"threads": threads} if threads else {})
     factories = {}
     for cue, suffix in (("invariant", ""), ("normals", "-normals")):
         rule = {"modality_rule": "sum"} if cue == "normals" else {}  # the paper's models sum the two nets
@@ -324,17 +330,31 @@ def train_and_predict(name: str, factory: Factory, train, test, folder: Path, re
         record: identifies the training data (see :func:`fit_cached`).
         test_record: identifies the test data; its ``"tag"`` (default "test") names the predictions file.
     """
-    test_record = test_record or {"tag": "test"}
-    pred_path = folder / f"{name}-{test_record.get('tag', 'test')}.npz"
-    estimator_record = {**record, "estimator": describe(factory()), "test": test_record}
-    cached = Predictions.load(pred_path, json.loads(json.dumps(estimator_record, default=str)))
-    if cached is not None and (folder / f"{name}{SUFFIX}").is_file():
+    cached = cached_predictions(name, factory, folder, record, test_record)
+    if cached is not None:
         return cached
     model, fit_seconds = fit_cached(factory, train, folder / f"{name}{SUFFIX}", record)
     result = predict(model, test() if callable(test) else test, fit_seconds)
-    result.save(pred_path, json.loads(json.dumps(estimator_record, default=str)))
+    result.save(*_predictions_file(name, factory, folder, record, test_record))
     return result
 
 
-__all__ = ["DISPLAY", "MODALITY_DISPLAY", "MODEL_LIBRARIES", "Predictions", "default_classifiers", "digest",
-           "fit_cached", "pick", "predict", "train_and_predict"]
+def cached_predictions(name: str, factory: Factory, folder: Path, record: dict,
+                       test_record: dict | None = None) -> Predictions | None:
+    """The predictions :func:`train_and_predict` would load from its cache with these arguments, or None."""
+    if not (folder / f"{name}{SUFFIX}").is_file():
+        return None
+    return Predictions.load(*_predictions_file(name, factory, folder, record, test_record))
+
+
+def _predictions_file(name: str, factory: Factory, folder: Path, record: dict,
+                      test_record: dict | None) -> tuple[Path, dict]:
+    """Where :func:`train_and_predict` caches its predictions, and the record they are saved with."""
+    test_record = test_record or {"tag": "test"}
+    estimator_record = {**record, "estimator": describe(factory()), "test": test_record}
+    return (folder / f"{name}-{test_record.get('tag', 'test')}.npz",
+            json.loads(json.dumps(estimator_record, default=str)))
+
+
+__all__ = ["DISPLAY", "MODALITY_DISPLAY", "MODEL_LIBRARIES", "Predictions", "cached_predictions", "default_classifiers",
+           "digest", "fit_cached", "pick", "predict", "train_and_predict"]

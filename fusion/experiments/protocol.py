@@ -6,18 +6,15 @@ Models and predictions are cached under ``models/<part>/<strategy>/[fold<i>/]<cl
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 
 from fusion.evaluate import confusion, plot_confusion
 from fusion.experiments.analysis import paired_difference, score, touch_curve
 from fusion.experiments.context import Context
-from fusion.experiments.data import any_pose, split_loader, store_record
-from fusion.experiments.models import DISPLAY, MODALITY_DISPLAY, Predictions, digest, pick, train_and_predict
+from fusion.experiments.data import any_pose, store_record
+from fusion.experiments.models import DISPLAY, MODALITY_DISPLAY, Predictions, digest, pick
+from fusion.experiments.parallel import FitTask, StoreRows
 from perception.errors import DatasetError, InvalidArgumentError
-
-log = logging.getLogger(__name__)
 
 
 def accuracy_rows(preds: dict[str, dict[str, Predictions]], by: str, seed: int) -> list[dict]:
@@ -60,19 +57,17 @@ def paper_protocol(ctx: Context, objects) -> dict[str, dict[str, Predictions]]:
     """
     sizes = ctx.sizes
     ds, record = paper_dataset(ctx, objects)
-    preds: dict[str, dict[str, Predictions]] = {}
+    tasks: dict[tuple[str, str], FitTask] = {}
     for strategy in sizes.strategies:
         train, test = ds.split_by_sequence(sizes.test_fraction, seed=ctx.seed, index=ds.indices(strategy))
-        batch = split_loader(ds, train, test)
-
         train_record = {"part": "paper", "store": digest(record), "strategy": strategy, "train": digest(train)}
         test_record = {"tag": "test", "test": digest(test)}
-        preds[strategy] = {}
         for name, factory in pick(ctx.classifiers, sizes.paper_classifiers).items():
-            log.info("paper protocol, %s: %s", strategy, name)
-            preds[strategy][name] = train_and_predict(
-                name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
-                ctx.path("models", "paper", strategy), train_record, test_record)
+            tasks[strategy, name] = FitTask(name, factory, StoreRows(str(ds.path), train), StoreRows(str(ds.path), test),
+                                            ctx.path("models", "paper", strategy), train_record, test_record)
+    preds: dict[str, dict[str, Predictions]] = {}
+    for (strategy, name), pred in zip(tasks, ctx.run(list(tasks.values())), strict=True):
+        preds.setdefault(strategy, {})[name] = pred
     return preds
 
 
@@ -149,15 +144,8 @@ def _kfold(ctx: Context, part: str, stores: tuple, strategies: tuple, classifier
     index = np.sort(np.concatenate([ds.indices(s) for s in strategies]))
     folds = ds.kfold_by_object(n_folds, seed=ctx.seed, index=index)
     pooled = len(strategies) > 1
-    parts: dict[tuple[str, str], list[Predictions]] = {}
+    tasks: dict[tuple[str, str, int], FitTask] = {}
     for i, (train, test_all) in enumerate(folds):
-        loaded: dict = {}
-
-        def training(train=train, loaded=loaded):  # read once per fold, and only when a model must be fitted
-            if "train" not in loaded:
-                loaded["train"] = ds.load(train)
-            return loaded["train"]
-
         train_record = {"part": part, "store": digest(record), "strategy": "+".join(strategies), "train": digest(train)}
         folder = fold_folder(ctx, part, strategies, i)
         for strategy in strategies:
@@ -168,10 +156,11 @@ def _kfold(ctx: Context, part: str, stores: tuple, strategies: tuple, classifier
             if test_ds is not ds:
                 test_record["store"] = digest(test_store)
             for name, factory in classifiers.items():
-                log.info("%s (%s), %s, fold %d: %s", part, pose, strategy, i + 1, name)
-                parts.setdefault((strategy, name), []).append(train_and_predict(
-                    name, factory, training, lambda t=test: test_ds.load(t), folder, train_record,
-                    test_record))
+                tasks[strategy, name, i] = FitTask(name, factory, StoreRows(str(ds.path), train),
+                                                   StoreRows(str(test_ds.path), test), folder, train_record, test_record)
+    parts: dict[tuple[str, str], list[Predictions]] = {}
+    for (strategy, name, _), pred in zip(tasks, ctx.run(list(tasks.values())), strict=True):
+        parts.setdefault((strategy, name), []).append(pred)
     return {s: {name: Predictions.concatenate(parts[(s, name)]) for name in classifiers} for s in strategies}
 
 

@@ -92,7 +92,7 @@ def reproduce(
         sizes = sizes.with_(objects_per_class=int(objects_per_class))
     out = Path(out)
     ctx = Context(out, int(seed), sizes,
-                  classifiers or default_classifiers(seed, sizes.epochs, progress=progress),
+                  classifiers or default_classifiers(seed, sizes.epochs, progress=progress, threads=1),
                   progress=progress, workers=workers)
     # the paper's objects, for the parts that use them (a folder with fewer instances can still run the others)
     paper_objects = (folder_objects(data, classes, sizes.objects_per_class, max_classes=sizes.paper_classes)

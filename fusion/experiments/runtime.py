@@ -22,8 +22,9 @@ import numpy as np
 
 from fusion.experiments.analysis import name_operating_points, pareto_front, touches_score
 from fusion.experiments.context import Context
-from fusion.experiments.data import any_pose, ensure_store, load_models, split_loader
-from fusion.experiments.models import DISPLAY, digest, pick, train_and_predict
+from fusion.experiments.data import any_pose, ensure_store, load_models
+from fusion.experiments.models import DISPLAY, digest, pick
+from fusion.experiments.parallel import FitTask, StoreRows, run_tasks
 from fusion.experiments.protocol import same_objects
 from fusion.experiments.touch import touch_object
 from perception.errors import VisuotactileError
@@ -75,7 +76,8 @@ def runtime_rows(ctx: Context, objects) -> dict:
     by_object = min(np.unique([label for _, label in objects], return_counts=True)[1]) >= 2
     timing_models = load_models(objects[:: max(1, len(objects) // TIMING_OBJECTS)][:TIMING_OBJECTS])
     attention, saliency_seconds = saliency_for(timing_models, sizes.runtime_strategies, ctx.seed)
-    points, failures = [], []
+    # the stores and the touch timings first (nothing else runs while touches are timed), then every fit at once
+    settings, tasks = [], {}
     for probes in sizes.runtime_probes:
         for grid in sizes.runtime_grids:
             sensor = FSRSensor(rows=grid, cols=grid)
@@ -86,45 +88,53 @@ def runtime_rows(ctx: Context, objects) -> dict:
                 for pose_objects in (objects, any_pose(objects, ctx.seed)))
             seconds = touch_seconds(timing_models, probes, grid, ctx.seed, attention, sizes.runtime_strategies)
             for strategy in sizes.runtime_strategies:
+                settings.append((probes, grid, strategy, seconds[strategy]))
                 index = ds.indices(strategy)
                 split = ds.split_by_object if by_object else ds.split_by_sequence
                 train, test = split(1 / 3 if by_object else 0.2, seed=ctx.seed, index=index)
-                any_test = same_objects(ds, test, any_ds, strategy) if by_object else None
-                batch = split_loader(ds, train, test)
-                any_batch = split_loader(ds, train, any_test, any_ds) if by_object else None
                 folder = ctx.path("models", "runtime", f"p{probes}-g{grid}", strategy)
                 train_record = {"part": "runtime", "store": digest(record), "strategy": strategy, "train": digest(train)}
+                train_rows = StoreRows(str(ds.path), train)
                 for name, factory in pick(ctx.classifiers, sizes.unseen_classifiers).items():
-                    try:
-                        pred = train_and_predict(name, factory, lambda b=batch: b("train"), lambda b=batch: b("test"),
-                                                 folder, train_record, {"tag": "test", "test": digest(test)})
-                        any_pred = None if any_batch is None else train_and_predict(
-                            name, factory, lambda b=batch: b("train"), lambda b=any_batch: b("test"), folder,
-                            train_record, {"tag": "anypose", "store": digest(any_record), "test": digest(any_test)})
-                    except (VisuotactileError, ValueError, RuntimeError) as exc:
-                        log.warning("runtime P%d G%d %s %s failed: %s", probes, grid, strategy, name, exc)
-                        failures.append({"classifier": name, "strategy": strategy, "probes": probes, "grid": grid,
-                                         "error": f"{type(exc).__name__}: {exc}"})
-                        continue
-                    per_touch = seconds[strategy] + pred.predict_seconds
-                    by = "object" if by_object else "decision"
-                    for k in sizes.touches:
-                        try:
-                            acc = touches_score(pred, k, "log", by=by, seed=ctx.seed)
-                            any_acc = None if any_pred is None else touches_score(any_pred, k, "log", by=by,
-                                                                                  seed=ctx.seed)
-                        except VisuotactileError:
-                            continue  # fewer than k test contours per object
-                        points.append({
-                            "classifier": DISPLAY.get(name, name), "name": name, "strategy": strategy,
-                            "probes": probes, "grid": grid, "k": k, "accuracy": acc.to_dict(),
-                            "error": round(1 - acc.value, 4), "seconds": k * per_touch,
-                            "accuracy_any_pose": None if any_acc is None else any_acc.to_dict(),
-                            "error_any_pose": None if any_acc is None else round(1 - any_acc.value, 4),
-                            "touch_seconds_per_contour": seconds[strategy],
-                            "inference_seconds_per_sequence": pred.predict_seconds,
-                            "saliency_seconds_per_object": saliency_seconds[strategy],
-                            "fit_seconds": pred.fit_seconds})
+                    tasks[probes, grid, strategy, name, "test"] = FitTask(
+                        name, factory, train_rows, StoreRows(str(ds.path), test), folder, train_record,
+                        {"tag": "test", "test": digest(test)})
+                    if by_object:
+                        any_test = same_objects(ds, test, any_ds, strategy)
+                        tasks[probes, grid, strategy, name, "anypose"] = FitTask(
+                            name, factory, train_rows, StoreRows(str(any_ds.path), any_test), folder, train_record,
+                            {"tag": "anypose", "store": digest(any_record), "test": digest(any_test)})
+    outcomes = dict(zip(tasks, run_tasks(list(tasks.values()), ctx.workers, ctx.progress), strict=True))
+    points, failures = [], []
+    for probes, grid, strategy, per_contour in settings:
+        for name in pick(ctx.classifiers, sizes.unseen_classifiers):
+            pred, any_pred = (outcomes.get((probes, grid, strategy, name, tag)) for tag in ("test", "anypose"))
+            failed = next((o for o in (pred, any_pred) if isinstance(o, BaseException)), None)
+            if failed is not None:
+                if not isinstance(failed, VisuotactileError | ValueError | RuntimeError):
+                    raise failed
+                log.warning("runtime P%d G%d %s %s failed: %s", probes, grid, strategy, name, failed)
+                failures.append({"classifier": name, "strategy": strategy, "probes": probes, "grid": grid,
+                                 "error": f"{type(failed).__name__}: {failed}"})
+                continue
+            per_touch = per_contour + pred.predict_seconds
+            by = "object" if by_object else "decision"
+            for k in sizes.touches:
+                try:
+                    acc = touches_score(pred, k, "log", by=by, seed=ctx.seed)
+                    any_acc = None if any_pred is None else touches_score(any_pred, k, "log", by=by, seed=ctx.seed)
+                except VisuotactileError:
+                    continue  # fewer than k test contours per object
+                points.append({
+                    "classifier": DISPLAY.get(name, name), "name": name, "strategy": strategy,
+                    "probes": probes, "grid": grid, "k": k, "accuracy": acc.to_dict(),
+                    "error": round(1 - acc.value, 4), "seconds": k * per_touch,
+                    "accuracy_any_pose": None if any_acc is None else any_acc.to_dict(),
+                    "error_any_pose": None if any_acc is None else round(1 - any_acc.value, 4),
+                    "touch_seconds_per_contour": per_contour,
+                    "inference_seconds_per_sequence": pred.predict_seconds,
+                    "saliency_seconds_per_object": saliency_seconds[strategy],
+                    "fit_seconds": pred.fit_seconds})
     front = pareto_front([p["seconds"] for p in points], [p["error"] for p in points]) if points else []
     named = name_operating_points([p["seconds"] for p in points], [p["error"] for p in points], front)
     for i, p in enumerate(points):

@@ -25,7 +25,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from perception.errors import DatasetError, InvalidArgumentError
-from perception.runtime import package_version, progress_bar
+from perception.runtime import package_version, progress_bar, usable_cores, without_main_module
 from tactile import sampling
 from tactile.dataset.objects import ObjectSpec, object_specs
 from tactile.dataset.store import (
@@ -241,7 +241,7 @@ def generate(
             log.info("%s: all %d objects are complete", out, len(specs))
             report.seconds = time.perf_counter() - start
             return report
-        n_workers = min(workers or _usable_cores(), len(todo))
+        n_workers = min(workers or usable_cores(), len(todo))
         bar = progress_bar(total=len(todo) * layout.block, enabled=progress, desc="generate", unit="seq", smoothing=0.1)
         bar.set_postfix_str(f"objects {report.skipped}/{len(specs)}")
 
@@ -289,10 +289,6 @@ def _forget_damaged(out: Path, specs: list[ObjectSpec], progress: bool) -> list[
         with contextlib.suppress(FileNotFoundError):
             os.remove(record_path(out, index))
     return [(specs[index].name, problem) for index, problem in damaged.items()]
-
-
-def _usable_cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 # ------------------------------------------------------------------------------------ local executor
@@ -361,32 +357,6 @@ def _keep_freed_memory() -> None:
     mallopt(m_trim_threshold, 1 << 30)
 
 
-@contextlib.contextmanager
-def _without_main_module():
-    """Start children that do not re-import the caller's main module.
-
-    forkserver (like spawn) runs the parent's ``__main__`` again in each child so that objects defined
-    there can be unpickled; a script without an ``if __name__ == "__main__":`` guard would then run its
-    generate() call again in every worker. Our workers need nothing from ``__main__`` (their target and
-    arguments live in importable modules), so the preparation data leaves it out.
-    """
-    from multiprocessing import spawn
-
-    original = spawn.get_preparation_data
-
-    def without_main(name):
-        data = original(name)
-        data.pop("init_main_from_path", None)
-        data.pop("init_main_from_name", None)
-        return data
-
-    spawn.get_preparation_data = without_main
-    try:
-        yield
-    finally:
-        spawn.get_preparation_data = original
-
-
 def _context():
     import multiprocessing as mp
 
@@ -413,7 +383,7 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
                     target=_child, args=(writer, store, index, specs[index], settings, sensor, saliency_cache),
                     name=f"generate-{index}", daemon=True,
                 )
-                with _without_main_module():
+                with without_main_module():
                     proc.start()
                 writer.close()  # the child holds the only writer: EOF here means it has exited
                 running[reader] = [proc, index, time.monotonic(), None]

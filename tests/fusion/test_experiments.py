@@ -687,7 +687,8 @@ def test_noise_reads_the_pooled_fold_models_and_a_rerun_reuses_every_prediction(
     data = mesh_folder(tmp_path / "meshes", per_class=2)
     sizes = TINY.with_(strategies=("guided", "blind"), unseen_classifiers=("count",), unseen_contours=4, unseen_folds=2,
                        unseen_per_class=2, objects_per_class=2, noise_levels={"taxel_noise": (0.5,)})
-    kwargs = {"sizes": sizes, "classifiers": {"count": CountingMean}, "parts": ("unseen", "noise"), "workers": 2,
+    # one worker: the fits run in this process, where CALLS counts them
+    kwargs = {"sizes": sizes, "classifiers": {"count": CountingMean}, "parts": ("unseen", "noise"), "workers": 1,
               "progress": False}
     results = reproduce(data, tmp_path / "report", **kwargs)
     assert CALLS["fit"] == 2
@@ -737,7 +738,8 @@ def test_more_training_contours_feed_the_noise_part_and_a_rerun_reuses_everythin
     CALLS.update(fit=0, predict=0)
     data = mesh_folder(tmp_path / "meshes")
     sizes = TINY.with_(unseen_train_contours=15, unseen_classifiers=("count",), noise_levels={"taxel_noise": (0.5,)})
-    kwargs = {"sizes": sizes, "classifiers": {"count": CountingMean}, "parts": ("unseen", "noise"), "workers": 2,
+    # one worker: the fits run in this process, where CALLS counts them
+    kwargs = {"sizes": sizes, "classifiers": {"count": CountingMean}, "parts": ("unseen", "noise"), "workers": 1,
               "progress": False}
     results = reproduce(data, tmp_path / "report", **kwargs)
     assert CALLS["fit"] == 3

@@ -1,0 +1,212 @@
+"""Many models trained and tested side by side: one worker process per core, each on one core.
+
+A part of an experiment lists its fits as :class:`FitTask` objects (what :func:`train_and_predict` takes, with the
+data named by store and rows so that a worker can read it itself), and :func:`run_tasks` runs those whose model or
+predictions are not cached yet in worker processes, the most expensive first.
+
+Why processes and one core each: on two cores a CNN step is only 1.4-1.5 times faster on two threads than on one,
+so two fits on one thread each finish about a fifth sooner than the same fits one after the other on two threads;
+libsvm trains on one thread whatever it is given. The experiments' CNNs train on one thread wherever they run
+(:func:`fusion.experiments.models.default_classifiers`), so a run gives the same bytes with any number of workers
+and on any machine.
+
+A worker that dies (a native crash, the kernel's out-of-memory killer) takes no one with it: its unfinished tasks
+are run again one at a time, each in a fresh worker, and the one that kills its worker again is answered with
+:class:`perception.errors.WorkerError`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import pickle
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fusion.experiments.models import Factory, Predictions, cached_predictions, train_and_predict
+from fusion.modelfile import SUFFIX
+from perception.errors import WorkerError
+from perception.runtime import limit_cores, progress_bar, set_progress, usable_cores, without_main_module
+
+log = logging.getLogger(__name__)
+
+#: Relative training cost per sequence of a classifier class (others: 1): the expensive fits start first.
+FIT_COST = {"CNNClassifier": 20.0}
+
+
+@dataclass(frozen=True, eq=False)
+class StoreRows:
+    """The rows ``index`` of the store at ``path``, read when called (a loader a worker process can take)."""
+
+    path: str
+    index: np.ndarray
+
+    def __call__(self):
+        key = (self.path, hashlib.sha256(np.ascontiguousarray(self.index, dtype=np.int64)).hexdigest())
+        if _last_read.get("key") != key:  # svm and knn of one training set read it once in a process
+            from tactile.dataset import open_dataset
+
+            _last_read.clear()
+            _last_read.update(key=key, batch=open_dataset(self.path).load(self.index))
+        return _last_read["batch"]
+
+
+_last_read: dict = {}
+
+
+@dataclass(frozen=True)
+class FitTask:
+    """One :func:`fusion.experiments.models.train_and_predict` call: train classifier ``name`` (or load it from
+    ``folder``) on ``train`` and predict ``test``."""
+
+    name: str
+    factory: Factory
+    train: Callable
+    test: Callable
+    folder: Path
+    record: dict
+    test_record: dict | None = None
+
+    def run(self) -> Predictions:
+        return train_and_predict(self.name, self.factory, self.train, self.test, self.folder, self.record,
+                                 self.test_record)
+
+    def model_path(self) -> Path:
+        return self.folder / f"{self.name}{SUFFIX}"
+
+    def cached(self) -> bool:
+        """Whether its predictions are cached (then :meth:`run` only reads them)."""
+        return cached_predictions(self.name, self.factory, self.folder, self.record, self.test_record) is not None
+
+    def cost(self) -> float:
+        """A rough relative cost of running it, to start the expensive tasks first."""
+        rows = len(self.train.index) if isinstance(self.train, StoreRows) else 1
+        return rows * FIT_COST.get(type(self.factory()).__name__, 1.0)
+
+    def __str__(self) -> str:
+        return f"{self.name} in {self.folder}"
+
+
+def run_tasks(tasks: list[FitTask], workers: int | None = None, progress: bool = True) -> list:
+    """Run ``tasks`` and return, in their order, each one's :class:`Predictions` or the exception it raised.
+
+    Tasks not cached yet run in ``workers`` processes (None: the usable cores), the most expensive first, each
+    worker on ``usable cores / workers`` cores; in this process when one worker is asked for, when at most one
+    task is left to run, or when a task cannot be sent to another process (e.g. a classifier factory that is a
+    lambda). Nothing is raised for a failed task: callers decide what a failure means.
+    """
+    # Tasks that share a model (the same file) train it once: the first one; the others only predict, afterwards.
+    first: dict[Path, int] = {}
+    for i, task in enumerate(tasks):
+        if not task.cached():
+            first.setdefault(task.model_path(), i)
+    todo = sorted(first.values(), key=lambda i: -tasks[i].cost())
+    workers = min(usable_cores() if workers is None else max(1, int(workers)), len(todo))
+    outcomes: dict[int, object] = {}
+    try:
+        if workers > 1 and _picklable([tasks[i] for i in todo]):
+            with progress_bar(total=len(todo), enabled=progress, desc="fit", unit="model") as bar:
+                outcomes |= _in_workers(tasks, todo, workers, bar)
+        else:
+            outcomes |= {i: _outcome(tasks[i]) for i in todo}
+        for i, task in enumerate(tasks):
+            if i not in outcomes:  # cached, or sharing a model trained above (whose failure it shares)
+                trained = outcomes.get(first.get(task.model_path()))
+                outcomes[i] = trained if isinstance(trained, BaseException) else _outcome(task)
+        return [outcomes[i] for i in range(len(tasks))]
+    finally:
+        _last_read.clear()
+
+
+def raise_failures(outcomes: list) -> list[Predictions]:
+    """The outcomes of :func:`run_tasks`, raising the first failure."""
+    for outcome in outcomes:
+        if isinstance(outcome, BaseException):
+            raise outcome
+    return outcomes
+
+
+def _outcome(task: FitTask):
+    try:
+        return task.run()
+    except Exception as exc:  # noqa: BLE001 -- handed to the caller, which decides
+        return exc
+
+
+def _picklable(tasks: list[FitTask]) -> bool:
+    try:
+        pickle.dumps(tasks)
+    except (pickle.PicklingError, TypeError, AttributeError) as exc:
+        log.info("fits run in this process: a task cannot go to a worker (%s)", exc)
+        return False
+    return True
+
+
+def _start_worker(cores: int) -> None:
+    set_progress(False)  # one bar, the caller's, counts the models
+    limit_cores(cores)
+
+
+def _run_in_worker(task: FitTask):
+    outcome = _outcome(task)
+    if isinstance(outcome, BaseException):
+        try:
+            pickle.dumps(outcome)
+        except Exception:  # noqa: BLE001 -- an exception that cannot travel goes back as its text
+            return RuntimeError(f"{type(outcome).__name__}: {outcome}")
+    return outcome
+
+
+def _in_workers(tasks: list[FitTask], order: list[int], workers: int, bar) -> dict[int, object]:
+    """Outcomes of ``tasks[i]`` for ``i`` in ``order``; a task whose worker died runs again alone, once."""
+    done: dict[int, object] = {}
+    cores = max(1, usable_cores() // workers)
+    left = _run_pool(tasks, order, workers, cores, done, bar)
+    if left:  # every unfinished task again, each in a fresh worker of its own: only the one that kills dies
+        log.warning("a worker process died; running its %d unfinished fits again one by one", len(left))
+        for i in list(left):
+            if not _run_pool(tasks, [i], 1, cores, done, bar):
+                left.remove(i)
+    for i in left:
+        done[i] = WorkerError(f"the worker process died while training or testing {tasks[i]} (a crash in a native "
+                              f"library, or out of memory)")
+        bar.update()
+    return done
+
+
+def _run_pool(tasks: list[FitTask], order: list[int], workers: int, cores: int, done: dict, bar) -> list[int]:
+    """Run ``tasks[i]`` for ``i`` in ``order`` on a fresh pool of ``workers``, their outcomes into ``done``; returns
+    the indices left unfinished because a worker died."""
+    import multiprocessing as mp
+
+    pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=_start_worker,
+                               initargs=(cores,))
+    try:
+        with without_main_module():  # the workers start as tasks are submitted
+            futures = {pool.submit(_run_in_worker, tasks[i]): i for i in order}
+        for future in as_completed(futures):
+            try:
+                done[futures[future]] = future.result()
+            except BrokenProcessPool:
+                continue
+            bar.update()
+        pool.shutdown()
+    except BaseException:
+        _kill(pool)  # an interrupt must not wait for fits of minutes
+        raise
+    return [i for i in order if i not in done]
+
+
+def _kill(pool: ProcessPoolExecutor) -> None:
+    """Stop ``pool``'s workers now."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.kill()
+    pool.shutdown(wait=False, cancel_futures=True)
+
+
+__all__ = ["FIT_COST", "FitTask", "StoreRows", "raise_failures", "run_tasks"]
