@@ -17,10 +17,11 @@ are run again one at a time, each in a fresh worker, and the one that kills its 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import pickle
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -170,7 +171,7 @@ def _in_workers(tasks: list[FitTask], order: list[int], workers: int, bar) -> di
     if left:  # every unfinished task again, each in a fresh worker of its own: only the one that kills dies
         log.warning("a worker process died; running its %d unfinished fits again one by one", len(left))
         for i in list(left):
-            if not _run_pool(tasks, [i], 1, cores, done, bar):
+            if not _run_pool(tasks, [i], 1, cores, done, bar, keep=False):
                 left.remove(i)
     for i in left:
         done[i] = WorkerError(f"the worker process died while training or testing {tasks[i]} (a crash in a native "
@@ -179,26 +180,60 @@ def _in_workers(tasks: list[FitTask], order: list[int], workers: int, bar) -> di
     return done
 
 
-def _run_pool(tasks: list[FitTask], order: list[int], workers: int, cores: int, done: dict, bar) -> list[int]:
-    """Run ``tasks[i]`` for ``i`` in ``order`` on a fresh pool of ``workers``, their outcomes into ``done``; returns
-    the indices left unfinished because a worker died."""
+#: Pools kept by :func:`shared_workers` ((workers, cores) -> pool); None outside such a block.
+_kept: dict | None = None
+
+
+@contextlib.contextmanager
+def shared_workers() -> Iterator[None]:
+    """Keep the worker processes of every :func:`run_tasks` call in the block: they start, and import PyTorch and
+    scikit-learn, once (a few seconds each), however many parts and folds run; they stop when the block ends."""
+    global _kept
+    if _kept is not None:  # nested: the outer block keeps them
+        yield
+        return
+    _kept = {}
+    try:
+        yield
+    finally:
+        pools, _kept = _kept, None
+        for pool in pools.values():
+            pool.shutdown(cancel_futures=True)
+
+
+def _run_pool(tasks: list[FitTask], order: list[int], workers: int, cores: int, done: dict, bar,
+              keep: bool = True) -> list[int]:
+    """Run ``tasks[i]`` for ``i`` in ``order`` on a pool of ``workers`` (kept by :func:`shared_workers` when
+    ``keep``), their outcomes into ``done``; returns the indices left unfinished because a worker died."""
     import multiprocessing as mp
 
-    pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=_start_worker,
-                               initargs=(cores,))
+    key = (workers, cores)
+    pool = _kept.get(key) if keep and _kept is not None else None
+    if pool is None:
+        pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=_start_worker,
+                                   initargs=(cores,))
     try:
         with without_main_module():  # the workers start as tasks are submitted
             futures = {pool.submit(_run_in_worker, tasks[i]): i for i in order}
+        broken = False
         for future in as_completed(futures):
             try:
                 done[futures[future]] = future.result()
             except BrokenProcessPool:
+                broken = True
                 continue
             bar.update()
-        pool.shutdown()
     except BaseException:
         _kill(pool)  # an interrupt must not wait for fits of minutes
+        if _kept is not None:
+            _kept.pop(key, None)
         raise
+    if keep and _kept is not None and not broken:
+        _kept[key] = pool
+    else:
+        if _kept is not None:
+            _kept.pop(key, None)
+        pool.shutdown()
     return [i for i in order if i not in done]
 
 
@@ -209,4 +244,4 @@ def _kill(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=False, cancel_futures=True)
 
 
-__all__ = ["FIT_COST", "FitTask", "StoreRows", "raise_failures", "run_tasks"]
+__all__ = ["FIT_COST", "FitTask", "StoreRows", "raise_failures", "run_tasks", "shared_workers"]

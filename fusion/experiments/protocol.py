@@ -127,9 +127,13 @@ def grouped_kfold(ctx: Context, part: str, stores: tuple, strategies, classifier
     ``models/<part>/<strategy>/fold<i>/``); ``pooled=True``: one model per fold, trained on the contours of every
     strategy in ``strategies`` (cached under ``models/<part>/<strategy>+<strategy>.../fold<i>/``), predicting each
     strategy's test contours. The folds are the same either way (the same objects, dealt by class)."""
-    if not pooled:
-        return {s: _kfold(ctx, part, stores, (s,), classifiers, n_folds, pose)[s] for s in strategies}
-    return _kfold(ctx, part, stores, tuple(strategies), classifiers, n_folds, pose)
+    groups = [(s,) for s in strategies] if not pooled else [tuple(strategies)]
+    tasks = {key: task for group in groups for key, task in _kfold_tasks(ctx, part, stores, group, classifiers,
+                                                                         n_folds, pose).items()}
+    parts: dict[tuple[str, str], list[Predictions]] = {}
+    for (strategy, name, _), pred in zip(tasks, ctx.run(list(tasks.values())), strict=True):
+        parts.setdefault((strategy, name), []).append(pred)
+    return {s: {name: Predictions.concatenate(parts[(s, name)]) for name in classifiers} for s in strategies}
 
 
 def fold_folder(ctx: Context, part: str, strategies, fold: int):
@@ -137,9 +141,10 @@ def fold_folder(ctx: Context, part: str, strategies, fold: int):
     return ctx.path("models", part, "+".join(strategies), f"fold{fold + 1}")
 
 
-def _kfold(ctx: Context, part: str, stores: tuple, strategies: tuple, classifiers: dict, n_folds: int,
-           pose: str = "upright") -> dict[str, dict[str, Predictions]]:
-    """:func:`grouped_kfold` with models trained on the contours of all of ``strategies`` together."""
+def _kfold_tasks(ctx: Context, part: str, stores: tuple, strategies: tuple, classifiers: dict, n_folds: int,
+                 pose: str) -> dict[tuple[str, str, int], FitTask]:
+    """The fits of :func:`grouped_kfold` with models trained on the contours of all of ``strategies`` together,
+    by (strategy, classifier name, fold)."""
     ds, record, test_ds, test_store = stores
     index = np.sort(np.concatenate([ds.indices(s) for s in strategies]))
     folds = ds.kfold_by_object(n_folds, seed=ctx.seed, index=index)
@@ -158,10 +163,7 @@ def _kfold(ctx: Context, part: str, stores: tuple, strategies: tuple, classifier
             for name, factory in classifiers.items():
                 tasks[strategy, name, i] = FitTask(name, factory, StoreRows(str(ds.path), train),
                                                    StoreRows(str(test_ds.path), test), folder, train_record, test_record)
-    parts: dict[tuple[str, str], list[Predictions]] = {}
-    for (strategy, name, _), pred in zip(tasks, ctx.run(list(tasks.values())), strict=True):
-        parts.setdefault((strategy, name), []).append(pred)
-    return {s: {name: Predictions.concatenate(parts[(s, name)]) for name in classifiers} for s in strategies}
+    return tasks
 
 
 def same_objects(ds, index: np.ndarray, other, strategy: str) -> np.ndarray:

@@ -24,6 +24,7 @@ from fusion.experiments.config import FULL, NOISE_KINDS, QUICK, Sizes
 from fusion.experiments.context import Context
 from fusion.experiments.data import folder_objects
 from fusion.experiments.models import default_classifiers
+from fusion.experiments.parallel import shared_workers
 from fusion.experiments.protocol import (
     accuracy_rows,
     confusion_figures,
@@ -103,6 +104,12 @@ def reproduce(
         "machine": machine(), "bootstrap": BOOTSTRAP_NOTE, "sizes": sizes.to_dict(), "seconds": ctx.timings,
     }
 
+    with shared_workers():  # the fit workers start once for every part
+        return _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results)
+
+
+def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) -> dict:
+    """The parts of :func:`reproduce` (its arguments checked), each written to ``out`` as it finishes."""
     def timed(name, fn):
         start = time.perf_counter()
         value = fn()
