@@ -71,7 +71,9 @@ def register(sub) -> None:
     parser.add_argument("--out", help="report folder (default out/reproduce, or out/reproduce-quick)")
     parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(DEFAULT_PARTS),
                         help=f"parts to run (default: {', '.join(DEFAULT_PARTS)})")
-    parser.add_argument("--workers", type=int, default=None, help="data generation workers (default: the cores)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="worker processes of data generation and of model fits (default: the cores; any count "
+                             "gives the same stores, models and predictions)")
     parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout")
     parser.set_defaults(func=run, resumable=True)

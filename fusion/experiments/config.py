@@ -1,7 +1,7 @@
 """Sizes of the experiments: the full run, ``--quick`` and the demo, in one place (and in every report).
 
 Contour counts are per object and per strategy. The paper protocol uses the paper's 950 contours per object;
-the parts beyond the paper use fewer, chosen so the full run fits in 60 minutes and ``--quick`` in 10 on
+the parts beyond the paper use fewer, chosen so the full run fits in 30 minutes and ``--quick`` in 5 on
 two CPU cores (see the report's "Sizes" section for what a run used).
 """
 

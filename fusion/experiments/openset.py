@@ -18,7 +18,7 @@ training data, plus the share of unknown rejected at the threshold that keeps 95
 
 from __future__ import annotations
 
-import logging
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -26,8 +26,8 @@ from fusion.base import class_indices
 from fusion.calibration import ece_interval, ece_noise_floor, plot_reliability, reliability
 from fusion.decide import fuse_touches, touch_groups
 from fusion.experiments.context import Context
-from fusion.experiments.data import split_loader
-from fusion.experiments.models import DISPLAY, pick
+from fusion.experiments.models import DISPLAY, Factory, pick
+from fusion.experiments.parallel import StoreRows, fit_cost, raise_failures, run_jobs
 from fusion.experiments.protocol import pose_stores, same_objects
 from fusion.experiments.report import pivot
 from fusion.openset import (
@@ -41,8 +41,6 @@ from fusion.openset import (
     threshold_for,
     threshold_keeping,
 )
-
-log = logging.getLogger(__name__)
 
 BOOTSTRAP = 1000
 
@@ -60,22 +58,46 @@ VARIANTS = {
 }
 
 
+@dataclass(frozen=True)
+class CalibrationJob:
+    """``factory()`` fitted on the rows ``train`` and calibrated there (:func:`fusion.openset.calibrate` with
+    ``options``): a job for :func:`fusion.experiments.parallel.run_jobs`."""
+
+    factory: Factory
+    train: StoreRows
+    options: dict
+
+    def run(self):
+        return calibrate(self.factory(), self.train(), **self.options)
+
+    def cost(self) -> float:
+        return fit_cost(self.factory, self.train)
+
+    def __str__(self) -> str:
+        return f"calibrating {type(self.factory()).__name__} on {len(self.train.index)} sequences of {self.train.path}"
+
+
+def _calibrated(ctx: Context, jobs: list[CalibrationJob]) -> list:
+    """The calibrated models of ``jobs``, fitted side by side on the run's workers."""
+    return raise_failures(run_jobs(jobs, ctx.workers, ctx.progress))
+
+
 def calibration_part(ctx: Context, objects) -> dict:
     """ECE rows and reliability figures (module docstring); returns {"rows", "fits", "figures"}."""
     sizes = ctx.sizes
     strategy = sizes.calibration_strategy
     ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
+    factories = pick(ctx.classifiers, sizes.calibration_classifiers)
+    options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed}
+    models = iter(_calibrated(ctx, [CalibrationJob(factory, StoreRows(str(ds.path), train), options)
+                                    for train, _ in folds for factory in factories.values()]))
     collected: dict[str, list] = {}
     fits = []
-    for i, (train, test) in enumerate(folds):
-        test = same_objects(ds, test, test_ds, strategy)
-        load = split_loader(ds, train, test, test_ds)
-        for name, factory in pick(ctx.classifiers, sizes.calibration_classifiers).items():
-            log.info("calibration, fold %d: %s", i + 1, name)
-            model = calibrate(factory(), load("train"), open_set=False, max_touches=max(sizes.touches),
-                              random_state=ctx.seed)
-            batch = load("test")
+    for i, (_, test) in enumerate(folds):
+        batch = test_ds.load(same_objects(ds, test, test_ds, strategy))
+        for name in factories:
+            model = next(models)
             state = model.calibration_
             collected.setdefault(name, []).append({
                 "raw": model.predict_proba_uncalibrated(batch), "y": class_index(model, batch), "state": state,
@@ -143,18 +165,22 @@ def openset_part(ctx: Context, objects) -> dict:
     left_out = [sorted(class_names[order[r::n_rot]].tolist()) for r in range(n_rot)]
     labels_all = class_names[ds.labels]
     ks = list(sizes.touches)
-    pooled: dict = {}
-    rotations = []
+    splits = []  # (training rows, test rows of the test store) of each rotation
     for r, (_, fold_test) in enumerate(folds):
         unknown_idx = index[np.isin(labels_all[index], left_out[r])]
         known_test = fold_test[~np.isin(labels_all[fold_test], left_out[r])]
         train = np.setdiff1d(index[~np.isin(labels_all[index], left_out[r])], known_test)
-        test = same_objects(ds, np.union1d(known_test, unknown_idx), test_ds, strategy)
-        load = split_loader(ds, train, test, test_ds)
-        for name, factory in pick(ctx.classifiers, sizes.calibration_classifiers).items():
-            log.info("open set, rotation %d (%s left out): %s", r + 1, ", ".join(left_out[r]), name)
-            model = calibrate(factory(), load("train"), max_touches=max(ks), random_state=ctx.seed)
-            batch = load("test")
+        splits.append((train, same_objects(ds, np.union1d(known_test, unknown_idx), test_ds, strategy)))
+    factories = pick(ctx.classifiers, sizes.calibration_classifiers)
+    options = {"max_touches": max(ks), "random_state": ctx.seed}
+    models = iter(_calibrated(ctx, [CalibrationJob(factory, StoreRows(str(ds.path), train), options)
+                                    for train, _ in splits for factory in factories.values()]))
+    pooled: dict = {}
+    rotations = []
+    for r, (_, test) in enumerate(splits):
+        batch = test_ds.load(test)
+        for name in factories:
+            model = next(models)
             proba, distances, by_object = per_touch(model, batch)
             label = np.asarray(batch.class_names, dtype=object)[batch.labels]
             is_unknown = np.isin(label, left_out[r])

@@ -47,8 +47,11 @@ class StoreRows:
     path: str
     index: np.ndarray
 
+    def key(self) -> tuple[str, str]:
+        return self.path, hashlib.sha256(np.ascontiguousarray(self.index, dtype=np.int64)).hexdigest()
+
     def __call__(self):
-        key = (self.path, hashlib.sha256(np.ascontiguousarray(self.index, dtype=np.int64)).hexdigest())
+        key = self.key()
         if _last_read.get("key") != key:  # svm and knn of one training set read it once in a process
             from tactile.dataset import open_dataset
 
@@ -86,42 +89,86 @@ class FitTask:
 
     def cost(self) -> float:
         """A rough relative cost of running it, to start the expensive tasks first."""
-        rows = len(self.train.index) if isinstance(self.train, StoreRows) else 1
-        return rows * FIT_COST.get(type(self.factory()).__name__, 1.0)
+        return fit_cost(self.factory, self.train)
+
+    def train_key(self) -> tuple | None:
+        """What identifies its training set when it may share it with other light tasks (None: it runs alone)."""
+        if not isinstance(self.train, StoreRows) or type(self.factory()).__name__ in FIT_COST:
+            return None
+        return self.train.key()
 
     def __str__(self) -> str:
-        return f"{self.name} in {self.folder}"
+        return f"training or testing {self.name} in {self.folder}"
 
 
 def run_tasks(tasks: list[FitTask], workers: int | None = None, progress: bool = True) -> list:
     """Run ``tasks`` and return, in their order, each one's :class:`Predictions` or the exception it raised.
 
-    Tasks not cached yet run in ``workers`` processes (None: the usable cores), the most expensive first, each
-    worker on ``usable cores / workers`` cores; in this process when one worker is asked for, when at most one
-    task is left to run, or when a task cannot be sent to another process (e.g. a classifier factory that is a
-    lambda). Nothing is raised for a failed task: callers decide what a failure means.
+    Tasks not cached yet run by :func:`run_jobs`, in groups that run one after the other in one worker: the tasks
+    of one model (the same file: the first trains it, the others read it and predict), and the light tasks
+    (classifiers not in :data:`FIT_COST`) of one training set (one read, one feature pass). Nothing is raised for a
+    failed task: callers decide what a failure means.
     """
-    # Tasks that share a model (the same file) train it once: the first one; the others only predict, afterwards.
-    first: dict[Path, int] = {}
+    groups: dict[tuple, list[int]] = {}
     for i, task in enumerate(tasks):
         if not task.cached():
-            first.setdefault(task.model_path(), i)
-    todo = sorted(first.values(), key=lambda i: -tasks[i].cost())
-    workers = min(usable_cores() if workers is None else max(1, int(workers)), len(todo))
+            train = task.train_key()
+            groups.setdefault(("model", task.model_path()) if train is None else ("train", *train), []).append(i)
+    members = list(groups.values())
+    jobs = [tasks[g[0]] if len(g) == 1 else _Together([tasks[i] for i in g]) for g in members]
     outcomes: dict[int, object] = {}
+    for group, result in zip(members, run_jobs(jobs, workers, progress), strict=True):
+        together = len(group) > 1 and not isinstance(result, BaseException)  # else one outcome (a dead worker's)
+        outcomes.update({i: result[n] if together else result for n, i in enumerate(group)})
     try:
-        if workers > 1 and _picklable([tasks[i] for i in todo]):
-            with progress_bar(total=len(todo), enabled=progress, desc="fit", unit="model") as bar:
-                outcomes |= _in_workers(tasks, todo, workers, bar)
-        else:
-            outcomes |= {i: _outcome(tasks[i]) for i in todo}
-        for i, task in enumerate(tasks):
-            if i not in outcomes:  # cached, or sharing a model trained above (whose failure it shares)
-                trained = outcomes.get(first.get(task.model_path()))
-                outcomes[i] = trained if isinstance(trained, BaseException) else _outcome(task)
-        return [outcomes[i] for i in range(len(tasks))]
+        return [outcomes[i] if i in outcomes else _outcome(task) for i, task in enumerate(tasks)]  # cached: read
     finally:
         _last_read.clear()
+
+
+def run_jobs(jobs: list, workers: int | None = None, progress: bool = True) -> list:
+    """Run ``jobs`` (objects with ``run()`` and ``cost()``; e.g. :class:`FitTask`) and return, in their order, what
+    each ``run()`` returned or the exception it raised.
+
+    They run in ``workers`` processes (None: the usable cores), the most expensive first, each worker on ``usable
+    cores / workers`` cores (a lone job too: a crash there leaves this process alive); in this process when one
+    worker is asked for, or when a job cannot be sent to another process (e.g. a classifier factory that is a
+    lambda).
+    """
+    workers = usable_cores() if workers is None else max(1, int(workers))
+    try:
+        if jobs and workers > 1 and _picklable(jobs):
+            order = sorted(range(len(jobs)), key=lambda i: -jobs[i].cost())
+            with progress_bar(total=len(jobs), enabled=progress, desc="fit", unit="model") as bar:
+                done = _in_workers(jobs, order, workers, bar)
+            return [done[i] for i in range(len(jobs))]
+        return [_outcome(job) for job in jobs]
+    finally:
+        _last_read.clear()
+
+
+@dataclass(frozen=True)
+class _Together:
+    """Tasks run one after the other in one worker (they share a model or a training set); their outcomes, in
+    order."""
+
+    tasks: list[FitTask]
+
+    def run(self) -> list:
+        failed: dict[Path, BaseException] = {}  # a model that failed to train fails its other tasks, not twice
+        out = []
+        for task in self.tasks:
+            outcome = failed.get(task.model_path()) or _outcome(task)
+            if isinstance(outcome, BaseException):
+                failed[task.model_path()] = outcome
+            out.append(outcome)
+        return out
+
+    def cost(self) -> float:
+        return sum(task.cost() for task in self.tasks)
+
+    def __str__(self) -> str:
+        return "; ".join(str(task) for task in self.tasks)
 
 
 def raise_failures(outcomes: list) -> list[Predictions]:
@@ -132,18 +179,24 @@ def raise_failures(outcomes: list) -> list[Predictions]:
     return outcomes
 
 
-def _outcome(task: FitTask):
+def fit_cost(factory: Factory, train) -> float:
+    """A rough relative cost of training ``factory()`` on ``train`` (a :class:`StoreRows`: its rows count)."""
+    rows = len(train.index) if isinstance(train, StoreRows) else 1
+    return rows * FIT_COST.get(type(factory()).__name__, 1.0)
+
+
+def _outcome(job):
     try:
-        return task.run()
+        return job.run()
     except Exception as exc:  # noqa: BLE001 -- handed to the caller, which decides
         return exc
 
 
-def _picklable(tasks: list[FitTask]) -> bool:
+def _picklable(jobs: list) -> bool:
     try:
-        pickle.dumps(tasks)
+        pickle.dumps(jobs)
     except (pickle.PicklingError, TypeError, AttributeError) as exc:
-        log.info("fits run in this process: a task cannot go to a worker (%s)", exc)
+        log.info("running in this process: a job cannot go to a worker (%s)", exc)
         return False
     return True
 
@@ -153,8 +206,8 @@ def _start_worker(cores: int) -> None:
     limit_cores(cores)
 
 
-def _run_in_worker(task: FitTask):
-    outcome = _outcome(task)
+def _run_in_worker(job):
+    outcome = _outcome(job)
     if isinstance(outcome, BaseException):
         try:
             pickle.dumps(outcome)
@@ -163,19 +216,19 @@ def _run_in_worker(task: FitTask):
     return outcome
 
 
-def _in_workers(tasks: list[FitTask], order: list[int], workers: int, bar) -> dict[int, object]:
-    """Outcomes of ``tasks[i]`` for ``i`` in ``order``; a task whose worker died runs again alone, once."""
+def _in_workers(jobs: list, order: list[int], workers: int, bar) -> dict[int, object]:
+    """Outcomes of ``jobs[i]`` for ``i`` in ``order``; a job whose worker died runs again alone, once."""
     done: dict[int, object] = {}
     cores = max(1, usable_cores() // workers)
-    left = _run_pool(tasks, order, workers, cores, done, bar)
-    if left:  # every unfinished task again, each in a fresh worker of its own: only the one that kills dies
-        log.warning("a worker process died; running its %d unfinished fits again one by one", len(left))
+    left = _run_pool(jobs, order, workers, cores, done, bar)
+    if left:  # every unfinished job again, each in a fresh worker of its own: only the one that kills dies
+        log.warning("a worker process died; running its %d unfinished jobs again one by one", len(left))
         for i in list(left):
-            if not _run_pool(tasks, [i], 1, cores, done, bar, keep=False):
+            if not _run_pool(jobs, [i], 1, cores, done, bar, keep=False):
                 left.remove(i)
     for i in left:
-        done[i] = WorkerError(f"the worker process died while training or testing {tasks[i]} (a crash in a native "
-                              f"library, or out of memory)")
+        done[i] = WorkerError(f"the worker process died while {jobs[i]} (a crash in a native library, or out of "
+                              f"memory)")
         bar.update()
     return done
 
@@ -201,9 +254,9 @@ def shared_workers() -> Iterator[None]:
             pool.shutdown(cancel_futures=True)
 
 
-def _run_pool(tasks: list[FitTask], order: list[int], workers: int, cores: int, done: dict, bar,
+def _run_pool(jobs: list, order: list[int], workers: int, cores: int, done: dict, bar,
               keep: bool = True) -> list[int]:
-    """Run ``tasks[i]`` for ``i`` in ``order`` on a pool of ``workers`` (kept by :func:`shared_workers` when
+    """Run ``jobs[i]`` for ``i`` in ``order`` on a pool of ``workers`` (kept by :func:`shared_workers` when
     ``keep``), their outcomes into ``done``; returns the indices left unfinished because a worker died."""
     import multiprocessing as mp
 
@@ -214,7 +267,7 @@ def _run_pool(tasks: list[FitTask], order: list[int], workers: int, cores: int, 
                                    initargs=(cores,))
     try:
         with without_main_module():  # the workers start as tasks are submitted
-            futures = {pool.submit(_run_in_worker, tasks[i]): i for i in order}
+            futures = {pool.submit(_run_in_worker, jobs[i]): i for i in order}
         broken = False
         for future in as_completed(futures):
             try:
@@ -244,4 +297,4 @@ def _kill(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=False, cancel_futures=True)
 
 
-__all__ = ["FIT_COST", "FitTask", "StoreRows", "raise_failures", "run_tasks", "shared_workers"]
+__all__ = ["FIT_COST", "FitTask", "StoreRows", "fit_cost", "raise_failures", "run_jobs", "run_tasks", "shared_workers"]

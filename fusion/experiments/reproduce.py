@@ -72,12 +72,14 @@ def reproduce(
         objects_per_class: paper-protocol instances per class (default ``sizes.objects_per_class``).
         quick: the :data:`QUICK` sizes instead of :data:`FULL` (ignored when ``sizes`` is given).
         parts: which parts to run (see the module docstring).
+        workers: worker processes of store generation and of model fits (None: the usable cores); the stores,
+            models and predictions are the same bytes with any count (the CNNs train on one thread each).
         classifiers: name -> factory (default :func:`default_classifiers`).
 
     Raises:
         DatasetError: a bad data folder, unknown class, or too few instances.
-        InvalidArgumentError: an unknown part, ``touches`` without ``paper`` or ``unseen``, or ``noise`` without
-            ``unseen``.
+        InvalidArgumentError: an unknown part, ``touches`` without ``paper`` or ``unseen``, ``noise`` without
+            ``unseen``, or ``workers`` not a positive integer.
     """
     parts = tuple(parts)
     unknown = [p for p in parts if p not in PARTS]
@@ -88,6 +90,8 @@ def reproduce(
                                    "or 'unseen' to parts")
     if "noise" in parts and "unseen" not in parts:
         raise InvalidArgumentError("the noise part reuses the unseen-objects models: add 'unseen' to parts")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise InvalidArgumentError(f"workers must be a positive integer or None (the usable cores), got {workers!r}")
     sizes = sizes or (QUICK if quick else FULL)
     if objects_per_class is not None:
         sizes = sizes.with_(objects_per_class=int(objects_per_class))

@@ -57,6 +57,14 @@ def _attention(ds, models: list, strategy: str, seed: int) -> dict | None:
     return out
 
 
+def _on_every_core(model):
+    """``model`` predicting on every core of this process (nothing else runs beside this part): a CNN trained on
+    one thread gives the same probabilities on any thread count (tests/fusion/test_cnn.py)."""
+    if "threads" in model.get_params(deep=False):
+        model.set_params(threads=None)
+    return model
+
+
 def _sensor_and_jitter(kind: str, level: float) -> tuple[FSRSensor, float]:
     if kind == "taxel_noise":
         return FSRSensor(noise_std=float(level)), 0.0
@@ -88,7 +96,8 @@ def noise_rows(ctx: Context, objects) -> list[dict]:
         for strategy in sizes.strategies:
             folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
             fold_objects = [[models[ds.object_names[o]] for o in np.unique(ds.object_ids[test])] for _, test in folds]
-            estimators = [{name: load_model(fold_folder(ctx, "unseen", sizes.strategies, i) / f"{name}{SUFFIX}")
+            estimators = [{name: _on_every_core(load_model(fold_folder(ctx, "unseen", sizes.strategies, i)
+                                                           / f"{name}{SUFFIX}"))
                            for name in sizes.unseen_classifiers} for i in range(len(folds))]
             attention = _attention(test_ds, list(models.values()), strategy, ctx.seed)
             cleans: dict[int, tuple] = {}  # per fold: the clean batch and its seeds, read once for every level

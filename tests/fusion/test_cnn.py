@@ -623,6 +623,21 @@ def test_embed_reads_the_nets_in_eval_mode_and_in_any_chunks(fitted_pair, monkey
     np.testing.assert_allclose(model.embed(batch), whole, atol=1e-5)
 
 
+def test_predictions_are_the_same_bytes_on_any_thread_count(fitted_pair):
+    """Training sums in an order that depends on the thread count (the experiments fix it), the forward pass does
+    not: the noise part predicts on every core with models trained on one thread."""
+    model, _ = fitted_pair
+    batch = make_batch(n_per_class=200, seed=5)
+    outputs = []
+    for threads in (1, 2, 3):
+        model.set_params(threads=threads)
+        outputs.append(model.predict_proba_modalities(batch))
+    model.set_params(threads=FAST["threads"])
+    for other in outputs[1:]:
+        for name in ("cutaneous", "kinesthetic", "fusion"):
+            np.testing.assert_array_equal(other[name], outputs[0][name], err_msg=name)
+
+
 def test_embed_of_a_silent_net_adds_zeros_not_nan():
     model = CNNClassifier(**FAST, random_state=2).fit(make_batch())
     with torch.no_grad():

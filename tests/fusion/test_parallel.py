@@ -1,0 +1,165 @@
+"""Fits side by side (fusion.experiments.parallel): the same bytes as one process, each model trained once, failures
+and dying workers answered per task while the caller lives on, the workers' cores limited."""
+
+from __future__ import annotations
+
+import functools
+import os
+import time
+
+import numpy as np
+import pytest
+
+from fusion.base import TactileClassifier
+from fusion.classifiers import make_classifier
+from fusion.experiments.parallel import FitTask, StoreRows, raise_failures, run_tasks, shared_workers
+from perception.errors import DatasetError, WorkerError
+from perception.runtime import usable_cores
+from tactile.dataset import generate, open_dataset
+from tactile.sensor import FSRSensor
+
+OBJECTS = [("box", 0), ("box", 1), ("ring", 0), ("ring", 1)]
+
+
+class FitLog(TactileClassifier):
+    """Class means of the frames; each fit waits ``sleep`` seconds, then appends "<pid> <usable cores>" to the file
+    ``log``. ``fail``: "raise" (a DatasetError) or "abort" (the process dies) instead of fitting."""
+
+    def __init__(self, log: str = "", fail: str = "", sleep: float = 0.0):
+        self.log = log
+        self.fail = fail
+        self.sleep = sleep
+
+    def _fit(self, batch, y):
+        if self.fail == "raise":
+            raise DatasetError("planted failure")
+        if self.fail == "abort":
+            os.abort()
+        time.sleep(self.sleep)
+        with open(self.log, "a") as f:
+            f.write(f"{os.getpid()} {usable_cores()}\n")
+        x = batch.frames.reshape(len(batch), -1).astype(np.float64)
+        self.means_ = np.stack([x[y == c].mean(0) for c in range(len(self.classes_))])
+
+    def _predict_proba(self, batch):
+        x = batch.frames.reshape(len(batch), -1).astype(np.float64)
+        d = ((x[:, None, :] - self.means_[None]) ** 2).sum(-1)
+        e = np.exp(-(d - d.min(1, keepdims=True)))
+        return e / e.sum(1, keepdims=True)
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    path = tmp_path_factory.mktemp("parallel") / "store.zarr"
+    generate(OBJECTS, path, strategies=("blind",), contours_per_object=6, sensor=FSRSensor(rows=8, cols=8), probes=6,
+             seed=0, workers=1, progress=False)
+    ds = open_dataset(path)
+    train = np.flatnonzero(np.isin(ds.object_ids, [0, 2]))  # box/0 and ring/0
+    test = np.flatnonzero(np.isin(ds.object_ids, [1, 3]))
+    return str(path), train, test
+
+
+def _tasks(store, root, factories: dict) -> list[FitTask]:
+    path, train, test = store
+    return [FitTask(name, factory, StoreRows(path, train), StoreRows(path, test), root / name, {"train": name})
+            for name, factory in factories.items()]
+
+
+def _logged(log) -> list[tuple[int, int]]:
+    return [tuple(map(int, line.split())) for line in log.read_text().splitlines()] if log.exists() else []
+
+
+def test_workers_give_the_predictions_one_process_gives(store, tmp_path):
+    """A one-thread CNN pair and a kNN, trained by two workers and in this process: the same probabilities to the
+    bit (the CNN's kernels sum in the same order on one thread wherever it runs)."""
+    factories = {"cnn": functools.partial(make_classifier, "cnn", epochs=3, threads=1, progress=False),
+                 "knn": functools.partial(make_classifier, "knn")}
+    apart = raise_failures(run_tasks(_tasks(store, tmp_path / "two", factories), workers=2, progress=False))
+    here = raise_failures(run_tasks(_tasks(store, tmp_path / "one", factories), workers=1, progress=False))
+    for a, b in zip(apart, here, strict=True):
+        assert a.proba.shape == (12, 2)
+        assert np.array_equal(a.proba, b.proba)
+        assert set(a.modalities) == set(b.modalities)
+        assert all(np.array_equal(a.modalities[k], b.modalities[k]) for k in a.modalities)
+
+
+def test_fits_run_in_workers_on_their_share_of_the_cores_and_the_kept_workers_serve_later_calls(store, tmp_path):
+    log = tmp_path / "fits.log"
+    factories = {f"m{i}": functools.partial(FitLog, log=str(log)) for i in range(4)}
+    with shared_workers():
+        first = raise_failures(run_tasks(_tasks(store, tmp_path / "a", factories), workers=2, progress=False))
+        pids_first = {pid for pid, _ in _logged(log)}
+        run_tasks(_tasks(store, tmp_path / "b", factories), workers=2, progress=False)
+    fits = _logged(log)
+    assert len(fits) == 8 and len(first) == 4
+    assert os.getpid() not in pids_first and len(pids_first) <= 2
+    assert {pid for pid, _ in fits} <= pids_first  # the second call ran on the same workers
+    assert {cores for _, cores in fits} == {max(1, usable_cores() // 2)}
+
+
+def test_a_cached_task_is_read_not_run_and_a_shared_model_is_trained_once(store, tmp_path):
+    log = tmp_path / "fits.log"
+    path, train, test = store
+    factory = functools.partial(FitLog, log=str(log))
+    # two test sets of one model (same file, same training record): one fit, two predictions
+    tasks = [FitTask("m", factory, StoreRows(path, train), StoreRows(path, rows), tmp_path, {"train": 1},
+                     {"tag": tag}) for tag, rows in (("test", test), ("train", train))]
+    preds = raise_failures(run_tasks(tasks, workers=2, progress=False))
+    assert len(_logged(log)) == 1
+    assert [len(p.proba) for p in preds] == [12, 12]
+    again = raise_failures(run_tasks(tasks, workers=2, progress=False))
+    assert len(_logged(log)) == 1  # nothing fitted again
+    assert all(np.array_equal(a.proba, b.proba) for a, b in zip(preds, again, strict=True))
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_failing_fit_comes_back_as_its_exception_and_the_others_finish(store, tmp_path, workers):
+    log = tmp_path / "fits.log"
+    factories = {"ok": functools.partial(FitLog, log=str(log)), "bad": functools.partial(FitLog, fail="raise"),
+                 "ok2": functools.partial(FitLog, log=str(log))}
+    outcomes = run_tasks(_tasks(store, tmp_path, factories), workers=workers, progress=False)
+    assert isinstance(outcomes[1], DatasetError) and "planted failure" in str(outcomes[1])
+    assert [len(outcomes[i].proba) for i in (0, 2)] == [12, 12]
+    with pytest.raises(DatasetError, match="planted failure"):
+        raise_failures(outcomes)
+
+
+def test_a_fit_that_kills_its_worker_is_a_worker_error_and_the_caller_lives(store, tmp_path):
+    """os.abort() in a fit (as a native crash would): that task answers WorkerError naming it; the tasks the dead
+    worker's pool had not finished run again and succeed."""
+    log = tmp_path / "fits.log"
+    path, train, test = store
+    factories = {f"ok{i}": functools.partial(FitLog, log=str(log)) for i in range(3)}
+    # a training set of its own: light fits of one training set share a worker, and their fate
+    crash = FitTask("crash", functools.partial(FitLog, fail="abort"), StoreRows(path, test), StoreRows(path, train),
+                    tmp_path / "crash", {"train": "crash"})
+    outcomes = run_tasks([crash, *_tasks(store, tmp_path, factories)], workers=2, progress=False)
+    assert isinstance(outcomes[0], WorkerError)
+    assert str(tmp_path / "crash") in str(outcomes[0])
+    assert all(len(o.proba) == 12 for o in outcomes[1:])
+    assert len(_logged(log)) >= 3
+
+
+def test_a_factory_that_cannot_travel_runs_in_this_process(store, tmp_path):
+    log = tmp_path / "fits.log"
+    factories = {"a": lambda: FitLog(log=str(log)), "b": lambda: FitLog(log=str(log))}
+    raise_failures(run_tasks(_tasks(store, tmp_path, factories), workers=2, progress=False))
+    assert [pid for pid, _ in _logged(log)] == [os.getpid()] * 2
+
+
+def test_light_fits_of_one_training_set_run_together_and_a_heavy_one_alone(store, tmp_path):
+    """Two kNN-like fits of one training set go to one worker (one read, one feature pass), one after the other,
+    while two idle workers were there to take them apart; classes in FIT_COST (the CNN) never join them."""
+    path, train, test = store
+    slow = functools.partial(FitLog, log=str(tmp_path / "ab.log"), sleep=1.0)
+    tasks = [FitTask(name, slow, StoreRows(path, train), StoreRows(path, test), tmp_path / name, {"train": 1})
+             for name in ("a", "b")]
+    other = FitTask("c", functools.partial(FitLog, log=str(tmp_path / "c.log")), StoreRows(path, test),
+                    StoreRows(path, train), tmp_path / "c", {"train": 2})
+    raise_failures(run_tasks([*tasks, other], workers=2, progress=False))
+    (pid_a, _), (pid_b, _) = _logged(tmp_path / "ab.log")
+    assert pid_a == pid_b != os.getpid()
+    assert tasks[0].train_key() == tasks[1].train_key() != other.train_key()
+    cnn = FitTask("cnn", functools.partial(make_classifier, "cnn", threads=1), StoreRows(path, train),
+                  StoreRows(path, test), tmp_path / "cnn", {"train": 1})
+    assert cnn.train_key() is None
