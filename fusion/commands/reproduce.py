@@ -73,7 +73,7 @@ def register(sub) -> None:
                         help=f"parts to run (default: {', '.join(DEFAULT_PARTS)})")
     parser.add_argument("--workers", type=int, default=None,
                         help="worker processes of data generation and of model fits (default: the cores; any count "
-                             "gives the same stores, models and predictions)")
+                             "gives the same stores and CNN models: each CNN trains on one thread)")
     parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout")
     parser.set_defaults(func=run, resumable=True)

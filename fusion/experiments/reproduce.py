@@ -7,7 +7,8 @@ pose differences over objects), ``touches`` (K per decision, on the paper and un
 inside the training folds, reliability diagrams) and ``openset`` (classes rotated out of training: AUROC known vs
 unknown, share of unknown objects rejected; :mod:`fusion.experiments.openset`). ``touches`` needs ``paper`` (it reuses its predictions), ``noise``
 needs ``unseen`` (it reuses its fold models on their test objects). ``active`` (random / saliency / information touch policies on the unseen objects in any pose, :mod:`fusion.experiments.active`) runs only when named. Everything expensive is cached under the report folder (stores, models, predictions, part
-results), so an interrupted run resumes and the same seed gives the same numbers.
+results), so an interrupted run resumes and the same seed gives the same numbers. Models train side by side, one
+worker process per core (:mod:`fusion.experiments.parallel`).
 """
 
 from __future__ import annotations
@@ -72,8 +73,9 @@ def reproduce(
         objects_per_class: paper-protocol instances per class (default ``sizes.objects_per_class``).
         quick: the :data:`QUICK` sizes instead of :data:`FULL` (ignored when ``sizes`` is given).
         parts: which parts to run (see the module docstring).
-        workers: worker processes of store generation and of model fits (None: the usable cores); the stores,
-            models and predictions are the same bytes with any count (the CNNs train on one thread each).
+        workers: worker processes of store generation and of model fits (None: the usable cores). The stores and
+            the CNN models are the same bytes with any count (each CNN trains on one thread); the paper's SVM may
+            differ in the ninth decimal (its linear algebra runs on each worker's share of the cores).
         classifiers: name -> factory (default :func:`default_classifiers`).
 
     Raises:
