@@ -131,12 +131,12 @@ def run_jobs(jobs: list, workers: int | None = None, progress: bool = True) -> l
     """Run ``jobs`` (objects with ``run()`` and ``cost()``; e.g. :class:`FitTask`) and return, in their order, what
     each ``run()`` returned or the exception it raised.
 
-    They run in ``workers`` processes (None: the usable cores), the most expensive first, each worker on ``usable
-    cores / workers`` cores (a lone job too: a crash there leaves this process alive); in this process when one
-    worker is asked for, or when a job cannot be sent to another process (e.g. a classifier factory that is a
-    lambda).
+    They run in ``workers`` processes (None, or more than the usable cores: the usable cores), the most expensive
+    first, each worker on ``usable cores / workers`` cores (a lone job too: a crash there leaves this process
+    alive); in this process when one worker is asked for, or when a job cannot be sent to another process (e.g. a
+    classifier factory that is a lambda).
     """
-    workers = usable_cores() if workers is None else max(1, int(workers))
+    workers = usable_cores() if workers is None else max(1, min(int(workers), usable_cores()))
     try:
         if jobs and workers > 1 and _picklable(jobs):
             order = sorted(range(len(jobs)), key=lambda i: -jobs[i].cost())

@@ -19,6 +19,8 @@ from tactile.dataset import generate, open_dataset
 from tactile.sensor import FSRSensor
 
 OBJECTS = [("box", 0), ("box", 1), ("ring", 0), ("ring", 1)]
+#: The tests that watch two workers need two cores (run_jobs never starts more workers than cores).
+two_cores = pytest.mark.skipif(usable_cores() < 2, reason="needs 2 usable cores for 2 workers")
 
 
 class FitLog(TactileClassifier):
@@ -69,6 +71,7 @@ def _logged(log) -> list[tuple[int, int]]:
     return [tuple(map(int, line.split())) for line in log.read_text().splitlines()] if log.exists() else []
 
 
+@two_cores
 def test_workers_give_the_predictions_one_process_gives(store, tmp_path):
     """A one-thread CNN pair and a kNN, trained by two workers and in this process: the same probabilities to the
     bit (the CNN's kernels sum in the same order on one thread wherever it runs)."""
@@ -83,6 +86,7 @@ def test_workers_give_the_predictions_one_process_gives(store, tmp_path):
         assert all(np.array_equal(a.modalities[k], b.modalities[k]) for k in a.modalities)
 
 
+@two_cores
 def test_fits_run_in_workers_on_their_share_of_the_cores_and_the_kept_workers_serve_later_calls(store, tmp_path):
     log = tmp_path / "fits.log"
     factories = {f"m{i}": functools.partial(FitLog, log=str(log)) for i in range(4)}
@@ -97,6 +101,7 @@ def test_fits_run_in_workers_on_their_share_of_the_cores_and_the_kept_workers_se
     assert {cores for _, cores in fits} == {max(1, usable_cores() // 2)}
 
 
+@two_cores
 def test_a_cached_task_is_read_not_run_and_a_shared_model_is_trained_once(store, tmp_path):
     log = tmp_path / "fits.log"
     path, train, test = store
@@ -124,6 +129,7 @@ def test_a_failing_fit_comes_back_as_its_exception_and_the_others_finish(store, 
         raise_failures(outcomes)
 
 
+@two_cores
 def test_a_fit_that_kills_its_worker_is_a_worker_error_and_the_caller_lives(store, tmp_path):
     """os.abort() in a fit (as a native crash would): that task answers WorkerError naming it; the tasks the dead
     worker's pool had not finished run again and succeed."""
@@ -140,6 +146,7 @@ def test_a_fit_that_kills_its_worker_is_a_worker_error_and_the_caller_lives(stor
     assert len(_logged(log)) >= 3
 
 
+@two_cores
 def test_a_factory_that_cannot_travel_runs_in_this_process(store, tmp_path):
     log = tmp_path / "fits.log"
     factories = {"a": lambda: FitLog(log=str(log)), "b": lambda: FitLog(log=str(log))}
@@ -147,6 +154,7 @@ def test_a_factory_that_cannot_travel_runs_in_this_process(store, tmp_path):
     assert [pid for pid, _ in _logged(log)] == [os.getpid()] * 2
 
 
+@two_cores
 def test_light_fits_of_one_training_set_run_together_and_a_heavy_one_alone(store, tmp_path):
     """Two kNN-like fits of one training set go to one worker (one read, one feature pass), one after the other,
     while two idle workers were there to take them apart; classes in FIT_COST (the CNN) never join them."""
