@@ -53,14 +53,19 @@ class StoreRows:
 
     def __call__(self):
         key = self.key()
-        if _last_read.get("key") != key:  # svm and knn of one training set read it once in a process
+        if key not in _last_read:
             from tactile.dataset import open_dataset
 
-            _last_read.clear()
-            _last_read.update(key=key, batch=open_dataset(self.path).load(self.index))
-        return _last_read["batch"]
+            while len(_last_read) >= READS_KEPT:
+                _last_read.pop(next(iter(_last_read)))
+            _last_read[key] = open_dataset(self.path).load(self.index)
+        _last_read[key] = _last_read.pop(key)  # the most recent last
+        return _last_read[key]
 
 
+#: Batches a process keeps from its last reads (a training and a test set): the light fits of one training set
+#: read it once, and compute their features once (they are cached per batch object, ``fusion.features``).
+READS_KEPT = 2
 _last_read: dict = {}
 
 
@@ -194,10 +199,15 @@ def _outcome(job):
 
 
 def _picklable(jobs: list) -> bool:
+    """Whether ``jobs`` can go to a worker: they pickle, and name nothing of ``__main__`` (a class defined in the
+    caller's script or notebook), which the workers do not load."""
     try:
-        pickle.dumps(jobs)
+        sent = pickle.dumps(jobs)
     except (pickle.PicklingError, TypeError, AttributeError) as exc:
         log.info("running in this process: a job cannot go to a worker (%s)", exc)
+        return False
+    if b"__main__" in sent:
+        log.info("running in this process: a job refers to the caller's __main__ module")
         return False
     return True
 
@@ -208,12 +218,28 @@ def _start_worker(cores: int) -> None:
 
 
 def _run_in_worker(job):
-    outcome = _outcome(job)
-    if isinstance(outcome, BaseException):
-        try:
-            pickle.dumps(outcome)
-        except Exception:  # noqa: BLE001 -- an exception that cannot travel goes back as its text
+    import joblib
+
+    try:
+        # threads, not loky's processes, for scikit-learn's inner jobs: a worker waits for its own children's
+        # idle timeout (300 s) when it stops
+        with joblib.parallel_config(backend="threading"):
+            return _travelling(_outcome(job))
+    finally:
+        _last_read.clear()  # an idle worker holds no data
+
+
+def _travelling(outcome):
+    """``outcome`` as it can go back to the caller: a list element by element; what does not survive pickling and
+    unpickling becomes a RuntimeError with its text (never a worker that seems to have died)."""
+    if isinstance(outcome, list):
+        return [_travelling(item) for item in outcome]
+    try:
+        pickle.loads(pickle.dumps(outcome))
+    except Exception as exc:  # noqa: BLE001 -- whatever fails, the caller gets its text
+        if isinstance(outcome, BaseException):
             return RuntimeError(f"{type(outcome).__name__}: {outcome}")
+        return RuntimeError(f"the result of the job cannot be sent back ({type(exc).__name__}: {exc})")
     return outcome
 
 
@@ -262,31 +288,38 @@ def _run_pool(jobs: list, order: list[int], workers: int, cores: int, done: dict
     import multiprocessing as mp
 
     key = (workers, cores)
-    pool = _kept.get(key) if keep and _kept is not None else None
+    pool = _kept.pop(key, None) if keep and _kept is not None else None
+    if pool is not None and getattr(pool, "_broken", False):  # a kept worker died while idle: start afresh
+        pool.shutdown(wait=False, cancel_futures=True)
+        pool = None
     if pool is None:
         pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=_start_worker,
                                    initargs=(cores,))
+    broken = False
     try:
+        futures = {}
         with without_main_module():  # the workers start as tasks are submitted
-            futures = {pool.submit(_run_in_worker, jobs[i]): i for i in order}
-        broken = False
+            for i in order:
+                try:
+                    futures[pool.submit(_run_in_worker, jobs[i])] = i
+                except BrokenProcessPool:  # a worker died under an earlier job: the rest run again below
+                    broken = True
+                    break
         for future in as_completed(futures):
             try:
                 done[futures[future]] = future.result()
             except BrokenProcessPool:
                 broken = True
                 continue
+            except Exception as exc:  # noqa: BLE001 -- the job's outcome could not come back: its failure
+                done[futures[future]] = exc
             bar.update()
     except BaseException:
         _kill(pool)  # an interrupt must not wait for fits of minutes
-        if _kept is not None:
-            _kept.pop(key, None)
         raise
     if keep and _kept is not None and not broken:
         _kept[key] = pool
     else:
-        if _kept is not None:
-            _kept.pop(key, None)
         pool.shutdown()
     return [i for i in order if i not in done]
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 import time
 
 import numpy as np
@@ -12,7 +13,14 @@ import pytest
 
 from fusion.base import TactileClassifier
 from fusion.classifiers import make_classifier
-from fusion.experiments.parallel import FitTask, StoreRows, raise_failures, run_tasks, shared_workers
+from fusion.experiments.parallel import (
+    FIT_COST,
+    FitTask,
+    StoreRows,
+    raise_failures,
+    run_tasks,
+    shared_workers,
+)
 from perception.errors import DatasetError, WorkerError
 from perception.runtime import usable_cores
 from tactile.dataset import generate, open_dataset
@@ -23,9 +31,16 @@ OBJECTS = [("box", 0), ("box", 1), ("ring", 0), ("ring", 1)]
 two_cores = pytest.mark.skipif(usable_cores() < 2, reason="needs 2 usable cores for 2 workers")
 
 
+class Unpicklable(DatasetError):
+    def __init__(self, message, hook):
+        super().__init__(message)
+        self.hook = hook  # a lambda: pickling the exception fails
+
+
 class FitLog(TactileClassifier):
     """Class means of the frames; each fit waits ``sleep`` seconds, then appends "<pid> <usable cores>" to the file
-    ``log``. ``fail``: "raise" (a DatasetError) or "abort" (the process dies) instead of fitting."""
+    ``log`` (and each prediction "<pid>" to ``log``.predict). ``fail``: "raise" (a DatasetError), "unpicklable" (an
+    exception that cannot travel between processes) or "abort" (the process dies) instead of fitting."""
 
     def __init__(self, log: str = "", fail: str = "", sleep: float = 0.0):
         self.log = log
@@ -37,6 +52,8 @@ class FitLog(TactileClassifier):
             raise DatasetError("planted failure")
         if self.fail == "abort":
             os.abort()
+        if self.fail == "unpicklable":
+            raise Unpicklable("planted failure", lambda: None)
         time.sleep(self.sleep)
         with open(self.log, "a") as f:
             f.write(f"{os.getpid()} {usable_cores()}\n")
@@ -44,6 +61,9 @@ class FitLog(TactileClassifier):
         self.means_ = np.stack([x[y == c].mean(0) for c in range(len(self.classes_))])
 
     def _predict_proba(self, batch):
+        if self.log:
+            with open(self.log + ".predict", "a") as f:
+                f.write(f"{os.getpid()}\n")
         x = batch.frames.reshape(len(batch), -1).astype(np.float64)
         d = ((x[:, None, :] - self.means_[None]) ** 2).sum(-1)
         e = np.exp(-(d - d.min(1, keepdims=True)))
@@ -102,7 +122,12 @@ def test_fits_run_in_workers_on_their_share_of_the_cores_and_the_kept_workers_se
 
 
 @two_cores
-def test_a_cached_task_is_read_not_run_and_a_shared_model_is_trained_once(store, tmp_path):
+@pytest.mark.parametrize("heavy", [False, True])
+def test_a_cached_task_is_read_not_run_and_a_shared_model_is_trained_once(store, tmp_path, monkeypatch, heavy):
+    """Heavy (in FIT_COST) or light, two test sets of one model train it once; run again, nothing is fitted or
+    predicted."""
+    if heavy:
+        monkeypatch.setitem(FIT_COST, "FitLog", 5.0)
     log = tmp_path / "fits.log"
     path, train, test = store
     factory = functools.partial(FitLog, log=str(log))
@@ -112,8 +137,11 @@ def test_a_cached_task_is_read_not_run_and_a_shared_model_is_trained_once(store,
     preds = raise_failures(run_tasks(tasks, workers=2, progress=False))
     assert len(_logged(log)) == 1
     assert [len(p.proba) for p in preds] == [12, 12]
+    predictions = (tmp_path / "fits.log.predict").read_text().splitlines()
+    assert len(predictions) == 2
     again = raise_failures(run_tasks(tasks, workers=2, progress=False))
     assert len(_logged(log)) == 1  # nothing fitted again
+    assert (tmp_path / "fits.log.predict").read_text().splitlines() == predictions  # nor predicted
     assert all(np.array_equal(a.proba, b.proba) for a, b in zip(preds, again, strict=True))
 
 
@@ -121,9 +149,12 @@ def test_a_cached_task_is_read_not_run_and_a_shared_model_is_trained_once(store,
 def test_a_failing_fit_comes_back_as_its_exception_and_the_others_finish(store, tmp_path, workers):
     log = tmp_path / "fits.log"
     factories = {"ok": functools.partial(FitLog, log=str(log)), "bad": functools.partial(FitLog, fail="raise"),
-                 "ok2": functools.partial(FitLog, log=str(log))}
+                 "ok2": functools.partial(FitLog, log=str(log)), "odd": functools.partial(FitLog, fail="unpicklable")}
     outcomes = run_tasks(_tasks(store, tmp_path, factories), workers=workers, progress=False)
     assert isinstance(outcomes[1], DatasetError) and "planted failure" in str(outcomes[1])
+    # from a worker, an exception that cannot be pickled comes back as its text
+    assert isinstance(outcomes[3], Unpicklable if workers == 1 else RuntimeError)
+    assert "planted failure" in str(outcomes[3])
     assert [len(outcomes[i].proba) for i in (0, 2)] == [12, 12]
     with pytest.raises(DatasetError, match="planted failure"):
         raise_failures(outcomes)
@@ -171,3 +202,26 @@ def test_light_fits_of_one_training_set_run_together_and_a_heavy_one_alone(store
     cnn = FitTask("cnn", functools.partial(make_classifier, "cnn", threads=1), StoreRows(path, train),
                   StoreRows(path, test), tmp_path / "cnn", {"train": 1})
     assert cnn.train_key() is None
+
+
+@two_cores
+def test_a_classifier_of_the_callers_main_module_runs_in_this_process(store, tmp_path, monkeypatch):
+    """A class defined in the caller's script or notebook pickles by reference to ``__main__``, which the workers do
+    not load: such fits run here (before, every one failed as a dead worker)."""
+    cls = type("MainFitLog", (FitLog,), {"__module__": "__main__"})
+    monkeypatch.setattr(sys.modules["__main__"], "MainFitLog", cls, raising=False)
+    log = tmp_path / "fits.log"
+    path, train, test = store
+    tasks = [FitTask(f"m{i}", functools.partial(cls, log=str(log)), StoreRows(path, rows), StoreRows(path, test),
+                     tmp_path / f"m{i}", {"train": i}) for i, rows in enumerate((train, test))]
+    raise_failures(run_tasks(tasks, workers=2, progress=False))
+    assert [pid for pid, _ in _logged(log)] == [os.getpid()] * 2
+
+
+def test_reproduce_refuses_workers_it_cannot_count(tmp_path):
+    from fusion.experiments import reproduce
+    from perception.errors import InvalidArgumentError
+
+    for bad in (0, -1, 2.5, True, "2"):
+        with pytest.raises(InvalidArgumentError, match="workers"):
+            reproduce(tmp_path, tmp_path / "out", workers=bad, progress=False)
