@@ -130,7 +130,7 @@ def test_a_cached_task_is_read_not_run_and_a_shared_model_is_trained_once(store,
         monkeypatch.setitem(FIT_COST, "FitLog", 5.0)
     log = tmp_path / "fits.log"
     path, train, test = store
-    factory = functools.partial(FitLog, log=str(log))
+    factory = functools.partial(FitLog, log=str(log), sleep=1.0)  # long enough for two workers to start both
     # two test sets of one model (same file, same training record): one fit, two predictions
     tasks = [FitTask("m", factory, StoreRows(path, train), StoreRows(path, rows), tmp_path, {"train": 1},
                      {"tag": tag}) for tag, rows in (("test", test), ("train", train))]
@@ -225,3 +225,32 @@ def test_reproduce_refuses_workers_it_cannot_count(tmp_path):
     for bad in (0, -1, 2.5, True, "2"):
         with pytest.raises(InvalidArgumentError, match="workers"):
             reproduce(tmp_path, tmp_path / "out", workers=bad, progress=False)
+
+
+def test_reproduce_trains_its_cnns_on_one_thread(tmp_path, monkeypatch):
+    """The models of a run must not depend on the machine's cores or the worker count: reproduce asks for CNNs on
+    one thread (the weights' sums depend on the thread count; tests/fusion/test_cnn.py)."""
+    import fusion.experiments.reproduce as module
+
+    asked = {}
+
+    class Stop(Exception):
+        pass
+
+    def spy(*args, **kwargs):
+        asked.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(module, "default_classifiers", spy)
+    with pytest.raises(Stop):
+        module.reproduce(tmp_path, tmp_path / "out", progress=False)
+    assert asked["threads"] == 1
+
+
+def test_the_noise_part_predicts_on_every_core():
+    from fusion.cnn import CNNClassifier
+    from fusion.experiments.robustness import _on_every_core
+
+    assert _on_every_core(CNNClassifier(threads=1)).threads is None
+    model = FitLog(log="x")
+    assert _on_every_core(model) is model and model.get_params() == {"log": "x", "fail": "", "sleep": 0.0}
