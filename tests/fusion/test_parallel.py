@@ -230,8 +230,9 @@ def test_reproduce_refuses_workers_it_cannot_count(tmp_path):
 def test_reproduce_trains_its_cnns_on_one_thread(tmp_path, monkeypatch):
     """The models of a run must not depend on the machine's cores or the worker count: reproduce asks for CNNs on
     one thread (the weights' sums depend on the thread count; tests/fusion/test_cnn.py)."""
-    import fusion.experiments.reproduce as module
+    import importlib
 
+    module = importlib.import_module("fusion.experiments.reproduce")  # the package's name is the function
     asked = {}
 
     class Stop(Exception):
