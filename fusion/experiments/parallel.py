@@ -4,7 +4,7 @@ A part of an experiment lists its fits as :class:`FitTask` objects (what :func:`
 data named by store and rows so that a worker can read it itself), and :func:`run_tasks` runs those whose model or
 predictions are not cached yet in worker processes, the most expensive first.
 
-Why processes and one core each: on two cores a CNN step is only 1.4-1.5 times faster on two threads than on one,
+Why processes and one core each: on two cores a CNN step is only 1.4-1.6 times faster on two threads than on one,
 so two fits on one thread each finish about a fifth sooner than the same fits one after the other on two threads;
 libsvm trains on one thread whatever it is given. The experiments' CNNs train on one thread wherever they run
 (:func:`fusion.experiments.models.default_classifiers`), so their weights are the same bytes with any number of
