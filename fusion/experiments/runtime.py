@@ -10,8 +10,8 @@ classifies each:
 
 touching = cutting the contour and pressing the pad at its P probes (ray casting, measured in this process on
 ``TIMING_OBJECTS`` objects x ``TIMING_CONTOURS`` contours, median), inference = batch inference time per
-sequence (measured where the model was trained: in a fit worker, on its one core, beside the other workers; a
-robot's single-core figure). Guided decisions also need the object's saliency once; that time is stated separately, not added.
+sequence (measured where the model was trained: in a fit worker, on its one core, beside the other workers).
+Guided decisions also need the object's saliency once; that time is stated separately, not added.
 """
 
 from __future__ import annotations
