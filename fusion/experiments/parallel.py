@@ -89,9 +89,9 @@ class FitTask:
     def model_path(self) -> Path:
         return self.folder / f"{self.name}{SUFFIX}"
 
-    def cached(self) -> bool:
-        """Whether its predictions are cached (then :meth:`run` only reads them)."""
-        return cached_predictions(self.name, self.factory, self.folder, self.record, self.test_record) is not None
+    def cached(self) -> Predictions | None:
+        """Its cached predictions (then :meth:`run` would only read them), or None."""
+        return cached_predictions(self.name, self.factory, self.folder, self.record, self.test_record)
 
     def cost(self) -> float:
         """A rough relative cost of running it, to start the expensive tasks first."""
@@ -115,21 +115,21 @@ def run_tasks(tasks: list[FitTask], workers: int | None = None, progress: bool =
     (classifiers not in :data:`FIT_COST`) of one training set (one read, one feature pass). Nothing is raised for a
     failed task: callers decide what a failure means.
     """
+    outcomes: dict[int, object] = {}
     groups: dict[tuple, list[int]] = {}
     for i, task in enumerate(tasks):
-        if not task.cached():
-            train = task.train_key()
-            groups.setdefault(("model", task.model_path()) if train is None else ("train", *train), []).append(i)
+        cached = task.cached()
+        if cached is not None:
+            outcomes[i] = cached
+            continue
+        train = task.train_key()
+        groups.setdefault(("model", task.model_path()) if train is None else ("train", *train), []).append(i)
     members = list(groups.values())
     jobs = [tasks[g[0]] if len(g) == 1 else _Together([tasks[i] for i in g]) for g in members]
-    outcomes: dict[int, object] = {}
     for group, result in zip(members, run_jobs(jobs, workers, progress), strict=True):
         together = len(group) > 1 and not isinstance(result, BaseException)  # else one outcome (a dead worker's)
         outcomes.update({i: result[n] if together else result for n, i in enumerate(group)})
-    try:
-        return [outcomes[i] if i in outcomes else _outcome(task) for i, task in enumerate(tasks)]  # cached: read
-    finally:
-        _last_read.clear()
+    return [outcomes[i] for i in range(len(tasks))]
 
 
 def run_jobs(jobs: list, workers: int | None = None, progress: bool = True) -> list:
