@@ -137,6 +137,17 @@ def _check_count(name: str, value) -> None:
         raise InvalidArgumentError(f"CNNClassifier: {name} must be a positive integer, got {value!r}")
 
 
+def _same_value(a, b) -> bool:
+    """Whether two fitted attributes are equal: arrays element by element, containers item by item."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same_value(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same_value(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return np.asarray(a).shape == np.asarray(b).shape and bool(np.all(np.asarray(a) == np.asarray(b)))
+    return type(a) is type(b) and bool(a == b)
+
+
 def _circular_probes(x: torch.Tensor, pad: int = 1) -> torch.Tensor:
     """Pad axis 2 (the probes) circularly by ``pad``: the last probe neighbours the first."""
     return torch.cat([x[:, :, -pad:], x, x[:, :, :pad]], dim=2)
@@ -635,6 +646,39 @@ class CNNClassifier(TactileClassifier):
                 self.kinesthetic_net_ = KinestheticNet(batch.n_probes, cue_width(self.cue), n_classes)
                 self.history_["kinesthetic"] = self._train_net(self.kinesthetic_net_, self._cues(batch),
                                                                y_index, "kinesthetic", split, device)
+
+    @classmethod
+    def from_nets(cls, cutaneous: CNNClassifier, kinesthetic: CNNClassifier) -> CNNClassifier:
+        """The ``"fusion"`` model of a ``modality="cutaneous"`` and a ``modality="kinesthetic"`` model fitted
+        with the same other parameters on the same data: the same weights as fitting the fusion model itself
+        (each net is seeded on its own and trains on its own), so the two nets can train in parallel
+        (:mod:`fusion.experiments.parallel`). ``history_`` holds both nets' histories.
+
+        Raises:
+            InvalidArgumentError: not one model of each modality, either not fitted, other parameters, or
+            fitted on other data (classes, sensor, training sequences or input statistics differ).
+        """
+        models = {"cutaneous": cutaneous, "kinesthetic": kinesthetic}
+        for net, model in models.items():
+            if not isinstance(model, cls) or model.modality != net or getattr(model, f"{net}_net_", None) is None:
+                raise InvalidArgumentError(f"CNNClassifier.from_nets: the {net} argument must be a fitted "
+                                           f"{cls.__name__} with modality={net!r}")
+        params = {**cutaneous.get_params(deep=False), "modality": "fusion"}
+        if {**kinesthetic.get_params(deep=False), "modality": "fusion"} != params:
+            raise InvalidArgumentError("CNNClassifier.from_nets: the two models were made with other parameters")
+        shared = [k for k in vars(cutaneous) if k not in params and k not in ("history_", "cutaneous_net_",
+                                                                               "kinesthetic_net_")]
+        differ = [k for k in shared if not _same_value(vars(cutaneous)[k], vars(kinesthetic).get(k))]
+        if differ or set(shared) != {k for k in vars(kinesthetic) if k not in params and k not in
+                                     ("history_", "cutaneous_net_", "kinesthetic_net_")}:
+            raise InvalidArgumentError(f"CNNClassifier.from_nets: the two models were fitted on other data "
+                                       f"({', '.join(differ) or 'other fitted attributes'} differ)")
+        joined = cls(**params)
+        vars(joined).update({k: copy.deepcopy(vars(cutaneous)[k]) for k in shared})
+        joined.cutaneous_net_ = copy.deepcopy(cutaneous.cutaneous_net_)
+        joined.kinesthetic_net_ = copy.deepcopy(kinesthetic.kinesthetic_net_)
+        joined.history_ = {net: copy.deepcopy(model.history_[net]) for net, model in models.items()}
+        return joined
 
     # -------------------------------------------------------------------------------- prediction
     def _modality_proba(self, batch: SequenceBatch) -> dict[str, np.ndarray]:

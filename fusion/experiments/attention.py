@@ -64,10 +64,10 @@ def attention_rows(ctx: Context, objects) -> list[dict]:
     rows = []
     for strategies in groups:
         seconds = saliency_seconds(timing_models, ctx.seed, strategies)
+        stores = {pose: pose_stores(ctx, objects, pose, strategies, sizes.attention_contours) for pose in POSES}
+        by_pose = grouped_kfold(ctx, "attention", stores, strategies, {name: factory}, sizes.attention_folds)
         for pose in POSES:
-            stores = pose_stores(ctx, objects, pose, strategies, sizes.attention_contours)
-            preds = {strategy: by_name[name] for strategy, by_name in grouped_kfold(
-                ctx, "attention", stores, strategies, {name: factory}, sizes.attention_folds, pose=pose).items()}
+            preds = {strategy: by_name[name] for strategy, by_name in by_pose[pose].items()}
             blind = preds.get("blind")
             for strategy, pred in preds.items():
                 versus = (paired_difference(pred, blind, k, seed=ctx.seed)

@@ -217,16 +217,14 @@ def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[Tacti
 
     Returns the model and its training time in seconds (as measured when it was trained).
     """
-    estimator = factory()
-    record = json.loads(json.dumps({**record, "estimator": describe(estimator)}, default=str))
-    meta_path = path.with_suffix(".json")
-    if path.is_file() and meta_path.is_file():
+    full_record = model_record(factory, record)
+    if model_is_cached(path, full_record):
         try:
-            meta = json.loads(meta_path.read_text())
-            if meta.get("record") == record:
-                return load_model(path), float(meta["fit_seconds"])
+            meta = json.loads(path.with_suffix(".json").read_text())
+            return load_model(path), float(meta["fit_seconds"])
         except (DatasetError, ModelMismatchError, OSError, ValueError, KeyError) as exc:
             log.warning("cached model %s unusable (%s); training again", path, exc)
+    estimator = factory()
     batch = train() if callable(train) else train
     start = time.perf_counter()
     # scikit-learn steps left at n_jobs=None (the information gain over features, the SVM's calibration folds)
@@ -234,9 +232,34 @@ def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[Tacti
     with joblib.parallel_config(n_jobs=usable_cores()):
         estimator.fit(batch)
     seconds = time.perf_counter() - start
-    estimator.save(path)
-    write_text(meta_path, json.dumps({"record": record, "fit_seconds": seconds}, indent=2, default=str))
+    save_fitted(estimator, seconds, path, full_record)
     return estimator, seconds
+
+
+def model_record(factory: Factory, record: dict) -> dict:
+    """The record a model trained by ``factory()`` on the data ``record`` names is cached with: ``record`` and
+    the estimator's class, parameters and code version, as JSON reads it back."""
+    return json.loads(json.dumps({**record, "estimator": describe(factory())}, default=str))
+
+
+def model_is_cached(path: Path, full_record: dict) -> bool:
+    """Whether ``path`` holds a model saved with ``full_record`` (:func:`model_record`); reads only its JSON."""
+    meta_path = path.with_suffix(".json")
+    if not (path.is_file() and meta_path.is_file()):
+        return False
+    try:
+        return json.loads(meta_path.read_text()).get("record") == full_record
+    except (OSError, ValueError, AttributeError) as exc:
+        log.warning("cached model record %s unreadable (%s)", meta_path, exc)
+        return False
+
+
+def save_fitted(estimator: TactileClassifier, fit_seconds: float, path: Path, full_record: dict) -> None:
+    """Save a fitted ``estimator`` at ``path`` with its record (:func:`model_record`) and training time, where
+    :func:`fit_cached` finds it (the model first: a record never names a model that is not there)."""
+    estimator.save(path)
+    write_text(path.with_suffix(".json"), json.dumps({"record": full_record, "fit_seconds": fit_seconds}, indent=2,
+                                                     default=str))
 
 
 @dataclass
@@ -357,4 +380,5 @@ def _predictions_file(name: str, factory: Factory, folder: Path, record: dict,
 
 
 __all__ = ["DISPLAY", "MODALITY_DISPLAY", "MODEL_LIBRARIES", "Predictions", "cached_predictions", "default_classifiers",
-           "digest", "fit_cached", "pick", "predict", "train_and_predict"]
+           "digest", "fit_cached", "model_is_cached", "model_record", "pick", "predict", "save_fitted",
+           "train_and_predict"]

@@ -76,25 +76,25 @@ def paper_protocol(ctx: Context, objects) -> dict[str, dict[str, Predictions]]:
 POSES = ("upright", "any pose")
 
 
-def unseen_objects(ctx: Context, objects, pose: str = "upright") -> dict[str, dict[str, Predictions]]:
+def unseen_objects(ctx: Context, objects, poses=POSES) -> dict[str, dict[str, dict[str, Predictions]]]:
     """Grouped k-fold by object (each fold's test objects never seen in training), both strategies.
 
     One model per fold and classifier, trained on the training objects' contours of every strategy together
     (the robot's model learns from all it simulated); guided and blind then differ only in which contours
     touch the test objects, so their paired difference measures the choice of touch alone. Models train on the
-    objects as stored; ``pose="any pose"`` tests each fold's models on the same test objects turned by their
-    random rotations (a robot never sees a data set's pose), so the two poses are paired object by object.
+    objects as stored; the ``"any pose"`` pose tests each fold's models on the same test objects turned by their
+    random rotations (a robot never sees a data set's pose), so the poses are paired object by object.
 
-    Returns out-of-fold predictions[strategy][classifier name] covering every test object once.
+    Returns out-of-fold predictions[pose][strategy][classifier name], each pose covering every test object once.
 
     Raises:
         InvalidArgumentError: an unknown pose.
     """
     sizes = ctx.sizes
-    stores = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours, sizes.unseen_train_contours)
+    stores = {pose: pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours,
+                                sizes.unseen_train_contours) for pose in poses}
     classifiers = pick(ctx.classifiers, sizes.unseen_classifiers)
-    return grouped_kfold(ctx, "unseen", stores, sizes.strategies, classifiers, sizes.unseen_folds, pooled=True,
-                         pose=pose)
+    return grouped_kfold(ctx, "unseen", stores, sizes.strategies, classifiers, sizes.unseen_folds, pooled=True)
 
 
 def pose_stores(ctx: Context, objects, pose: str, strategies, contours: int, train_contours: int | None = None
@@ -117,23 +117,32 @@ def pose_stores(ctx: Context, objects, pose: str, strategies, contours: int, tra
     return (*train, *ctx.store(tested, strategies=strategies, contours=contours))
 
 
-def grouped_kfold(ctx: Context, part: str, stores: tuple, strategies, classifiers: dict, n_folds: int, *,
-                  pooled: bool = False, pose: str = "upright") -> dict[str, dict[str, Predictions]]:
-    """Out-of-fold predictions {strategy: {classifier name: Predictions}}: ``n_folds`` seeded folds by object of
-    the training store; each fold's models predict that fold's test objects read from the test store (the same
-    objects, maybe in another pose (``pose`` says which; it names the cached predictions) or with other contours).
+def grouped_kfold(ctx: Context, part: str, stores: dict[str, tuple], strategies, classifiers: dict, n_folds: int, *,
+                  pooled: bool = False) -> dict[str, dict[str, dict[str, Predictions]]]:
+    """Out-of-fold predictions {pose: {strategy: {classifier name: Predictions}}}: ``n_folds`` seeded folds by
+    object of the training store; each fold's models predict that fold's test objects read from each pose's test
+    store (:func:`pose_stores`, by pose name: the same objects, maybe in another pose or with other contours; the
+    pose names the cached predictions). Every pose's stores must share one training store; all fits and
+    predictions run in one batch, so the test poses never wait for each other's fits.
 
     ``pooled=False``: a model per strategy, trained on that strategy's contours (cached under
     ``models/<part>/<strategy>/fold<i>/``); ``pooled=True``: one model per fold, trained on the contours of every
     strategy in ``strategies`` (cached under ``models/<part>/<strategy>+<strategy>.../fold<i>/``), predicting each
-    strategy's test contours. The folds are the same either way (the same objects, dealt by class)."""
+    strategy's test contours. The folds are the same either way (the same objects, dealt by class).
+
+    Raises:
+        InvalidArgumentError: poses whose stores train on different stores.
+    """
+    if len({str(s[0].path) for s in stores.values()}) > 1:
+        raise InvalidArgumentError(f"{part}: the poses {list(stores)} must share one training store")
     groups = [(s,) for s in strategies] if not pooled else [tuple(strategies)]
-    tasks = {key: task for group in groups for key, task in _kfold_tasks(ctx, part, stores, group, classifiers,
-                                                                         n_folds, pose).items()}
-    parts: dict[tuple[str, str], list[Predictions]] = {}
-    for (strategy, name, _), pred in zip(tasks, ctx.run(list(tasks.values())), strict=True):
-        parts.setdefault((strategy, name), []).append(pred)
-    return {s: {name: Predictions.concatenate(parts[(s, name)]) for name in classifiers} for s in strategies}
+    tasks = {(pose, *key): task for pose, pose_store in stores.items() for group in groups
+             for key, task in _kfold_tasks(ctx, part, pose_store, group, classifiers, n_folds, pose).items()}
+    parts: dict[tuple[str, str, str], list[Predictions]] = {}
+    for (pose, strategy, name, _), pred in zip(tasks, ctx.run(list(tasks.values())), strict=True):
+        parts.setdefault((pose, strategy, name), []).append(pred)
+    return {pose: {s: {name: Predictions.concatenate(parts[(pose, s, name)]) for name in classifiers}
+                   for s in strategies} for pose in stores}
 
 
 def fold_folder(ctx: Context, part: str, strategies, fold: int):

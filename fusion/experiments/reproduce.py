@@ -135,9 +135,8 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
         _write(out, results)  # a partial report after every part
     if "unseen" in parts:
         unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
-        unseen_preds = timed("unseen", lambda: unseen_objects(ctx, unseen_list))
-        anypose_preds = timed("unseen any pose", lambda: unseen_objects(ctx, unseen_list, "any pose"))
-        by_pose = {"upright": unseen_preds, "any pose": anypose_preds}
+        by_pose = timed("unseen", lambda: unseen_objects(ctx, unseen_list))
+        unseen_preds, anypose_preds = by_pose["upright"], by_pose["any pose"]
         results["unseen"] = {
             "n_objects": len(unseen_list), "classes": list(dict.fromkeys(label for _, label in unseen_list)),
             "contours": sizes.unseen_contours, "folds": sizes.unseen_folds,

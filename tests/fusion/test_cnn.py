@@ -623,6 +623,50 @@ def test_embed_reads_the_nets_in_eval_mode_and_in_any_chunks(fitted_pair, monkey
     np.testing.assert_allclose(model.embed(batch), whole, atol=1e-5)
 
 
+def test_the_fusion_model_joined_from_its_two_nets_is_the_one_fit(fitted_pair, tmp_path):
+    """Each net is seeded and trains on its own: a cutaneous-only and a kinesthetic-only model fitted apart join
+    into the fusion model one fit gives, weight for weight (what lets the experiments train the nets side by
+    side)."""
+    model, batch = fitted_pair
+    params = model.get_params()
+    apart = {net: CNNClassifier(**{**params, "modality": net}).fit(batch) for net in ("cutaneous", "kinesthetic")}
+    joined = CNNClassifier.from_nets(apart["cutaneous"], apart["kinesthetic"])
+    assert joined.get_params() == params
+    for net in ("cutaneous_net_", "kinesthetic_net_"):
+        mine, theirs = getattr(joined, net).state_dict(), getattr(model, net).state_dict()
+        assert mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine), net
+    assert (joined.frame_mean_, joined.frame_std_) == (model.frame_mean_, model.frame_std_)
+    np.testing.assert_array_equal(joined.cue_std_, model.cue_std_)
+    assert {k: v["epochs"] for k, v in joined.history_.items()} == {"cutaneous": 12, "kinesthetic": 12}
+    test = make_batch(n_per_class=4, seed=1)
+    expected = model.predict_proba_modalities(test)
+    joined.save(tmp_path / "joined.vtm")
+    again = load_model(tmp_path / "joined.vtm")
+    for key, value in expected.items():
+        np.testing.assert_array_equal(joined.predict_proba_modalities(test)[key], value, err_msg=key)
+        np.testing.assert_array_equal(again.predict_proba_modalities(test)[key], value, err_msg=key)
+
+
+def test_joining_nets_refuses_models_that_do_not_belong_together(fitted_pair):
+    model, batch = fitted_pair
+    params = model.get_params()
+
+    def fit(net, data=batch, **changed):
+        return CNNClassifier(**{**params, "modality": net, **changed}).fit(data)
+
+    cutaneous, kinesthetic = fit("cutaneous"), fit("kinesthetic")
+    with pytest.raises(InvalidArgumentError, match="the cutaneous argument must be a fitted"):
+        CNNClassifier.from_nets(kinesthetic, cutaneous)  # swapped
+    with pytest.raises(InvalidArgumentError, match="the cutaneous argument must be a fitted"):
+        CNNClassifier.from_nets(model, kinesthetic)  # a fusion model
+    with pytest.raises(InvalidArgumentError, match="the kinesthetic argument must be a fitted"):
+        CNNClassifier.from_nets(cutaneous, CNNClassifier(**{**params, "modality": "kinesthetic"}))  # not fitted
+    with pytest.raises(InvalidArgumentError, match="other parameters"):
+        CNNClassifier.from_nets(cutaneous, fit("kinesthetic", random_state=9))
+    with pytest.raises(InvalidArgumentError, match="fitted on other data"):
+        CNNClassifier.from_nets(cutaneous, fit("kinesthetic", make_batch(seed=4)))
+
+
 def test_predictions_are_the_same_bytes_on_any_thread_count(fitted_pair):
     """Training sums in an order that depends on the thread count (the experiments fix it), the forward pass does
     not: the noise part predicts on every core with models trained on one thread."""

@@ -857,16 +857,16 @@ def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
 
 
 def test_attention_part_names_each_pose_to_the_folds(tmp_path, monkeypatch):
-    """The attention part asks the folds for every pose by name (the pose names the cached predictions: upright
-    and any-pose predictions of one fold model must not share a file)."""
+    """The attention part asks the folds for every pose by name, in one call (the pose names the cached
+    predictions: upright and any-pose predictions of one fold model must not share a file)."""
     from fusion.experiments import attention
     from fusion.experiments.context import Context
 
     asked = []
 
     def folds(ctx, part, stores, strategies, classifiers, n_folds, **kwargs):
-        asked.append((part, stores, kwargs.get("pose")))
-        return {}
+        asked.extend((part, pose_stores, pose) for pose, pose_stores in stores.items())
+        return {pose: {} for pose in stores}
 
     monkeypatch.setattr(attention, "grouped_kfold", folds)
     monkeypatch.setattr(attention, "pose_stores", lambda ctx, objects, pose, strategies, contours: pose)

@@ -4,6 +4,7 @@ and dying workers answered per task while the caller lives on, the workers' core
 from __future__ import annotations
 
 import functools
+import json
 import os
 import sys
 import time
@@ -21,7 +22,7 @@ from fusion.experiments.parallel import (
     run_tasks,
     shared_workers,
 )
-from perception.errors import DatasetError, WorkerError
+from perception.errors import DatasetError, InvalidArgumentError, WorkerError
 from perception.runtime import usable_cores
 from tactile.dataset import generate, open_dataset
 from tactile.sensor import FSRSensor
@@ -104,6 +105,54 @@ def test_workers_give_the_predictions_one_process_gives(store, tmp_path):
         assert np.array_equal(a.proba, b.proba)
         assert set(a.modalities) == set(b.modalities)
         assert all(np.array_equal(a.modalities[k], b.modalities[k]) for k in a.modalities)
+
+
+@two_cores
+def test_a_fusion_cnn_trains_its_two_nets_as_two_jobs_then_its_tasks_predict(store, tmp_path, monkeypatch):
+    """With two workers, a fusion CNN not trained yet is two jobs, one per net, sent beside the other fits; the
+    joined model is saved once with both nets' training time, then its two test sets are predicted (the bits
+    equal one fit's: the test above). Cached, nothing is sent again; one worker trains the pair as one fit."""
+    from fusion.base import load_model
+    from fusion.experiments import parallel
+
+    sent = []
+    real = parallel.run_jobs
+    monkeypatch.setattr(parallel, "run_jobs", lambda jobs, *a, **k: sent.append(sorted(map(str, jobs))) or real(
+        jobs, *a, **k))
+    path, train, test = store
+    cnn = functools.partial(make_classifier, "cnn", epochs=2, threads=1, progress=False)
+    tasks = [FitTask("cnn", cnn, StoreRows(path, train), StoreRows(path, rows), tmp_path / "cnn", {"train": 1},
+                     {"tag": tag}) for tag, rows in (("test", test), ("train", train))]
+    tasks += _tasks(store, tmp_path, {"knn": functools.partial(make_classifier, "knn")})
+    preds = raise_failures(run_tasks(tasks, workers=2, progress=False))
+    where = tmp_path / "cnn"
+    assert sent == [sorted([f"training the cutaneous net of cnn in {where}", f"training the kinesthetic net of cnn in "
+                            f"{where}", f"training or testing knn in {tmp_path / 'knn'}"]),
+                    [f"training or testing cnn in {where}; training or testing cnn in {where}"]]
+    model = load_model(where / "cnn.vtm")
+    assert model.modality == "fusion" and set(model.history_) == {"cutaneous", "kinesthetic"}
+    assert [len(p.proba) for p in preds] == [12, 12, 12] and set(preds[0].modalities) == {"cutaneous", "kinesthetic"}
+    seconds = json.loads((where / "cnn.json").read_text())["fit_seconds"]
+    assert seconds > 0 and preds[0].fit_seconds == preds[1].fit_seconds == seconds
+    sent.clear()
+    raise_failures(run_tasks(tasks, workers=2, progress=False))
+    assert sent == [[], []]  # everything cached
+    sent.clear()
+    raise_failures(run_tasks(_tasks(store, tmp_path / "one", {"cnn": cnn}), workers=1, progress=False))
+    assert sent == [[f"training or testing cnn in {tmp_path / 'one' / 'cnn'}"], []]
+
+
+@two_cores
+def test_a_net_that_fails_fails_every_task_of_its_model_and_the_others_finish(store, tmp_path):
+    path, train, test = store
+    broken = functools.partial(make_classifier, "cnn", epochs=2, threads=1, progress=False, frame_size=0)
+    tasks = [FitTask("cnn", broken, StoreRows(path, train), StoreRows(path, rows), tmp_path / "cnn", {"train": 1},
+                     {"tag": tag}) for tag, rows in (("test", test), ("train", train))]
+    tasks += _tasks(store, tmp_path, {"knn": functools.partial(make_classifier, "knn")})
+    outcomes = run_tasks(tasks, workers=2, progress=False)
+    assert all(isinstance(o, InvalidArgumentError) and "frame_size" in str(o) for o in outcomes[:2])
+    assert len(outcomes[2].proba) == 12
+    assert not (tmp_path / "cnn" / "cnn.vtm").exists()
 
 
 @two_cores
