@@ -15,6 +15,10 @@ import configparser
 import contextlib
 import os
 import platform
+import select
+import signal
+import threading
+import time
 from collections.abc import Iterator
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
@@ -118,6 +122,50 @@ def without_main_module() -> Iterator[None]:
         yield
     finally:
         spawn.get_preparation_data = original
+
+
+@cache
+def libc():
+    """The C library's functions as ctypes sees them (the process's own symbols), or None where it cannot; loaded
+    once per process."""
+    try:
+        import ctypes
+
+        return ctypes.CDLL(None, use_errno=True)
+    except OSError:
+        return None
+
+
+def exit_with(pid: int) -> None:
+    """Kill this process (SIGKILL) as soon as process ``pid`` has exited: a worker's guard against outliving the
+    run that started it. Its parent is no guide: a forkserver serves until its last child has ended, so a caller
+    terminated or killed would leave its workers computing (and writing) on for nobody. Watches a pidfd where the
+    system has one (Linux >= 5.3: no polling, no confusion with a later process of the same pid), else polls
+    every half second. Returns at once; the watch runs in a daemon thread."""
+    try:
+        handle = os.pidfd_open(pid)
+    except (AttributeError, OSError):  # no pidfds here, or ``pid`` is gone already (then the poll sees it)
+        handle = None
+
+    def watch() -> None:
+        if handle is not None:
+            select.select([handle], [], [])  # readable once the process has exited
+        else:
+            while _running(pid):
+                time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name=f"exit-with-{pid}", daemon=True).start()
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
 
 
 def machine() -> dict:

@@ -59,13 +59,19 @@ class Context:
         write_text(path, json.dumps({"key": key, "record": record, "result": result}, indent=2, default=str))
         return result
 
-
     def run(self, tasks: list) -> list:
         """The predictions of :class:`fusion.experiments.parallel.FitTask` ``tasks``, in their order, trained side
         by side on the run's workers; the first failure is raised once all have run."""
         from fusion.experiments.parallel import raise_failures, run_tasks
 
         return raise_failures(run_tasks(tasks, self.workers, self.progress))
+
+    def run_jobs(self, jobs: list) -> list:
+        """What the jobs of :func:`fusion.experiments.parallel.run_jobs` (e.g. calibrations) return, in their
+        order, run side by side on the run's workers; the first failure is raised once all have run."""
+        from fusion.experiments.parallel import raise_failures, run_jobs
+
+        return raise_failures(run_jobs(jobs, self.workers, self.progress))
 
     def store(self, objects, *, strategies, contours: int) -> tuple:
         """(the opened dataset, its record) of ``objects`` with these settings and the run's seed, generated,

@@ -27,7 +27,7 @@ from fusion.calibration import ece_interval, ece_noise_floor, plot_reliability, 
 from fusion.decide import fuse_touches, touch_groups
 from fusion.experiments.context import Context
 from fusion.experiments.models import DISPLAY, Factory, pick
-from fusion.experiments.parallel import StoreRows, fit_cost, raise_failures, run_jobs
+from fusion.experiments.parallel import StoreRows, fit_cost
 from fusion.experiments.protocol import pose_stores, same_objects
 from fusion.experiments.report import pivot
 from fusion.openset import (
@@ -77,11 +77,6 @@ class CalibrationJob:
         return f"calibrating {type(self.factory()).__name__} on {len(self.train.index)} sequences of {self.train.path}"
 
 
-def _calibrated(ctx: Context, jobs: list[CalibrationJob]) -> list:
-    """The calibrated models of ``jobs``, fitted side by side on the run's workers."""
-    return raise_failures(run_jobs(jobs, ctx.workers, ctx.progress))
-
-
 def calibration_part(ctx: Context, objects) -> dict:
     """ECE rows and reliability figures (module docstring); returns {"rows", "fits", "figures"}."""
     sizes = ctx.sizes
@@ -90,8 +85,8 @@ def calibration_part(ctx: Context, objects) -> dict:
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
     factories = pick(ctx.classifiers, sizes.calibration_classifiers)
     options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed}
-    models = iter(_calibrated(ctx, [CalibrationJob(factory, StoreRows(str(ds.path), train), options)
-                                    for train, _ in folds for factory in factories.values()]))
+    models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options)
+                                for train, _ in folds for factory in factories.values()]))
     collected: dict[str, list] = {}
     fits = []
     for i, (_, test) in enumerate(folds):
@@ -173,8 +168,8 @@ def openset_part(ctx: Context, objects) -> dict:
         splits.append((train, same_objects(ds, np.union1d(known_test, unknown_idx), test_ds, strategy)))
     factories = pick(ctx.classifiers, sizes.calibration_classifiers)
     options = {"max_touches": max(ks), "random_state": ctx.seed}
-    models = iter(_calibrated(ctx, [CalibrationJob(factory, StoreRows(str(ds.path), train), options)
-                                    for train, _ in splits for factory in factories.values()]))
+    models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options)
+                                for train, _ in splits for factory in factories.values()]))
     pooled: dict = {}
     rotations = []
     for r, (_, test) in enumerate(splits):

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
+import os
 import pickle
 import time
 from collections.abc import Callable, Iterator
@@ -34,7 +35,14 @@ import numpy as np
 from fusion.experiments.models import Factory, Predictions, cached_predictions, train_and_predict
 from fusion.modelfile import SUFFIX
 from perception.errors import WorkerError
-from perception.runtime import limit_cores, progress_bar, set_progress, usable_cores, without_main_module
+from perception.runtime import (
+    exit_with,
+    limit_cores,
+    progress_bar,
+    set_progress,
+    usable_cores,
+    without_main_module,
+)
 
 log = logging.getLogger(__name__)
 
@@ -295,7 +303,8 @@ def _picklable(jobs: list) -> bool:
     return True
 
 
-def _start_worker(cores: int) -> None:
+def _start_worker(cores: int, caller: int) -> None:
+    exit_with(caller)  # the caller terminated or killed: no worker trains on for nobody
     set_progress(False)  # one bar, the caller's, counts the models
     limit_cores(cores)
 
@@ -377,7 +386,7 @@ def _run_pool(jobs: list, order: list[int], workers: int, cores: int, done: dict
         pool = None
     if pool is None:
         pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("forkserver"), initializer=_start_worker,
-                                   initargs=(cores,))
+                                   initargs=(cores, os.getpid()))
     broken = False
     try:
         futures = {}

@@ -11,7 +11,6 @@ a damaged object loses its record and is explored again, so the store ends as an
 from __future__ import annotations
 
 import contextlib
-import functools
 import logging
 import os
 import shlex
@@ -25,7 +24,14 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from perception.errors import DatasetError, InvalidArgumentError
-from perception.runtime import package_version, progress_bar, usable_cores, without_main_module
+from perception.runtime import (
+    exit_with,
+    libc,
+    package_version,
+    progress_bar,
+    usable_cores,
+    without_main_module,
+)
 from tactile import sampling
 from tactile.dataset.objects import ObjectSpec, object_specs
 from tactile.dataset.store import (
@@ -306,10 +312,11 @@ def _reason_for_exit(code: int | None) -> str:
 
 
 def _child(conn, store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor,
-           saliency_cache: str | None = None) -> None:
+           saliency_cache: str | None = None, caller: int | None = None) -> None:
     """Worker process body: explore one object, report progress and the outcome through ``conn``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt stops
-    _die_with_parent()
+    if caller is not None:
+        exit_with(caller)  # generate's process killed: no orphan writes on into the store
     _keep_freed_memory()
     from tactile.dataset.worker import explore_into_store
 
@@ -323,33 +330,13 @@ def _child(conn, store: str, index: int, spec: ObjectSpec, settings: dict, senso
         conn.close()
 
 
-@functools.cache
-def _libc():
-    """The C library's functions as ctypes sees them (the process's own symbols), or None where it cannot; loaded
-    once per process."""
-    try:
-        import ctypes
-
-        return ctypes.CDLL(None, use_errno=True)
-    except OSError:
-        return None
-
-
-def _die_with_parent() -> None:
-    """Linux: get SIGKILL when the parent (the forkserver, which exits with generate's process) dies, so an
-    interrupted run leaves no orphan still writing into the store."""
-    prctl = getattr(_libc(), "prctl", None)
-    if prctl is not None:
-        prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-
-
 def _keep_freed_memory() -> None:
     """glibc: serve allocations up to 32 MiB from the heap and keep up to 1 GiB of freed heap, so the worker's
     per-cast buffers (rays, Open3D's hit arrays: tens of MB each, a few thousand per object) reuse memory instead
     of mapping fresh zeroed pages each time. The worker is one short-lived process per object: what it keeps goes
     with it. Measured on 3 SHREC objects explored in one process: 6 % less CPU, 8 % less wall time, the same bytes.
     Elsewhere (no glibc ``mallopt``) nothing changes."""
-    mallopt = getattr(_libc(), "mallopt", None)
+    mallopt = getattr(libc(), "mallopt", None)
     if mallopt is None:
         return
     m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
@@ -380,7 +367,8 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
                 index = pending.popleft()
                 reader, writer = ctx.Pipe(duplex=False)
                 proc = ctx.Process(
-                    target=_child, args=(writer, store, index, specs[index], settings, sensor, saliency_cache),
+                    target=_child,
+                    args=(writer, store, index, specs[index], settings, sensor, saliency_cache, os.getpid()),
                     name=f"generate-{index}", daemon=True,
                 )
                 with without_main_module():

@@ -6,8 +6,12 @@ from __future__ import annotations
 import functools
 import json
 import os
+import signal
+import subprocess
 import sys
+import textwrap
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,8 +43,8 @@ class Unpicklable(DatasetError):
 
 
 class FitLog(TactileClassifier):
-    """Class means of the frames; each fit waits ``sleep`` seconds, then appends "<pid> <usable cores>" to the file
-    ``log`` (and each prediction "<pid>" to ``log``.predict). ``fail``: "raise" (a DatasetError), "unpicklable" (an
+    """Class means of the frames; each fit appends "<pid>" to the file ``log``.start, waits ``sleep`` seconds, then
+    appends "<pid> <usable cores>" to ``log`` (and each prediction "<pid>" to ``log``.predict). ``fail``: "raise" (a DatasetError), "unpicklable" (an
     exception that cannot travel between processes) or "abort" (the process dies) instead of fitting."""
 
     def __init__(self, log: str = "", fail: str = "", sleep: float = 0.0):
@@ -49,6 +53,9 @@ class FitLog(TactileClassifier):
         self.sleep = sleep
 
     def _fit(self, batch, y):
+        if self.log:
+            with open(self.log + ".start", "a") as f:
+                f.write(f"{os.getpid()}\n")
         if self.fail == "raise":
             raise DatasetError("planted failure")
         if self.fail == "abort":
@@ -126,8 +133,8 @@ def test_a_fusion_cnn_trains_its_two_nets_as_two_jobs_then_its_tasks_predict(sto
     tasks += _tasks(store, tmp_path, {"knn": functools.partial(make_classifier, "knn")})
     preds = raise_failures(run_tasks(tasks, workers=2, progress=False))
     where = tmp_path / "cnn"
-    assert sent == [sorted([f"training the cutaneous net of cnn in {where}", f"training the kinesthetic net of cnn in "
-                            f"{where}", f"training or testing knn in {tmp_path / 'knn'}"]),
+    nets = [f"training the {net} net of cnn in {where}" for net in ("cutaneous", "kinesthetic")]
+    assert sent == [sorted([*nets, f"training or testing knn in {tmp_path / 'knn'}"]),
                     [f"training or testing cnn in {where}; training or testing cnn in {where}"]]
     model = load_model(where / "cnn.vtm")
     assert model.modality == "fusion" and set(model.history_) == {"cutaneous", "kinesthetic"}
@@ -224,6 +231,57 @@ def test_a_fit_that_kills_its_worker_is_a_worker_error_and_the_caller_lives(stor
     assert str(tmp_path / "crash") in str(outcomes[0])
     assert all(len(o.proba) == 12 for o in outcomes[1:])
     assert len(_logged(log)) >= 3
+
+
+@two_cores
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a process asks to die with its parent on Linux")
+@pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL])
+def test_the_workers_die_when_their_caller_is_killed(store, tmp_path, how):
+    """A caller terminated or killed mid-fit (the forkserver exits with it) leaves no worker training on."""
+    path, train, test = store
+    log = tmp_path / "fits.log"
+    script = textwrap.dedent(f"""
+        import functools
+        from pathlib import Path
+
+        import numpy as np
+        from fusion.experiments.parallel import FitTask, StoreRows, run_tasks
+        from tests.fusion.test_parallel import FitLog
+
+        train, test = np.array({train.tolist()}), np.array({test.tolist()})
+        tasks = [FitTask(f"m{{i}}", functools.partial(FitLog, log={str(log)!r}, sleep=120),
+                         StoreRows({path!r}, rows), StoreRows({path!r}, test), Path({str(tmp_path)!r}) / f"m{{i}}",
+                         {{"train": i}})
+                 for i, rows in enumerate((train, test))]
+        run_tasks(tasks, workers=2, progress=False)
+    """)
+    root = Path(__file__).resolve().parents[2]
+    caller = subprocess.Popen([sys.executable, "-c", script], cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
+    started = Path(str(log) + ".start")
+    deadline = time.monotonic() + 60
+    while (not started.exists() or len(started.read_text().split()) < 2) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    pids = [int(p) for p in started.read_text().split()]
+    try:
+        assert len(pids) == 2 and caller.pid not in pids
+        caller.send_signal(how)
+        caller.wait(timeout=30)
+        deadline = time.monotonic() + 15
+        while any(map(_alive, pids)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not any(map(_alive, pids))
+    finally:
+        for pid in filter(_alive, pids):
+            os.kill(pid, signal.SIGKILL)
+        caller.kill()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has died
+    except FileNotFoundError:
+        return False
 
 
 @two_cores

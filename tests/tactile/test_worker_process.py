@@ -1,8 +1,10 @@
-"""The generate worker's process set-up: it dies with its parent, and glibc keeps its freed heap (Linux only)."""
+"""The workers' process set-up: each dies with the process that started it, and glibc keeps its freed heap (Linux
+only)."""
 
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -11,46 +13,38 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl and mallopt are Linux / glibc")
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pidfds and mallopt are Linux / glibc")
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _alive(pid: int) -> bool:
+@pytest.mark.parametrize("watch", ["pidfd", "poll", "none"])
+def test_a_worker_dies_when_the_process_it_watches_exits(watch):
+    """exit_with(pid): the worker is killed when ``pid`` exits, though its own parent (here this test; in a run the
+    forkserver, which outlives its caller) lives on; by a pidfd, or by polling where there is none. Like the real
+    workers, it ignores SIGINT and SIGTERM: only the SIGKILL it asked for may end it."""
+    caller = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    worker_code = ("import os, signal, time; from perception.runtime import exit_with; "
+                   "signal.signal(signal.SIGINT, signal.SIG_IGN); signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+                   + ("del os.pidfd_open; " if watch == "poll" else "")
+                   + (f"exit_with({caller.pid}); " if watch != "none" else "")
+                   + "print('ready', flush=True); time.sleep(30)")
+    worker = subprocess.Popen([sys.executable, "-c", worker_code], stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has died
-    except FileNotFoundError:
-        return False
-
-
-@pytest.mark.parametrize("dies", [True, False])
-def test_a_worker_dies_with_its_parent(dies):
-    # parent -> child; the child calls _die_with_parent (or not) and sleeps; killing the parent must kill it
-    # like the real worker, the child ignores SIGINT and SIGTERM: only the SIGKILL it asked for may end it
-    child = ("import signal, time; from tactile.dataset.generate import _die_with_parent; "
-             "signal.signal(signal.SIGINT, signal.SIG_IGN); signal.signal(signal.SIGTERM, signal.SIG_IGN); "
-             + ("_die_with_parent(); " if dies else "") + "print('ready', flush=True); time.sleep(30)")
-    parent = textwrap.dedent(f"""
-        import subprocess, sys, time
-        p = subprocess.Popen([sys.executable, "-c", {child!r}], stdout=subprocess.PIPE, text=True)
-        assert p.stdout.readline().strip() == "ready"
-        print(p.pid, flush=True)
-        time.sleep(30)
-    """)
-    proc = subprocess.Popen([sys.executable, "-c", parent], stdout=subprocess.PIPE, text=True, cwd=ROOT,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
-    pid = int(proc.stdout.readline())
-    try:
-        assert _alive(pid)
-        proc.kill()
-        proc.wait()
-        deadline = time.monotonic() + (10 if dies else 1)
-        while _alive(pid) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert _alive(pid) is not dies
+        assert worker.stdout.readline().strip() == "ready"
+        time.sleep(0.3)
+        assert worker.poll() is None  # alive while the caller is
+        caller.kill()
+        caller.wait()
+        try:
+            worker.wait(timeout=10 if watch != "none" else 1.5)
+        except subprocess.TimeoutExpired:
+            pass
+        assert worker.returncode == (None if watch == "none" else -signal.SIGKILL)
     finally:
-        if _alive(pid):
-            os.kill(pid, 9)
+        caller.kill()
+        worker.kill()
+        worker.wait()
 
 
 def test_freed_heap_memory_is_kept_after_the_call():
