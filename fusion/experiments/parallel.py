@@ -287,6 +287,8 @@ def _outcome(job):
         return job.run()
     except Exception as exc:  # noqa: BLE001 -- handed to the caller, which decides
         return exc
+    except SystemExit as exc:  # a job that exits must not end the caller's process (nor, from a worker, its run)
+        return RuntimeError(f"{job}: it called sys.exit({exc.code!r})")
 
 
 def _picklable(jobs: list) -> bool:

@@ -45,7 +45,8 @@ class Unpicklable(DatasetError):
 class FitLog(TactileClassifier):
     """Class means of the frames; each fit appends "<pid>" to the file ``log``.start, waits ``sleep`` seconds, then
     appends "<pid> <usable cores>" to ``log`` (and each prediction "<pid>" to ``log``.predict). ``fail``: "raise" (a DatasetError), "unpicklable" (an
-    exception that cannot travel between processes) or "abort" (the process dies) instead of fitting."""
+    exception that cannot travel between processes), "exit" (sys.exit) or "abort" (the process dies) instead of
+    fitting."""
 
     def __init__(self, log: str = "", fail: str = "", sleep: float = 0.0):
         self.log = log
@@ -60,6 +61,8 @@ class FitLog(TactileClassifier):
             raise DatasetError("planted failure")
         if self.fail == "abort":
             os.abort()
+        if self.fail == "exit":
+            sys.exit(3)
         if self.fail == "unpicklable":
             raise Unpicklable("planted failure", lambda: None)
         time.sleep(self.sleep)
@@ -206,8 +209,10 @@ def test_a_failing_fit_comes_back_as_its_exception_and_the_others_finish(store, 
     log = tmp_path / "fits.log"
     factories = {"ok": functools.partial(FitLog, log=str(log)), "bad": functools.partial(FitLog, fail="raise"),
                  "ok2": functools.partial(FitLog, log=str(log)), "odd": functools.partial(FitLog, fail="unpicklable")}
+    factories["exits"] = functools.partial(FitLog, fail="exit")
     outcomes = run_tasks(_tasks(store, tmp_path, factories), workers=workers, progress=False)
     assert isinstance(outcomes[1], DatasetError) and "planted failure" in str(outcomes[1])
+    assert isinstance(outcomes[4], RuntimeError) and "exits" in str(outcomes[4]) and "sys.exit(3)" in str(outcomes[4])
     # from a worker, an exception that cannot be pickled comes back as its text
     assert isinstance(outcomes[3], Unpicklable if workers == 1 else RuntimeError)
     assert "planted failure" in str(outcomes[3])
