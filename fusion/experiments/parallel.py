@@ -9,7 +9,9 @@ so two fits on one thread each finish about a fifth sooner than the same fits on
 libsvm trains on one thread whatever it is given. The experiments' CNNs train on one thread wherever they run
 (:func:`fusion.experiments.models.default_classifiers`), so their weights are the same bytes with any number of
 workers or cores (a CNN's sums depend on its thread count); the paper's SVM pipeline moved in the ninth decimal
-(2e-9) between one worker of two cores and two of one, its decisions unchanged.
+(2e-9) between one worker of two cores and two of one, its decisions unchanged. A fusion CNN's two nets train as
+two jobs (:meth:`fusion.cnn.CNNClassifier.from_nets` joins them into the weights one fit gives), so three equal
+folds spread over two workers without one waiting for the last.
 
 A worker that dies (a native crash, the kernel's out-of-memory killer) takes no one with it: its unfinished tasks
 are run again one at a time, each in a fresh worker, and the one that kills its worker again is answered with
