@@ -24,6 +24,8 @@ from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+from perception.errors import InvalidArgumentError
+
 #: The distribution name of this toolkit.
 DISTRIBUTION = "visuotactile"
 #: Environment variable that turns every progress bar off when set to 0 (or "false", "no", "off").
@@ -141,7 +143,13 @@ def exit_with(pid: int) -> None:
     run that started it. Its parent is no guide: a forkserver serves until its last child has ended, so a caller
     terminated or killed would leave its workers computing (and writing) on for nobody. Watches a pidfd where the
     system has one (Linux >= 5.3: no polling, no confusion with a later process of the same pid), else polls
-    every half second. Returns at once; the watch runs in a daemon thread."""
+    every half second. Returns at once; the watch runs in a daemon thread.
+
+    Raises:
+        InvalidArgumentError: ``pid`` is not a positive integer.
+    """
+    if isinstance(pid, bool) or not isinstance(pid, int) or pid <= 0:
+        raise InvalidArgumentError(f"exit_with: pid must be a positive integer, got {pid!r}")
     try:
         handle = os.pidfd_open(pid)
     except (AttributeError, OSError):  # no pidfds here, or ``pid`` is gone already (then the poll sees it)
@@ -149,7 +157,10 @@ def exit_with(pid: int) -> None:
 
     def watch() -> None:
         if handle is not None:
-            select.select([handle], [], [])  # readable once the process has exited
+            watcher = select.poll()  # not select(): it fails on descriptors past 1023
+            watcher.register(handle, select.POLLIN)
+            while not watcher.poll():  # readable once the process has exited
+                pass
         else:
             while _running(pid):
                 time.sleep(0.5)
