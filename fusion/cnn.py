@@ -650,27 +650,33 @@ class CNNClassifier(TactileClassifier):
     @classmethod
     def from_nets(cls, cutaneous: CNNClassifier, kinesthetic: CNNClassifier) -> CNNClassifier:
         """The ``"fusion"`` model of a ``modality="cutaneous"`` and a ``modality="kinesthetic"`` model fitted
-        with the same other parameters on the same data: the same weights as fitting the fusion model itself
+        with the same other parameters on the same sequences: the same weights as fitting the fusion model itself
         (each net is seeded on its own and trains on its own), so the two nets can train in parallel
-        (:mod:`fusion.experiments.parallel`). ``history_`` holds both nets' histories.
+        (:mod:`fusion.experiments.parallel`). ``history_`` holds both nets' histories. The models may come from
+        files; their labels are not recorded, so a pair trained on the same sequences under other labels cannot
+        be told apart.
 
         Raises:
-            InvalidArgumentError: not one model of each modality, either not fitted, other parameters, or
-            fitted on other data (classes, sensor, training sequences or input statistics differ).
+            InvalidArgumentError: not one fitted model of each modality (with its net and its history), other
+            parameters, or fitted on other data (classes, sensor, training sequences or input statistics differ).
         """
+        from fusion.base import FILE_ATTRIBUTES
+
         models = {"cutaneous": cutaneous, "kinesthetic": kinesthetic}
+        kinds = {"cutaneous": CutaneousNet, "kinesthetic": KinestheticNet}
         for net, model in models.items():
-            if not isinstance(model, cls) or model.modality != net or getattr(model, f"{net}_net_", None) is None:
+            if not (isinstance(model, cls) and model.modality == net
+                    and isinstance(getattr(model, f"{net}_net_", None), kinds[net])
+                    and isinstance(getattr(model, "history_", None), dict) and net in model.history_):
                 raise InvalidArgumentError(f"CNNClassifier.from_nets: the {net} argument must be a fitted "
                                            f"{cls.__name__} with modality={net!r}")
         params = {**cutaneous.get_params(deep=False), "modality": "fusion"}
         if {**kinesthetic.get_params(deep=False), "modality": "fusion"} != params:
             raise InvalidArgumentError("CNNClassifier.from_nets: the two models were made with other parameters")
-        shared = [k for k in vars(cutaneous) if k not in params and k not in ("history_", "cutaneous_net_",
-                                                                               "kinesthetic_net_")]
+        own = {"history_", "cutaneous_net_", "kinesthetic_net_", *FILE_ATTRIBUTES, *params}
+        shared = [k for k in vars(cutaneous) if k not in own]
         differ = [k for k in shared if not _same_value(vars(cutaneous)[k], vars(kinesthetic).get(k))]
-        if differ or set(shared) != {k for k in vars(kinesthetic) if k not in params and k not in
-                                     ("history_", "cutaneous_net_", "kinesthetic_net_")}:
+        if differ or set(shared) != {k for k in vars(kinesthetic) if k not in own}:
             raise InvalidArgumentError(f"CNNClassifier.from_nets: the two models were fitted on other data "
                                        f"({', '.join(differ) or 'other fitted attributes'} differ)")
         joined = cls(**params)

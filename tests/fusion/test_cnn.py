@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import copy
 
 import numpy as np
 import pytest
@@ -665,6 +666,22 @@ def test_joining_nets_refuses_models_that_do_not_belong_together(fitted_pair):
         CNNClassifier.from_nets(cutaneous, fit("kinesthetic", random_state=9))
     with pytest.raises(InvalidArgumentError, match="fitted on other data"):
         CNNClassifier.from_nets(cutaneous, fit("kinesthetic", make_batch(seed=4)))
+    for broken in ({"history_": {}}, {"kinesthetic_net_": cutaneous.cutaneous_net_}):
+        odd = copy.copy(kinesthetic)
+        vars(odd).update(broken)
+        with pytest.raises(InvalidArgumentError, match="the kinesthetic argument must be a fitted"):
+            CNNClassifier.from_nets(cutaneous, odd)
+
+
+def test_nets_saved_apart_join_after_loading(fitted_pair, tmp_path):
+    """Two nets trained apart (e.g. on two machines) and saved join as read back from their files."""
+    model, batch = fitted_pair
+    params = model.get_params()
+    for net in ("cutaneous", "kinesthetic"):
+        CNNClassifier(**{**params, "modality": net}).fit(batch).save(tmp_path / f"{net}.vtm")
+    joined = CNNClassifier.from_nets(load_model(tmp_path / "cutaneous.vtm"), load_model(tmp_path / "kinesthetic.vtm"))
+    test = make_batch(n_per_class=4, seed=1)
+    np.testing.assert_array_equal(joined.predict_proba(test), model.predict_proba(test))
 
 
 def test_predictions_are_the_same_bytes_on_any_thread_count(fitted_pair):
