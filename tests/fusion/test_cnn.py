@@ -638,7 +638,7 @@ def test_the_fusion_model_joined_from_its_two_nets_is_the_one_fit(fitted_pair, t
         assert mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine), net
     assert (joined.frame_mean_, joined.frame_std_) == (model.frame_mean_, model.frame_std_)
     np.testing.assert_array_equal(joined.cue_std_, model.cue_std_)
-    assert {k: v["epochs"] for k, v in joined.history_.items()} == {"cutaneous": 12, "kinesthetic": 12}
+    assert joined.history_ == {net: apart[net].history_[net] for net in apart}
     test = make_batch(n_per_class=4, seed=1)
     expected = model.predict_proba_modalities(test)
     joined.save(tmp_path / "joined.vtm")
@@ -666,6 +666,11 @@ def test_joining_nets_refuses_models_that_do_not_belong_together(fitted_pair):
         CNNClassifier.from_nets(cutaneous, fit("kinesthetic", random_state=9))
     with pytest.raises(InvalidArgumentError, match="fitted on other data"):
         CNNClassifier.from_nets(cutaneous, fit("kinesthetic", make_batch(seed=4)))
+    for changed in ({"extra_": 1.0}, {"cue_std_": kinesthetic.cue_std_ * 2}):
+        odd = copy.copy(kinesthetic)
+        vars(odd).update(changed)
+        with pytest.raises(InvalidArgumentError, match="fitted on other data"):
+            CNNClassifier.from_nets(cutaneous, odd)
     for broken in ({"history_": {}}, {"kinesthetic_net_": cutaneous.cutaneous_net_}):
         odd = copy.copy(kinesthetic)
         vars(odd).update(broken)

@@ -104,9 +104,11 @@ def _logged(log) -> list[tuple[int, int]]:
 
 @two_cores
 def test_workers_give_the_predictions_one_process_gives(store, tmp_path):
-    """A one-thread CNN pair and a kNN, trained by two workers and in this process: the same probabilities to the
-    bit (the CNN's kernels sum in the same order on one thread wherever it runs)."""
+    """Two one-thread CNN pairs and a kNN, trained by two workers (each CNN's nets as two jobs) and in this process:
+    the same probabilities to the bit (the CNN's kernels sum in the same order on one thread wherever it runs)."""
     factories = {"cnn": functools.partial(make_classifier, "cnn", epochs=3, threads=1, progress=False),
+                 "cnn2": functools.partial(make_classifier, "cnn", epochs=3, threads=1, progress=False,
+                                           random_state=7),
                  "knn": functools.partial(make_classifier, "knn")}
     apart = raise_failures(run_tasks(_tasks(store, tmp_path / "two", factories), workers=2, progress=False))
     here = raise_failures(run_tasks(_tasks(store, tmp_path / "one", factories), workers=1, progress=False))
@@ -147,13 +149,24 @@ def test_a_fusion_cnn_trains_its_two_nets_as_two_jobs_then_its_tasks_predict(sto
     sent.clear()
     raise_failures(run_tasks(tasks, workers=2, progress=False))
     assert sent == [[], []]  # everything cached
+    other = FitTask("cnn", cnn, StoreRows(path, train), StoreRows(path, test[:4]), where, {"train": 1}, {"tag": "few"})
+    sent.clear()
+    raise_failures(run_tasks([other], workers=2, progress=False))
+    assert sent == [[f"training or testing cnn in {where}"], []]  # a trained model only predicts a new test set
+    assert json.loads((where / "cnn.json").read_text())["fit_seconds"] == seconds  # not trained again
     sent.clear()
     raise_failures(run_tasks(_tasks(store, tmp_path / "one", {"cnn": cnn}), workers=1, progress=False))
     assert sent == [[f"training or testing cnn in {tmp_path / 'one' / 'cnn'}"], []]
 
 
 @two_cores
-def test_a_net_that_fails_fails_every_task_of_its_model_and_the_others_finish(store, tmp_path):
+def test_a_net_that_fails_fails_every_task_of_its_model_and_the_others_finish(store, tmp_path, monkeypatch):
+    from fusion.experiments import parallel
+
+    sent = []
+    real = parallel.run_jobs
+    monkeypatch.setattr(parallel, "run_jobs", lambda jobs, *a, **k: sent.append(sorted(map(str, jobs))) or real(
+        jobs, *a, **k))
     path, train, test = store
     broken = functools.partial(make_classifier, "cnn", epochs=2, threads=1, progress=False, frame_size=0)
     tasks = [FitTask("cnn", broken, StoreRows(path, train), StoreRows(path, rows), tmp_path / "cnn", {"train": 1},
@@ -162,6 +175,24 @@ def test_a_net_that_fails_fails_every_task_of_its_model_and_the_others_finish(st
     outcomes = run_tasks(tasks, workers=2, progress=False)
     assert all(isinstance(o, InvalidArgumentError) and "frame_size" in str(o) for o in outcomes[:2])
     assert len(outcomes[2].proba) == 12
+    assert not (tmp_path / "cnn" / "cnn.vtm").exists()
+    assert sent[1] == []  # its tasks are not tried again
+
+
+@two_cores
+def test_nets_that_do_not_join_fail_every_task_of_their_model(store, tmp_path, monkeypatch):
+    from fusion.cnn import CNNClassifier
+
+    def refuse(*models):
+        raise InvalidArgumentError("planted join failure")
+
+    monkeypatch.setattr(CNNClassifier, "from_nets", refuse)  # joining happens in this process
+    path, train, test = store
+    cnn = functools.partial(make_classifier, "cnn", epochs=1, threads=1, progress=False)
+    tasks = [FitTask("cnn", cnn, StoreRows(path, train), StoreRows(path, rows), tmp_path / "cnn", {"train": 1},
+                     {"tag": tag}) for tag, rows in (("test", test), ("train", train))]
+    outcomes = run_tasks(tasks, workers=2, progress=False)
+    assert all(isinstance(o, InvalidArgumentError) and "planted join failure" in str(o) for o in outcomes)
     assert not (tmp_path / "cnn" / "cnn.vtm").exists()
 
 

@@ -47,6 +47,59 @@ def test_a_worker_dies_when_the_process_it_watches_exits(watch):
         worker.wait()
 
 
+def _children(pid: int) -> list[int]:
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # gone meanwhile
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            found.append(int(stat.parent.name))
+    return found
+
+
+def test_generation_workers_die_when_generate_is_killed(tmp_path):
+    """Killing ``generate``'s process ends its object workers at once, though their parent (the forkserver) waits
+    for them: no orphan explores on and writes into the store."""
+    script = textwrap.dedent(f"""
+        from tactile.dataset import generate
+        from tactile.sensor import FSRSensor
+
+        generate([("box", i) for i in range(4)], {str(tmp_path / "store.zarr")!r}, strategies=("blind",),
+                 contours_per_object=20000, sensor=FSRSensor(rows=8, cols=8), probes=10, seed=0, workers=2,
+                 progress=False)
+    """)
+    caller = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    workers: list[int] = []
+    try:
+        deadline = time.monotonic() + 60
+        while not workers and time.monotonic() < deadline:  # the forkserver's children: the object workers
+            workers = [w for child in _children(caller.pid) for w in _children(child)]
+            time.sleep(0.1)
+        assert workers, "no worker started"
+        time.sleep(1.0)
+        assert all(map(_alive, workers))  # exploring (one object takes minutes at this size)
+        caller.kill()
+        caller.wait()
+        deadline = time.monotonic() + 10
+        while any(map(_alive, workers)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not any(map(_alive, workers))
+    finally:
+        caller.kill()
+        for pid in filter(_alive, workers):
+            os.kill(pid, signal.SIGKILL)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"  # a zombie has died
+    except FileNotFoundError:
+        return False
+
+
 def test_freed_heap_memory_is_kept_after_the_call():
     # 16 blocks of 16 MiB: at glibc's initial mmap threshold (128 KiB) each is mapped and unmapped on its own; after
     # the call they come from the heap (threshold 32 MiB) and stay there when freed (trim threshold 1 GiB). The heap's size (mallinfo2's arena, glibc >= 2.33) after the frees, in MiB.
