@@ -138,6 +138,10 @@ def libc():
         return None
 
 
+#: The largest process id a system call takes (a C ``pid_t``).
+MAX_PID = 2**31 - 1
+
+
 def exit_with(pid: int) -> None:
     """Kill this process (SIGKILL) as soon as process ``pid`` has exited: a worker's guard against outliving the
     run that started it. Its parent is no guide: a forkserver serves until its last child has ended, so a caller
@@ -146,10 +150,10 @@ def exit_with(pid: int) -> None:
     every half second. Returns at once; the watch runs in a daemon thread.
 
     Raises:
-        InvalidArgumentError: ``pid`` is not a positive integer.
+        InvalidArgumentError: ``pid`` is not an integer in 1 .. :data:`MAX_PID`.
     """
-    if isinstance(pid, bool) or not isinstance(pid, int) or pid <= 0:
-        raise InvalidArgumentError(f"exit_with: pid must be a positive integer, got {pid!r}")
+    if isinstance(pid, bool) or not isinstance(pid, int) or not 0 < pid <= MAX_PID:
+        raise InvalidArgumentError(f"exit_with: pid must be a positive integer up to {MAX_PID}, got {pid!r}")
     try:
         handle = os.pidfd_open(pid)
     except (AttributeError, OSError):  # no pidfds here, or ``pid`` is gone already (then the poll sees it)

@@ -142,16 +142,17 @@ def run_tasks(tasks: list[FitTask], workers: int | None = None, progress: bool =
     split = [g for g in members if _worker_count(workers) > 1 and _nets_to_train(tasks[g[0]])]
     first = [g for g in members if g not in split]
     net_jobs = [_NetFit(tasks[g[0]], net) for g in split for net in NET_SHARE]
-    done = run_jobs(net_jobs + [_group_job(tasks, g) for g in first], workers, progress)
-    _collect(outcomes, first, done[len(net_jobs):])
-    joined = []
-    for n, group in enumerate(split):
-        error = _join_nets(tasks[group[0]], done[n * len(NET_SHARE):(n + 1) * len(NET_SHARE)])
-        if error is None:
-            joined.append(group)
-        else:
-            outcomes.update(dict.fromkeys(group, error))
-    _collect(outcomes, joined, run_jobs([_group_job(tasks, g) for g in joined], workers, progress))
+    with shared_workers():  # one pool for both rounds
+        done = run_jobs(net_jobs + [_group_job(tasks, g) for g in first], workers, progress)
+        _collect(outcomes, first, done[len(net_jobs):])
+        joined = []
+        for n, group in enumerate(split):
+            error = _join_nets(tasks[group[0]], done[n * len(NET_SHARE):(n + 1) * len(NET_SHARE)])
+            if error is None:
+                joined.append(group)
+            else:
+                outcomes.update(dict.fromkeys(group, error))
+        _collect(outcomes, joined, run_jobs([_group_job(tasks, g) for g in joined], workers, progress))
     return [outcomes[i] for i in range(len(tasks))]
 
 

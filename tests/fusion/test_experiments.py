@@ -456,9 +456,11 @@ def test_reproduce_writes_a_complete_report(tiny_run):
 def test_reproduce_resumes_from_its_cache_with_the_same_numbers(tiny_run):
     data, out, results = tiny_run
     models = sorted((out / "models").rglob("*.vtm"))
-    stamps = [p.stat().st_mtime_ns for p in models]
+    predictions = sorted((out / "models").rglob("*.npz"))  # each pose's of a fold model in a file of its own
+    assert {p.stem.rsplit("-", 1)[-1] for p in predictions} == {"test", "anypose"}
+    stamps = [p.stat().st_mtime_ns for p in models + predictions]
     again = reproduce(data, out, sizes=TINY, classifiers=STANDINS, parts=FAST_PARTS, workers=2, progress=False)
-    assert [p.stat().st_mtime_ns for p in models] == stamps  # nothing retrained
+    assert [p.stat().st_mtime_ns for p in models + predictions] == stamps  # nothing retrained nor predicted again
     for part in ("paper", "unseen", "touches", "noise"):
         assert list(_accuracies(again[part])) == list(_accuracies(results[part]))
 

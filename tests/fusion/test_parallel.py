@@ -179,6 +179,19 @@ def test_a_net_that_fails_fails_every_task_of_its_model_and_the_others_finish(st
     assert sent[1] == []  # its tasks are not tried again
 
 
+def test_the_joined_models_training_time_is_the_sum_of_its_nets(store, tmp_path, monkeypatch):
+    from fusion.experiments import parallel
+
+    path, train, test = store
+    cnn = functools.partial(make_classifier, "cnn", epochs=1, threads=1, progress=False)
+    task = FitTask("cnn", cnn, StoreRows(path, train), StoreRows(path, test), tmp_path, {"train": 1})
+    fitted = [(model, {"cutaneous": 5.0, "kinesthetic": 2.0}[net])
+              for model, _ in (parallel._NetFit(task, net).run() for net in ("cutaneous", "kinesthetic"))
+              for net in [model.modality]]
+    assert parallel._join_nets(task, fitted) is None
+    assert json.loads((tmp_path / "cnn.json").read_text())["fit_seconds"] == 7.0
+
+
 @two_cores
 def test_nets_that_do_not_join_fail_every_task_of_their_model(store, tmp_path, monkeypatch):
     from fusion.cnn import CNNClassifier

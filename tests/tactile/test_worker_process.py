@@ -139,7 +139,7 @@ def test_freed_heap_memory_is_kept_after_the_call():
     assert before < 64 and after >= 240  # given back before the call; kept (but for the top's slack) after
 
 
-@pytest.mark.parametrize("bad", [0, -1, True, 2.5, "1"])
+@pytest.mark.parametrize("bad", [0, -1, True, 2.5, "1", 2**31, 10**30])
 def test_exit_with_refuses_what_is_not_a_process_id(bad):
     from perception.errors import InvalidArgumentError
     from perception.runtime import exit_with
