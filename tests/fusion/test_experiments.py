@@ -959,3 +959,16 @@ def test_new_instances_trains_once_and_tests_every_pose_and_strategy(tmp_path, m
         write_off(make_object(c, 9), other / c / f"{c}9.off")
     new_instances.run(other, train, tmp_path / "o", contours=4, touches=2, classifiers=("nm",))
     assert len(fits) == 1 and len(predicted) == 4 and all(names == {"box/box9", "can/can9"} for names in predicted)
+
+
+def test_the_poses_of_grouped_kfold_must_share_their_training_store():
+    """Each pose's models are the fold models trained once: poses that name other training stores are refused
+    before anything runs."""
+    from types import SimpleNamespace
+
+    from fusion.experiments.protocol import grouped_kfold
+    from perception.errors import InvalidArgumentError
+
+    stores = {pose: (SimpleNamespace(path=f"/stores/{pose}.zarr"), {}, None, {}) for pose in ("upright", "any pose")}
+    with pytest.raises(InvalidArgumentError, match="must share one training store"):
+        grouped_kfold(None, "unseen", stores, ("blind",), {}, 3)
