@@ -36,7 +36,7 @@ import numpy as np
 
 from fusion.experiments.models import Factory, Predictions, cached_predictions, train_and_predict
 from fusion.modelfile import SUFFIX
-from perception.errors import WorkerError
+from perception.errors import InvalidArgumentError, WorkerError
 from perception.runtime import (
     exit_with,
     limit_cores,
@@ -211,8 +211,16 @@ def _join_nets(task: FitTask, fitted: list) -> BaseException | None:
 
 
 def _worker_count(workers: int | None) -> int:
-    """The worker processes :func:`run_jobs` starts when asked for ``workers`` (None: the usable cores)."""
-    return usable_cores() if workers is None else max(1, min(int(workers), usable_cores()))
+    """The worker processes :func:`run_jobs` starts when asked for ``workers`` (None: the usable cores; never more).
+
+    Raises:
+        InvalidArgumentError: ``workers`` is not None or a positive integer.
+    """
+    if workers is None:
+        return usable_cores()
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise InvalidArgumentError(f"workers must be a positive integer or None (the usable cores), got {workers!r}")
+    return min(int(workers), usable_cores())
 
 
 def _group_job(tasks: list[FitTask], group: list[int]):
@@ -234,6 +242,9 @@ def run_jobs(jobs: list, workers: int | None = None, progress: bool = True) -> l
     first, each worker on ``usable cores / workers`` cores (a lone job too: a crash there leaves this process
     alive); in this process when one worker is asked for, or when a job cannot be sent to another process (e.g. a
     classifier factory that is a lambda).
+
+    Raises:
+        InvalidArgumentError: ``workers`` is not None or a positive integer (so does :func:`run_tasks`).
     """
     workers = _worker_count(workers)
     try:

@@ -374,6 +374,14 @@ def test_a_classifier_of_the_callers_main_module_runs_in_this_process(store, tmp
     assert [pid for pid, _ in _logged(log)] == [os.getpid()] * 2
 
 
+@pytest.mark.parametrize("bad", [0, -3, 2.5, "2", True, float("nan")])
+def test_run_tasks_refuses_workers_it_cannot_count(store, tmp_path, bad):
+    from perception.errors import InvalidArgumentError
+
+    with pytest.raises(InvalidArgumentError, match="workers must be a positive integer"):
+        run_tasks(_tasks(store, tmp_path, {"a": FitLog}), workers=bad, progress=False)
+
+
 def test_reproduce_refuses_workers_it_cannot_count(tmp_path):
     from fusion.experiments import reproduce
     from perception.errors import InvalidArgumentError
