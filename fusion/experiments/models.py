@@ -218,11 +218,11 @@ def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[Tacti
     Returns the model and its training time in seconds (as measured when it was trained).
     """
     full_record = model_record(factory, record)
-    if model_is_cached(path, full_record):
+    seconds = cached_fit_seconds(path, full_record)
+    if seconds is not None:
         try:
-            meta = json.loads(path.with_suffix(".json").read_text())
-            return load_model(path), float(meta["fit_seconds"])
-        except (DatasetError, ModelMismatchError, OSError, ValueError, KeyError) as exc:
+            return load_model(path), seconds
+        except (DatasetError, ModelMismatchError, OSError, ValueError) as exc:
             log.warning("cached model %s unusable (%s); training again", path, exc)
     estimator = factory()
     batch = train() if callable(train) else train
@@ -242,16 +242,18 @@ def model_record(factory: Factory, record: dict) -> dict:
     return json.loads(json.dumps({**record, "estimator": describe(factory())}, default=str))
 
 
-def model_is_cached(path: Path, full_record: dict) -> bool:
-    """Whether ``path`` holds a model saved with ``full_record`` (:func:`model_record`); reads only its JSON."""
+def cached_fit_seconds(path: Path, full_record: dict) -> float | None:
+    """The training seconds saved with the model at ``path`` when it was saved with ``full_record``
+    (:func:`model_record`), else None; reads only its JSON."""
     meta_path = path.with_suffix(".json")
     if not (path.is_file() and meta_path.is_file()):
-        return False
+        return None
     try:
-        return json.loads(meta_path.read_text()).get("record") == full_record
-    except (OSError, ValueError, AttributeError) as exc:
-        log.warning("cached model record %s unreadable (%s)", meta_path, exc)
-        return False
+        meta = json.loads(meta_path.read_text())
+        return float(meta["fit_seconds"]) if meta.get("record") == full_record else None
+    except (OSError, ValueError, AttributeError, KeyError, TypeError) as exc:
+        log.warning("cached model record %s unusable (%s); training again", meta_path, exc)
+        return None
 
 
 def save_fitted(estimator: TactileClassifier, fit_seconds: float, path: Path, full_record: dict) -> None:
@@ -379,6 +381,6 @@ def _predictions_file(name: str, factory: Factory, folder: Path, record: dict,
             json.loads(json.dumps(estimator_record, default=str)))
 
 
-__all__ = ["DISPLAY", "MODALITY_DISPLAY", "MODEL_LIBRARIES", "Predictions", "cached_predictions", "default_classifiers",
-           "digest", "fit_cached", "model_is_cached", "model_record", "pick", "predict", "save_fitted",
+__all__ = ["DISPLAY", "MODALITY_DISPLAY", "MODEL_LIBRARIES", "Predictions", "cached_fit_seconds", "cached_predictions",
+           "default_classifiers", "digest", "fit_cached", "model_record", "pick", "predict", "save_fitted",
            "train_and_predict"]

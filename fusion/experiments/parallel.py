@@ -139,7 +139,8 @@ def run_tasks(tasks: list[FitTask], workers: int | None = None, progress: bool =
         train = task.train_key()
         groups.setdefault(("model", task.model_path()) if train is None else ("train", *train), []).append(i)
     members = list(groups.values())
-    split = [g for g in members if _worker_count(workers) > 1 and _nets_to_train(tasks[g[0]])]
+    side_by_side = _worker_count(workers) > 1
+    split = [g for g in members if side_by_side and _nets_to_train(tasks[g[0]])]
     first = [g for g in members if g not in split]
     net_jobs = [_NetFit(tasks[g[0]], net) for g in split for net in NET_SHARE]
     with shared_workers():  # one pool for both rounds
@@ -164,11 +165,11 @@ NET_SHARE = {"cutaneous": 0.7, "kinesthetic": 0.3}
 def _nets_to_train(task: FitTask) -> bool:
     """Whether ``task``'s model is a fusion CNN that is not trained yet (then its nets train as two jobs)."""
     from fusion.cnn import CNNClassifier
-    from fusion.experiments.models import model_is_cached, model_record
+    from fusion.experiments.models import cached_fit_seconds, model_record
 
     estimator = task.factory()
     return (type(estimator) is CNNClassifier and estimator.modality == "fusion"
-            and not model_is_cached(task.model_path(), model_record(task.factory, task.record)))
+            and cached_fit_seconds(task.model_path(), model_record(task.factory, task.record)) is None)
 
 
 @dataclass(frozen=True)
