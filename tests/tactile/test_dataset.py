@@ -102,6 +102,13 @@ def aborting_loader():
     os.abort()
 
 
+def box_noting_its_process(log_file: str, seed: int):
+    """Loader run in the worker: appends the worker's process id to ``log_file``, then gives a box."""
+    with open(log_file, "a") as f:
+        f.write(f"{seed} {os.getpid()}\n")
+    return make_object("box", seed)
+
+
 # ----------------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
 def blind_store(tmp_path_factory) -> Path:
@@ -268,6 +275,26 @@ def test_corrupt_and_aborting_meshes_are_recorded_and_the_rest_complete(tmp_path
     assert ds.class_names == ("bad", "box", "mug")  # labels keep their meaning when failed objects are redone
     assert "SIGABRT" in ds.failed["bad/abort"]
     assert "MeshLoadError" in ds.failed["bad/corrupt"] and "corrupt.off" in ds.failed["bad/corrupt"]
+
+
+def test_a_worker_explores_objects_in_turn_and_a_new_one_follows_a_crash_or_a_hang(tmp_path):
+    log_file = str(tmp_path / "pids.txt")
+
+    def box(seed):
+        return ObjectSpec(f"box/{seed}", "box", loader=functools.partial(box_noting_its_process, log_file, seed))
+
+    objects = [box(0), box(1), ObjectSpec("bad/abort", "bad", loader=aborting_loader), box(2),
+               ObjectSpec("bad/hang", "bad", loader=hanging_loader), box(3), box(4)]
+    report = generate(objects, tmp_path / "s", strategies="blind", contours_per_object=2, sensor=SMALL, probes=5,
+                      workers=1, object_timeout_s=3, progress=False)
+    assert report.completed == 5
+    assert dict(report.failed) == {"bad/abort": dict(report.failed)["bad/abort"], "bad/hang": "timed out after 3 s"}
+    assert "SIGABRT" in dict(report.failed)["bad/abort"]
+    pid = dict(line.split() for line in Path(log_file).read_text().splitlines())
+    assert pid["0"] == pid["1"]  # one process, one object after the other
+    assert pid["2"] != pid["1"]  # the abort ended the first worker
+    assert pid["3"] != pid["2"] and pid["3"] == pid["4"]  # the hung one was stopped; its successor goes on
+    assert open_dataset(tmp_path / "s").object_names == ("box/0", "box/1", "box/2", "box/3", "box/4")
 
 
 def test_strict_stops_at_the_first_failure(tmp_path):
