@@ -385,7 +385,13 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
         return _Running(proc, parent)
 
     def stop(worker: _Running) -> None:
-        worker.process.kill()
+        if worker.index is None and worker.process.is_alive():
+            # Idle: asked to exit, so that its clean-up runs (a SIGKILL leaves, e.g., the semaphores a library
+            # made for the resource tracker to warn about).
+            with contextlib.suppress(OSError):
+                worker.conn.send(None)
+            worker.process.join(timeout=5)
+        worker.process.kill()  # busy (stopped, timed out), or not gone after 5 s
         worker.process.join()
         worker.conn.close()
         workers.remove(worker)

@@ -156,3 +156,21 @@ def test_the_generation_workers_preload_leaves_out_scipy_stats():
     run = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True, cwd=ROOT,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert run.stdout.split() == ["False", "True"]
+
+
+def test_generation_ends_its_workers_cleanly():
+    """Idle workers are asked to exit, not killed: a killed worker's clean-up does not run, and the resource tracker
+    then warns the user of the semaphores it left behind."""
+    script = textwrap.dedent("""
+        import tempfile
+        from tactile.dataset import generate
+        from tactile.sensor import FSRSensor
+
+        report = generate([("box", i) for i in range(4)], tempfile.mkdtemp() + "/s", strategies=("blind",),
+                          contours_per_object=3, sensor=FSRSensor(rows=8, cols=8), probes=5, workers=2, progress=False)
+        print(report.completed)
+    """)
+    run = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert run.stdout.split() == ["4"]
+    assert "leaked" not in run.stderr and "resource_tracker" not in run.stderr, run.stderr
