@@ -187,8 +187,10 @@ def generate(
         seed: contour k of strategy s of object o uses seeds from (seed, o's name, s, k) only, so the
             store's bytes do not depend on ``workers``, the executor or the order objects finish in.
         workers: parallel workers (default: the usable cores; Ray: CPUs of a local instance it starts).
-        executor: "local" (``workers`` processes, each exploring one object after another) or "ray" (one task per object; an
-            existing ``ray.init`` is used, else ``ray_address`` / ``RAY_ADDRESS``, else a local instance).
+        executor: "local" (``workers`` processes, each exploring one object after another: a loader must leave no
+            global state behind, such as a patched function, which would reach the next object) or "ray" (one
+            task per object; an existing ``ray.init`` is used, else ``ray_address`` / ``RAY_ADDRESS``, else a local
+            instance).
             Ray workers write to ``out`` themselves: on a cluster it must be on a shared file system.
         strict: stop at the first failed object (finished objects are kept) and raise.
         progress: show a tqdm bar (sequences, objects, rate, ETA).
@@ -306,10 +308,10 @@ def _reason_for_exit(code: int | None) -> str:
         except ValueError:
             name = f"signal {-code}"
         return f"worker process died with {name} (a native crash, e.g. in a mesh library, or killed)"
-    return (
-        f"worker process exited with code {code} before reporting (an ObjectSpec loader defined in the main "
-        "script cannot be loaded by workers: define it in an importable module)"
-    )
+    if code == 1:  # what an unpicklable object spec gives
+        return (f"worker process exited with code {code} before reporting (an ObjectSpec loader defined in the main "
+                "script cannot be loaded by workers: define it in an importable module)")
+    return f"worker process exited with code {code} before reporting (the object's loader, or a library, ended it)"
 
 
 def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache: str | None, caller: int) -> None:
@@ -359,13 +361,12 @@ def _context():
 
 @dataclass
 class _Running:
-    """A worker process, its end of the pipe, and the object it explores (None: idle)."""
+    """A worker process, its end of the pipe, and the object it explores (None: idle) since when."""
 
     process: object
     conn: object
     index: int | None = None
     started: float = 0.0
-    outcome: tuple | None = None
 
 
 def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, saliency_cache, timeout_s) -> None:
@@ -381,39 +382,51 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
                            name="generate-worker", daemon=True)
         with without_main_module():
             proc.start()
-        child.close()  # the worker holds the other end: EOF here means it has exited
-        return _Running(proc, parent)
+        child.close()  # the worker holds the other end: EOF here means it has exited (or closed it)
+        worker = _Running(proc, parent)
+        workers.append(worker)
+        return worker
 
-    def stop(worker: _Running) -> None:
-        if worker.index is None and worker.process.is_alive():
-            # Idle: asked to exit, so that its clean-up runs (a SIGKILL leaves, e.g., the semaphores a library
-            # made for the resource tracker to warn about).
+    def stop(worker: _Running, ask: bool = False) -> None:
+        """End ``worker``: killed, or with ``ask`` told to exit, so that its clean-up runs (a SIGKILL leaves, e.g.,
+        the semaphores a library made for the resource tracker to warn about), and killed if not gone in 5 s."""
+        if ask:
             with contextlib.suppress(OSError):
                 worker.conn.send(None)
             worker.process.join(timeout=5)
-        worker.process.kill()  # busy (stopped, timed out), or not gone after 5 s
+        worker.process.kill()
         worker.process.join()
         worker.conn.close()
         workers.remove(worker)
 
+    def assign(worker: _Running, fresh: bool) -> None:
+        """Send ``worker`` the next object. A closed pipe means the worker has died: a new worker's death fails the
+        object (as a worker dying with it would); a reused one may have died idle, so its object waits for another."""
+        index = pending.popleft()
+        try:
+            worker.conn.send((index, specs[index]))
+        except OSError:
+            stop(worker)
+            if fresh:
+                finished(index, False, _reason_for_exit(worker.process.exitcode))
+            else:
+                pending.appendleft(index)
+            return
+        worker.index, worker.started = index, time.monotonic()
+
     try:
         while pending or any(w.index is not None for w in workers):
             for worker in [w for w in workers if w.index is None]:
-                if not pending:
-                    break
-                worker.index, worker.started, worker.outcome = pending.popleft(), time.monotonic(), None
-                worker.conn.send((worker.index, specs[worker.index]))
+                if pending:
+                    assign(worker, fresh=False)
             while pending and len(workers) < n_workers:
-                worker = start_worker()
-                workers.append(worker)
-                worker.index, worker.started = pending.popleft(), time.monotonic()
-                worker.conn.send((worker.index, specs[worker.index]))
+                assign(start_worker(), fresh=True)
             for conn in wait([w.conn for w in workers], timeout=1.0):
                 worker = next(w for w in workers if w.conn is conn)
                 try:
                     kind, value = conn.recv()
-                except (EOFError, OSError):  # the worker died (a native abort, killed): its object failed
-                    worker.process.join()
+                except (EOFError, OSError):  # the worker died (a native abort, killed) or closed its pipe
+                    worker.process.join(timeout=1)  # one that closed its pipe and runs on is killed by stop
                     index = worker.index
                     stop(worker)
                     if index is not None:
@@ -422,7 +435,7 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
                 if kind == "progress":
                     bar.update(value)
                     continue
-                index, worker.index = worker.index, None
+                index, worker.index = worker.index, None  # idle before finished(), which raises when strict
                 finished(index, kind == "done", value)
             if timeout_s is not None:
                 now = time.monotonic()
@@ -431,8 +444,8 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
                     stop(worker)
                     finished(index, False, f"timed out after {timeout_s:g} s")
     finally:
-        while workers:  # done, interrupted or strict: stop every worker
-            stop(workers[-1])
+        while workers:  # done, interrupted or strict: idle workers are told to exit, busy ones killed
+            stop(workers[-1], ask=workers[-1].index is None)
 
 
 # -------------------------------------------------------------------------------------- Ray executor

@@ -4,13 +4,16 @@ SIGKILL, failures recorded, settings checked, splits and the PyTorch view."""
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
+import faulthandler
 import functools
 import json
 import os
 import signal
 import subprocess
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -102,6 +105,33 @@ def aborting_loader():
     os.abort()
 
 
+def slow_box(seed: int):
+    """Loader run in the worker: a second's work, then a box."""
+    time.sleep(1.0)
+    return make_object("box", seed)
+
+
+def raising_loader():
+    """Loader run in the worker: an ordinary failure."""
+    raise ValueError("no mesh here")
+
+
+def loader_closing_its_descriptors():
+    """Loader run in the worker: closes every descriptor (its pipe to generate among them), then runs on."""
+    for fd in range(3, 256):
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    time.sleep(600)
+
+
+def box_whose_worker_dies_when_idle():
+    """Loader run in the worker: a box, but the worker exits when it next waits for an object."""
+    import multiprocessing.connection
+
+    multiprocessing.connection.Connection.recv = lambda self: os._exit(5)
+    return make_object("box", 0)
+
+
 def box_noting_its_process(log_file: str, seed: int):
     """Loader run in the worker: appends the worker's process id to ``log_file``, then gives a box."""
     with open(log_file, "a") as f:
@@ -110,6 +140,26 @@ def box_noting_its_process(log_file: str, seed: int):
 
 
 # ----------------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def real_stderr(request):
+    """The terminal's stderr, which pytest's output capture does not swallow."""
+    capture = request.config.pluginmanager.getplugin("capturemanager")
+    with capture.global_and_fixture_disabled():
+        stream = os.fdopen(os.dup(2), "w")
+    yield stream
+    stream.close()
+
+
+@pytest.fixture(autouse=True)
+def deadline(request, real_stderr):
+    """A test of this file still running after 4 minutes (each takes under one) has hung, e.g. on a worker that never
+    reports: print every thread's stack and end the run, rather than let CI wait for its own limit."""
+    real_stderr.write("")  # opened before the clock starts
+    faulthandler.dump_traceback_later(240, exit=True, file=real_stderr)
+    yield
+    faulthandler.cancel_dump_traceback_later()
+
+
 @pytest.fixture(scope="module")
 def blind_store(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("blind") / "store"
@@ -295,6 +345,81 @@ def test_a_worker_explores_objects_in_turn_and_a_new_one_follows_a_crash_or_a_ha
     assert pid["2"] != pid["1"]  # the abort ended the first worker
     assert pid["3"] != pid["2"] and pid["3"] == pid["4"]  # the hung one was stopped; its successor goes on
     assert open_dataset(tmp_path / "s").object_names == ("box/0", "box/1", "box/2", "box/3", "box/4")
+
+
+def test_the_timeout_counts_from_each_objects_start(tmp_path):
+    objects = [ObjectSpec(f"box/{i}", "box", loader=functools.partial(slow_box, i)) for i in range(4)]
+    report = generate(objects, tmp_path / "s", strategies="blind", contours_per_object=2, sensor=SMALL, probes=5,
+                      workers=1, object_timeout_s=3, progress=False)
+    assert report.failed == [] and report.completed == 4  # one worker, 4 s of loading in all, 1 s per object
+
+
+def test_progress_counts_every_sequence(tmp_path, monkeypatch):
+    updates = []
+
+    class Bar:
+        def update(self, n):
+            updates.append(n)
+
+        def set_postfix_str(self, text):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(sys.modules["tactile.dataset.generate"], "progress_bar", lambda **kwargs: Bar())
+    generate([("box", 0), ("can", 1), ("box", 2)], tmp_path / "s", strategies="blind", contours_per_object=2,
+             sensor=SMALL, probes=5, workers=2, progress=True)
+    assert sum(updates) == 3 * 2
+
+
+def test_a_worker_that_closes_its_pipe_and_runs_on_is_stopped(tmp_path):
+    start = time.monotonic()
+    objects = [("box", 0), ObjectSpec("bad/closes", "bad", loader=loader_closing_its_descriptors), ("box", 1)]
+    report = generate(objects, tmp_path / "s", strategies="blind", contours_per_object=2, sensor=SMALL, probes=5,
+                      workers=1, object_timeout_s=30, progress=False)
+    assert time.monotonic() - start < 25  # stopped when its pipe closed, not at the timeout
+    assert report.completed == 2 and [name for name, _ in report.failed] == ["bad/closes"]
+
+
+def test_a_worker_dying_while_idle_costs_no_object(tmp_path, monkeypatch):
+    """The worker reports its object, then dies while generate is busy (here: finished() slowed down): the next
+    object goes to a new worker, not to the dead one's pipe."""
+    module = sys.modules["tactile.dataset.generate"]
+    run_local = module._run_local
+
+    def slowly(store, specs, settings, sensor, todo, n_workers, finished, *rest):
+        def finished_slowly(*args):
+            finished(*args)
+            time.sleep(0.5)
+
+        return run_local(store, specs, settings, sensor, todo, n_workers, finished_slowly, *rest)
+
+    monkeypatch.setattr(module, "_run_local", slowly)
+    objects = [ObjectSpec("box/dies", "box", loader=box_whose_worker_dies_when_idle), ("box", 1), ("can", 2)]
+    report = generate(objects, tmp_path / "s", strategies="blind", contours_per_object=2, sensor=SMALL, probes=5,
+                      workers=1, object_timeout_s=30, progress=False)
+    assert report.completed == 3 and report.failed == []
+
+
+def test_strict_tells_its_idle_worker_to_exit(tmp_path):
+    script = textwrap.dedent(f"""
+        from perception.errors import DatasetError
+        from tactile.dataset import ObjectSpec, generate
+        from tactile.sensor import FSRSensor
+        from tests.tactile.test_dataset import raising_loader
+
+        try:
+            generate([("box", 0), ObjectSpec("bad/raise", "bad", loader=raising_loader), ("box", 1)],
+                     {str(tmp_path / "s")!r}, strategies=("blind",), contours_per_object=2,
+                     sensor=FSRSensor(rows=8, cols=8), probes=5, workers=1, strict=True, progress=False)
+        except DatasetError:
+            print("strict")
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}, check=False)
+    assert run.stdout.split() == ["strict"], run.stderr
+    assert "leaked" not in run.stderr, run.stderr
 
 
 def test_strict_stops_at_the_first_failure(tmp_path):
