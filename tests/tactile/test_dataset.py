@@ -347,6 +347,33 @@ def test_a_worker_explores_objects_in_turn_and_a_new_one_follows_a_crash_or_a_ha
     assert open_dataset(tmp_path / "s").object_names == ("box/0", "box/1", "box/2", "box/3", "box/4")
 
 
+def test_a_loader_from_the_main_script_fails_its_object_with_the_remedy(tmp_path):
+    """Workers cannot unpickle what the main script defines: that object fails, named, with what to do instead;
+    a catalogue object after it still completes."""
+    script = tmp_path / "main_loader.py"
+    script.write_text(textwrap.dedent(f"""
+        from perception.shapes import make_object
+        from tactile.dataset import ObjectSpec, generate
+        from tactile.sensor import FSRSensor
+
+        def box():
+            return make_object("box", 0)
+
+        if __name__ == "__main__":
+            report = generate([ObjectSpec("box/main", "box", loader=box), ("can", 1)], {str(tmp_path / "s")!r},
+                              strategies=("blind",), contours_per_object=2, sensor=FSRSensor(rows=8, cols=8),
+                              probes=5, workers=1, progress=False)
+            print(report.completed, report.failed[0][0])
+            print(report.failed[0][1])
+    """))
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}, check=False, timeout=120)
+    assert run.returncode == 0, run.stderr
+    first, reason = run.stdout.splitlines()
+    assert first == "1 box/main"
+    assert "exited with code 1" in reason and "define it in an importable module" in reason
+
+
 def test_the_timeout_counts_from_each_objects_start(tmp_path):
     objects = [ObjectSpec(f"box/{i}", "box", loader=functools.partial(slow_box, i)) for i in range(4)]
     report = generate(objects, tmp_path / "s", strategies="blind", contours_per_object=2, sensor=SMALL, probes=5,
