@@ -143,8 +143,8 @@ def box_noting_its_process(log_file: str, seed: int):
 @pytest.fixture(scope="module")
 def real_stderr(request):
     """The terminal's stderr, which pytest's output capture does not swallow."""
-    capture = request.config.pluginmanager.getplugin("capturemanager")
-    with capture.global_and_fixture_disabled():
+    capture = request.config.pluginmanager.getplugin("capturemanager")  # None under -p no:capture
+    with capture.global_and_fixture_disabled() if capture else contextlib.nullcontext():
         stream = os.fdopen(os.dup(2), "w")
     yield stream
     stream.close()
