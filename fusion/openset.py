@@ -69,6 +69,7 @@ from fusion.calibration import (
 )
 from perception.errors import DatasetError, InvalidArgumentError, ModelFileError
 from perception.limits import check_bytes, limit
+from perception.metrics import auroc
 
 log = logging.getLogger(__name__)
 
@@ -85,22 +86,6 @@ MAX_REFERENCE = 2_000_000
 
 
 # ------------------------------------------------------------------------------------------------ scores
-def auroc(known, unknown) -> float:
-    """Area under the ROC curve of telling ``known`` scores (positives, higher) from ``unknown`` ones: the
-    probability that a random known score exceeds a random unknown one, ties counting one half (Mann-Whitney).
-
-    Raises:
-        DatasetError: an empty or non-finite set.
-    """
-    from scipy.stats import rankdata
-
-    known, unknown = np.asarray(known, dtype=np.float64).ravel(), np.asarray(unknown, dtype=np.float64).ravel()
-    if len(known) == 0 or len(unknown) == 0 or not (np.isfinite(known).all() and np.isfinite(unknown).all()):
-        raise DatasetError(f"auroc: need non-empty finite score sets, got {len(known)} known, {len(unknown)} unknown")
-    ranks = rankdata(np.concatenate([known, unknown]))
-    return float((ranks[: len(known)].sum() - len(known) * (len(known) + 1) / 2) / (len(known) * len(unknown)))
-
-
 def threshold_keeping(known, keep: float = 0.95) -> float:
     """The largest threshold t among the ``known`` scores with at least a share ``keep`` of them >= t (a decision is
     answered "unknown" when its score is below t).

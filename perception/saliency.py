@@ -44,6 +44,7 @@ from perception.atomic import save_figure
 from perception.channels import ALL_CHANNELS, COLOR_CHANNELS, GEOMETRY_CHANNELS, compute_channels
 from perception.errors import InvalidArgumentError, SaliencyError
 from perception.geometry import ObjectModel
+from perception.metrics import auroc
 from perception.render import (
     DEFAULT_N_VIEWS,
     DEFAULT_SIZE_PX,
@@ -424,14 +425,9 @@ def load_marked_points(path: str | Path) -> np.ndarray:
 
 def _auc(values: np.ndarray, positive: np.ndarray) -> float:
     """ROC area under the curve of ``values`` separating ``positive`` from the rest (ties count half)."""
-    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
-    if n_pos == 0 or n_neg == 0:
+    if positive.all() or not positive.any():
         return 0.5
-    # Imported here: scipy.stats takes 0.6 s to import (every generation worker would pay it), only this needs it.
-    from scipy.stats import rankdata
-
-    ranks = rankdata(values)
-    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+    return auroc(values[positive], values[~positive])
 
 
 def fit_channel_weights(

@@ -30,6 +30,7 @@ from perception.errors import DatasetError, InvalidArgumentError, WorkerError
 from perception.runtime import usable_cores
 from tactile.dataset import generate, open_dataset
 from tactile.sensor import FSRSensor
+from tests._processes import alive
 
 OBJECTS = [("box", 0), ("box", 1), ("ring", 0), ("ring", 1)]
 #: The tests that watch two workers need two cores (run_jobs never starts more workers than cores).
@@ -316,21 +317,13 @@ def test_the_workers_die_when_their_caller_is_killed(store, tmp_path, how):
         caller.send_signal(how)
         caller.wait(timeout=30)
         deadline = time.monotonic() + 15
-        while any(map(_alive, pids)) and time.monotonic() < deadline:
+        while any(map(alive, pids)) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not any(map(_alive, pids))
+        assert not any(map(alive, pids))
     finally:
-        for pid in filter(_alive, pids):
+        for pid in filter(alive, pids):
             os.kill(pid, signal.SIGKILL)
         caller.kill()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has died
-    except FileNotFoundError:
-        return False
 
 
 @two_cores

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests._processes import alive, children
+
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pidfds and mallopt are Linux / glibc")
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -47,18 +49,6 @@ def test_a_worker_dies_when_the_process_it_watches_exits(watch):
         worker.wait()
 
 
-def _children(pid: int) -> list[int]:
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:  # gone meanwhile
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            found.append(int(stat.parent.name))
-    return found
-
-
 def test_generation_workers_die_when_generate_is_killed(tmp_path):
     """Killing ``generate``'s process ends its object workers at once, though their parent (the forkserver) waits
     for them: no orphan explores on and writes into the store."""
@@ -75,29 +65,21 @@ def test_generation_workers_die_when_generate_is_killed(tmp_path):
     try:
         deadline = time.monotonic() + 60
         while not workers and time.monotonic() < deadline:  # the forkserver's children: the object workers
-            workers = [w for child in _children(caller.pid) for w in _children(child)]
+            workers = [w for child in children(caller.pid) for w in children(child)]
             time.sleep(0.1)
         assert workers, "no worker started"
         time.sleep(1.0)
-        assert all(map(_alive, workers))  # exploring (one object takes minutes at this size)
+        assert all(map(alive, workers))  # exploring (one object takes minutes at this size)
         caller.kill()
         caller.wait()
         deadline = time.monotonic() + 10
-        while any(map(_alive, workers)) and time.monotonic() < deadline:
+        while any(map(alive, workers)) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not any(map(_alive, workers))
+        assert not any(map(alive, workers))
     finally:
         caller.kill()
-        for pid in filter(_alive, workers):
+        for pid in filter(alive, workers):
             os.kill(pid, signal.SIGKILL)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"  # a zombie has died
-    except FileNotFoundError:
-        return False
 
 
 def test_freed_heap_memory_is_kept_after_the_call():
