@@ -51,6 +51,8 @@ from tactile.sensor import FSRSensor
 log = logging.getLogger(__name__)
 
 EXECUTORS = ("local", "ray")
+#: Seconds a worker asked to stop has to exit by itself before it is killed.
+STOP_GRACE_S = 2.0
 
 
 @dataclass
@@ -320,6 +322,9 @@ def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache:
     fresh process's memory (page faults, first calls: 0.55 of the 5.3 s of a SHREC object explored alone); an object
     that kills its worker (a native abort) or hangs is recorded as failed and the parent starts a new worker."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt stops
+    # Asked to stop mid-object (an interrupt, a timeout): unwind, so that a chunk file half written is removed and
+    # what the process made for the resource tracker is released, instead of dying where it stands.
+    signal.signal(signal.SIGTERM, _unwind)
     exit_with(caller)  # generate's process killed: no orphan writes on into the store
     _keep_freed_memory()
     from tactile.dataset.worker import explore_into_store
@@ -333,6 +338,12 @@ def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache:
         except Exception as exc:  # noqa: BLE001 -- any failure of one object is recorded, never raised
             conn.send(("failed", f"{type(exc).__name__}: {exc}"))
     conn.close()
+
+
+def _unwind(signum, frame) -> None:
+    """SIGTERM handler of a worker: leave through SystemExit, which no ``except Exception`` catches, running every
+    ``finally`` and exit handler on the way (a native call in progress finishes first)."""
+    raise SystemExit(128 + signum)
 
 
 def _keep_freed_memory() -> None:
@@ -387,17 +398,26 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
         workers.append(worker)
         return worker
 
-    def stop(worker: _Running, ask: bool = False) -> None:
-        """End ``worker``: killed, or with ``ask`` told to exit, so that its clean-up runs (a SIGKILL leaves, e.g.,
-        the semaphores a library made for the resource tracker to warn about), and killed if not gone in 5 s."""
-        if ask:
-            with contextlib.suppress(OSError):
-                worker.conn.send(None)
-            worker.process.join(timeout=5)
-        worker.process.kill()
-        worker.process.join()
-        worker.conn.close()
-        workers.remove(worker)
+    def stop(*ending: _Running, dead: bool = False) -> None:
+        """End the ``ending`` workers together, each so that its clean-up runs (a SIGKILL leaves half-written temporary
+        chunk files, and the semaphores a library made for the resource tracker to warn about): an idle one is told to
+        exit, a busy one is sent SIGTERM (see :func:`_unwind`); any not gone within ``STOP_GRACE_S`` is killed.
+        ``dead``: workers whose pipe is closed, only reaped."""
+        for worker in ending:
+            if dead:
+                continue
+            if worker.index is None:
+                with contextlib.suppress(OSError):
+                    worker.conn.send(None)
+            else:
+                worker.process.terminate()
+        deadline = time.monotonic() + (0.0 if dead else STOP_GRACE_S)
+        for worker in ending:
+            worker.process.join(timeout=max(deadline - time.monotonic(), 0.0))
+            worker.process.kill()
+            worker.process.join()
+            worker.conn.close()
+            workers.remove(worker)
 
     def assign(worker: _Running, fresh: bool) -> None:
         """Send ``worker`` the next object. A closed pipe means the worker has died: a new worker's death fails the
@@ -406,7 +426,7 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
         try:
             worker.conn.send((index, specs[index]))
         except OSError:
-            stop(worker)
+            stop(worker, dead=True)
             if fresh:
                 finished(index, False, _reason_for_exit(worker.process.exitcode))
             else:
@@ -428,7 +448,7 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
                 except (EOFError, OSError):  # the worker died (a native abort, killed) or closed its pipe
                     worker.process.join(timeout=1)  # one that closed its pipe and runs on is killed by stop
                     index = worker.index
-                    stop(worker)
+                    stop(worker, dead=True)
                     if index is not None:
                         finished(index, False, _reason_for_exit(worker.process.exitcode))
                     continue
@@ -444,8 +464,7 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
                     stop(worker)
                     finished(index, False, f"timed out after {timeout_s:g} s")
     finally:
-        while workers:  # done, interrupted or strict: idle workers are told to exit, busy ones killed
-            stop(workers[-1], ask=workers[-1].index is None)
+        stop(*workers)  # done, interrupted or strict
 
 
 # -------------------------------------------------------------------------------------- Ray executor

@@ -156,3 +156,45 @@ def test_generation_ends_its_workers_cleanly():
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert run.stdout.split() == ["4"]
     assert "leaked" not in run.stderr and "resource_tracker" not in run.stderr, run.stderr
+
+
+def box_then_wait_for_ever(folder: str):
+    """Loader run in the worker: notes that it started, then sleeps; notes it if the sleep is unwound."""
+    Path(folder, "started").touch()
+    try:
+        time.sleep(600)
+    finally:
+        Path(folder, "unwound").touch()
+
+
+def test_an_interrupt_unwinds_the_busy_workers():
+    """Ctrl-C during generation: a worker busy with an object is sent SIGTERM and unwinds (its ``finally`` blocks run:
+    a chunk file half written is removed), and its exit handlers release what it made for the resource tracker. A
+    SIGKILL left both, and the tracker warned the user of leaked semaphores."""
+    script = textwrap.dedent("""
+        import functools, os, signal, tempfile, threading, time
+        from pathlib import Path
+        from tactile.dataset import ObjectSpec, generate
+        from tactile.sensor import FSRSensor
+        from tests.tactile.test_worker_process import box_then_wait_for_ever
+
+        folder = tempfile.mkdtemp()
+
+        def interrupt_once_waiting():
+            while not Path(folder, "started").exists():
+                time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGINT)
+
+        threading.Thread(target=interrupt_once_waiting, daemon=True).start()
+        slow = ObjectSpec("slow/0", "slow", loader=functools.partial(box_then_wait_for_ever, folder))
+        start = time.monotonic()
+        try:  # the first object is written (Blosc made its lock) before the worker starts the slow one
+            generate([("box", 0), slow], folder + "/s", strategies=("blind",), contours_per_object=3,
+                     sensor=FSRSensor(rows=8, cols=8), probes=5, workers=1, progress=False)
+        except KeyboardInterrupt:
+            print("interrupted", Path(folder, "unwound").exists(), time.monotonic() - start < 60)
+    """)
+    run = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
+    assert run.stdout.split() == ["interrupted", "True", "True"], run.stderr
+    assert "leaked" not in run.stderr and "resource_tracker" not in run.stderr, run.stderr
