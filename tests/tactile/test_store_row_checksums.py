@@ -26,7 +26,7 @@ from tactile.dataset.store import (
     row_checksums,
 )
 from tactile.sensor import FSRSensor
-from tests._small_store import SETTINGS
+from tests._small_store import OBJECTS, SETTINGS
 
 ROWS = SETTINGS["contours_per_object"]  # one strategy: an object's rows are one frames shard
 OTHER = "it was written with other settings than the store's zarr.json now holds"
@@ -123,7 +123,8 @@ def test_settings_edited_after_the_rows_were_written_are_refused(copy):
     encoding = meta["attributes"]["visuotactile_dataset"]["settings"]["encoding"]
     encoding["scale"] *= 2  # still a valid scale: every frame would read twice as far
     (copy / "zarr.json").write_text(json.dumps(meta))
-    with pytest.raises(DatasetError, match="object 'box/0' was written with other settings than the store's zarr.json"):
+    with pytest.raises(DatasetError, match="object 'box/0' was written with other settings than the store's zarr.json"
+                                           r".* as was every object \(2\): the metadata was edited; regenerate the store"):
         open_dataset(copy)
     assert verify_store(copy).damaged == {
         name: "it was written with other settings than the store's zarr.json now holds" for name in ("box/0", "ring/0")}
@@ -160,6 +161,17 @@ def test_a_later_record_alone_holding_another_settings_digest_is_refused(copy, w
     with pytest.raises(DatasetError, match="object 'ring/0' was written with other settings"):
         open_dataset(copy)
     assert verify_store(copy).damaged == {"ring/0": OTHER}
+
+
+def test_one_record_with_another_settings_digest_is_named_as_damage_and_generate_repairs_it(copy):
+    edit_record(copy, 1, lambda d: d.__setitem__("settings_sha256", "0" * 64))
+    with pytest.raises(DatasetError, match="object 'ring/0' was written with other settings.* as were 0 of the 1 other "
+                                           "complete objects: their records are damaged.*re-running `visuotactile "
+                                           "generate` with the store's settings explores them again"):
+        open_dataset(copy)
+    report = generate(OBJECTS, copy, **SETTINGS)  # the remedy the message gives
+    assert report.repaired == [("ring/0", OTHER)] and report.completed == 1
+    assert open_dataset(copy).object_names == ("box/0", "ring/0")
 
 
 def test_settings_holding_nan_are_never_a_foreign_exception(copy, capsys):
