@@ -53,6 +53,9 @@ log = logging.getLogger(__name__)
 EXECUTORS = ("local", "ray")
 #: Seconds a worker asked to stop has to exit by itself before it is killed.
 STOP_GRACE_S = 2.0
+#: What the workers' forkserver imports before it forks them, with Ctrl-C held off meanwhile (the guards).
+WORKER_PRELOAD = ["perception.preload_guard", "tactile.dataset.worker", "zarr", "numcodecs.blosc", "google_crc32c",
+                  "perception.preload_guard_end"]
 
 
 @dataclass
@@ -190,7 +193,8 @@ def generate(
             store's bytes do not depend on ``workers``, the executor or the order objects finish in.
         workers: parallel workers (default: the usable cores; Ray: CPUs of a local instance it starts).
         executor: "local" (``workers`` processes, each exploring one object after another: a loader must leave no
-            global state behind, such as a patched function, which would reach the next object) or "ray" (one
+            global state behind, such as a patched function, which would reach the next object; a process it starts
+            is not stopped with a worker stopped on a timeout or an interrupt) or "ray" (one
             task per object; an existing ``ray.init`` is used, else ``ray_address`` / ``RAY_ADDRESS``, else a local
             instance).
             Ray workers write to ``out`` themselves: on a cluster it must be on a shared file system.
@@ -329,7 +333,7 @@ def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache:
     _keep_freed_memory()
     from tactile.dataset.worker import explore_into_store
 
-    while (task := conn.recv()) is not None:
+    while (task := _next_task(conn)) is not None:
         index, spec = task
         try:
             explore_into_store(store, index, spec, settings, sensor, progress=lambda n: conn.send(("progress", n)),
@@ -338,6 +342,15 @@ def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache:
         except Exception as exc:  # noqa: BLE001 -- any failure of one object is recorded, never raised
             conn.send(("failed", f"{type(exc).__name__}: {exc}"))
     conn.close()
+
+
+def _next_task(conn):
+    """The next (index, spec) from the parent; None when it says so, or when its end of the pipe is closed (a parent
+    interrupted while it started this worker exits without knowing of it: no traceback for that)."""
+    try:
+        return conn.recv()
+    except (EOFError, OSError):
+        return None
 
 
 def _unwind(signum, frame) -> None:
@@ -366,7 +379,7 @@ def _context():
     # fork of a parent whose Open3D/BLAS thread pools are running). The worker imports zarr and its codecs
     # lazily: preloaded, each child saves their import (0.17 s per object; nothing of theirs runs at import).
     ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["tactile.dataset.worker", "zarr", "numcodecs.blosc", "google_crc32c"])
+    ctx.set_forkserver_preload(WORKER_PRELOAD)
     return ctx
 
 

@@ -22,8 +22,8 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.mark.parametrize("watch", ["pidfd", "poll", "none"])
 def test_a_worker_dies_when_the_process_it_watches_exits(watch):
     """exit_with(pid): the worker is killed when ``pid`` exits, though its own parent (here this test; in a run the
-    forkserver, which outlives its caller) lives on; by a pidfd, or by polling where there is none. Like the real
-    workers, it ignores SIGINT and SIGTERM: only the SIGKILL it asked for may end it."""
+    forkserver, which outlives its caller) lives on; by a pidfd, or by polling where there is none. It ignores SIGINT
+    and SIGTERM (a real worker ignores SIGINT and unwinds on SIGTERM): only the SIGKILL it asked for may end it."""
     caller = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     worker_code = ("import os, signal, time; from perception.runtime import exit_with; "
                    "signal.signal(signal.SIGINT, signal.SIG_IGN); signal.signal(signal.SIGTERM, signal.SIG_IGN); "
@@ -133,7 +133,7 @@ def test_exit_with_refuses_what_is_not_a_process_id(bad):
 def test_the_generation_workers_preload_leaves_out_scipy_stats():
     """The forkserver imports the workers' modules before the first object starts, on one core while the other
     waits: scipy.stats (0.6 s of it, for a helper no worker calls) stays out."""
-    script = ("import sys, tactile.dataset.worker, zarr, numcodecs.blosc, google_crc32c; "
+    script = ("import sys; from tactile.dataset.generate import WORKER_PRELOAD; [__import__(m) for m in WORKER_PRELOAD]; "
               "print('scipy.stats' in sys.modules, 'open3d' in sys.modules)")
     run = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True, cwd=ROOT,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -198,3 +198,48 @@ def test_an_interrupt_unwinds_the_busy_workers():
                          env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
     assert run.stdout.split() == ["interrupted", "True", "True"], run.stderr
     assert "leaked" not in run.stderr and "resource_tracker" not in run.stderr, run.stderr
+
+
+def test_ctrl_c_while_the_forkserver_preloads_is_held_off():
+    """Python's forkserver ignores SIGINT only after its preload: an interrupt in that second or so killed it with a
+    KeyboardInterrupt traceback on the user's terminal. A fresh interpreter imports the workers' preload as the
+    forkserver does (in order, on its main thread) while SIGINT is sent: it is held off, and the handler in force
+    before is back afterwards."""
+    from tactile.dataset.generate import WORKER_PRELOAD
+
+    script = textwrap.dedent(f"""
+        import os, signal, sys, threading, time
+
+        preload, sent = {WORKER_PRELOAD!r}, []
+
+        def interrupt_while_loading():
+            while preload[1].split(".")[0] not in sys.modules:  # the guard has run, the next module loads
+                time.sleep(0.001)
+            sent.append(preload[-1] not in sys.modules)  # sent before the guard's end ran
+            os.kill(os.getpid(), signal.SIGINT)
+
+        threading.Thread(target=interrupt_while_loading, daemon=True).start()
+        for name in preload:
+            __import__(name)
+        time.sleep(0.2)
+        print(sent, signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120, check=False)
+    assert run.returncode == 0 and run.stdout.split() == ["[True]", "True"], run.stderr
+
+
+def test_a_worker_whose_parent_closed_its_end_takes_no_task_and_raises_nothing():
+    """A parent interrupted while it starts a worker exits without knowing of it; the worker, waiting for its first
+    object, then reads end-of-file and exits quietly (it printed an EOFError traceback on the user's terminal)."""
+    import multiprocessing
+
+    from tactile.dataset.generate import _next_task
+
+    parent, child = multiprocessing.Pipe(duplex=True)
+    parent.send((3, "spec"))
+    assert _next_task(child) == (3, "spec")
+    parent.send(None)
+    assert _next_task(child) is None
+    parent.close()
+    assert _next_task(child) is None

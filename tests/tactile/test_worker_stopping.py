@@ -1,0 +1,212 @@
+"""How generate stops a busy worker (SIGTERM, then SIGKILL once ``STOP_GRACE_S`` has passed), against hostile loaders:
+one that ignores SIGTERM, one that swallows the SystemExit it raises, one stopped while it writes a large file;
+stopped by an object timeout or by an interrupt. Each run is a subprocess, so that its stderr (the resource
+tracker's warnings) and its processes can be checked. (From a break attempt on the change.)"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from tests._processes import alive
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals, /proc")
+ROOT = Path(__file__).resolve().parents[2]
+
+
+# ------------------------------------------------------------------ loaders (module level: workers unpickle them)
+def _started(folder: str, tag: str) -> None:
+    Path(folder, f"pid-{tag}").write_text(str(os.getpid()))
+    Path(folder, f"started-{tag}").touch()
+
+
+def _box():
+    from perception.shapes import make_object
+
+    return make_object("box", 0)
+
+
+def ignoring_sigterm(folder: str, tag: str):
+    """Ignores SIGTERM, then sleeps: only the SIGKILL after the grace period ends it."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _started(folder, tag)
+    try:
+        time.sleep(600)
+    finally:
+        Path(folder, f"unwound-{tag}").touch()
+
+
+def swallowing_exit(folder: str, tag: str):
+    """Catches BaseException (the SystemExit of the worker's SIGTERM handler) and sleeps on."""
+    _started(folder, tag)
+    while True:
+        try:
+            time.sleep(600)
+        except BaseException:  # noqa: BLE001 -- hostile on purpose
+            Path(folder, f"swallowed-{tag}").touch()
+
+
+def swallowing_exit_then_box(folder: str, tag: str):
+    """Sleeps; when its SystemExit comes, swallows it and returns a box at once, so that its worker goes on to
+    explore and write the object (and its completion record) within the grace period."""
+    _started(folder, tag)
+    try:
+        time.sleep(600)
+    except BaseException:  # noqa: BLE001 -- hostile on purpose
+        Path(folder, f"swallowed-{tag}").touch()
+    return _box()
+
+
+def writing_a_large_file(folder: str, tag: str):
+    """Writes a large file through atomic_path (as write_rows writes chunk files), slowly, when it is stopped."""
+    from perception.atomic import atomic_path
+
+    block = os.urandom(1 << 20)
+    with atomic_path(Path(folder, "store", "big.bin")) as tmp, open(tmp, "wb") as f:
+        _started(folder, tag)
+        for _ in range(4000):
+            f.write(block)
+            time.sleep(0.01)
+    return _box()
+
+
+def closing_its_pipe(folder: str, tag: str):
+    """Closes its descriptors but the pidfd that exit_with watches (its pipe among them: the parent sees EOF), then
+    sleeps on; notes it if the sleep is unwound."""
+    _started(folder, tag)
+    for fd in map(int, os.listdir("/proc/self/fd")):
+        try:
+            if fd > 2 and "pidfd" not in os.readlink(f"/proc/self/fd/{fd}"):
+                os.close(fd)
+        except OSError:
+            pass
+    try:
+        time.sleep(600)
+    finally:
+        Path(folder, f"unwound-{tag}").touch()
+
+
+# ------------------------------------------------------------------ the run, in a subprocess
+SCRIPT = textwrap.dedent("""
+    import functools, json, os, signal, sys, threading, time, traceback
+    from pathlib import Path
+    from perception.errors import DatasetError
+    from tactile.dataset import ObjectSpec, generate
+    from tactile.sensor import FSRSensor
+    import tests.tactile.test_worker_stopping as hostile
+
+    folder, loaders, mode, workers, timeout, strict, grace, box_first = json.loads(sys.argv[1])
+    sys.modules["tactile.dataset.generate"].STOP_GRACE_S = grace  # the package's "generate" is the function
+    out = {"interrupted_at": None}
+
+    def interrupt_once_started():
+        while not all(Path(folder, f"started-{i}").exists() for i in range(len(loaders))):
+            time.sleep(0.02)
+        time.sleep(0.3)
+        out["interrupted_at"] = time.monotonic()
+        os.kill(os.getpid(), signal.SIGINT)
+
+    if mode == "interrupt":
+        threading.Thread(target=interrupt_once_started, daemon=True).start()
+    specs = [ObjectSpec(f"bad/{i}", "bad", loader=functools.partial(getattr(hostile, name), folder, str(i)))
+             for i, name in enumerate(loaders)]
+    objects = [("box", 0), *specs, ("can", 1), ("box", 2)] if box_first else [*specs, ("box", 0), ("can", 1), ("box", 2)]
+    start = time.monotonic()
+    try:
+        report = generate(objects, folder + "/store", strategies=("blind",), contours_per_object=2,
+                          sensor=FSRSensor(rows=8, cols=8), probes=5, workers=workers, object_timeout_s=timeout,
+                          strict=strict, progress=False)
+        out.update(outcome="returned", completed=report.completed, failed=report.failed)
+    except KeyboardInterrupt:
+        out["outcome"] = "KeyboardInterrupt"
+    except DatasetError as exc:
+        out["outcome"] = "DatasetError"
+    end = time.monotonic()
+    out["seconds"] = end - start
+    out["after_interrupt"] = None if out["interrupted_at"] is None else end - out["interrupted_at"]
+    del out["interrupted_at"]
+    print(json.dumps(out))
+""")
+
+
+def run_case(tmp_path, loaders, mode, workers=2, timeout=None, strict=False, grace=2.0, box_first=False, limit=120):
+    folder = str(tmp_path)
+    with open(tmp_path / "stdout", "w") as stdout, open(tmp_path / "stderr", "w") as stderr:
+        run = subprocess.run([sys.executable, "-c", SCRIPT, json.dumps([folder, loaders, mode, workers, timeout,
+                                                                         strict, grace, box_first])],
+                             stdout=stdout, stderr=stderr, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                             timeout=limit, check=False)
+    err = (tmp_path / "stderr").read_text()
+    assert run.returncode == 0, err
+    result = json.loads((tmp_path / "stdout").read_text().strip().splitlines()[-1])
+    result["stderr"] = err
+    pids = [int(p.read_text()) for p in tmp_path.glob("pid-*")]
+    deadline = time.monotonic() + 3
+    while any(map(alive, pids)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    result["workers_alive"] = [p for p in pids if alive(p)]
+    for pid in result["workers_alive"]:
+        os.kill(pid, signal.SIGKILL)
+    store = tmp_path / "store"
+    result["hidden"] = sorted(str(p.relative_to(store)) for p in store.rglob(".*")) if store.exists() else []
+    result["marks"] = sorted(p.name for p in tmp_path.iterdir() if p.name.split("-")[0] in ("unwound", "swallowed"))
+    return result
+
+
+def clean(result) -> None:
+    assert "resource_tracker" not in result["stderr"] and "leaked" not in result["stderr"], result["stderr"]
+    assert result["workers_alive"] == [], result
+    assert result["hidden"] == [], result
+
+
+# ------------------------------------------------------------------ tests
+@pytest.mark.parametrize("loader", ["ignoring_sigterm", "swallowing_exit"])
+def test_a_hostile_object_times_out_and_the_others_complete(tmp_path, loader):
+    result = run_case(tmp_path, [loader], "timeout", timeout=2)
+    assert result["outcome"] == "returned" and result["completed"] == 3, result
+    assert result["failed"] == [["bad/0", "timed out after 2 s"]], result
+    clean(result)
+
+
+def test_an_interrupt_mid_write_removes_the_temporary_file_at_once(tmp_path):
+    result = run_case(tmp_path, ["writing_a_large_file"], "interrupt")
+    assert result["outcome"] == "KeyboardInterrupt", result
+    assert result["after_interrupt"] < 2.0, result  # it unwound: no wait for the grace period
+    clean(result)  # no hidden temporary file in the store
+
+
+def test_the_grace_period_is_shared_by_the_workers_stopped_together(tmp_path):
+    """Two busy workers that ignore SIGTERM, interrupted: both are killed at the one deadline, STOP_GRACE_S after
+    the interrupt, not one grace period after the other."""
+    result = run_case(tmp_path, ["ignoring_sigterm", "ignoring_sigterm"], "interrupt", grace=3.0)
+    assert result["outcome"] == "KeyboardInterrupt", result
+    assert 3.0 <= result["after_interrupt"] < 3.0 * 1.6, result
+    clean(result)
+
+
+def test_a_timed_out_object_that_finishes_in_its_grace_period_is_recorded_failed_in_the_store(tmp_path):
+    """The parent writes the timed-out object's failed record only once its worker is gone: a worker that finishes
+    the object while it is being stopped (here a loader that swallows the SystemExit) must not leave a complete
+    record in the store for an object the report calls failed."""
+    result = run_case(tmp_path, ["swallowing_exit_then_box"], "timeout", timeout=2, grace=5.0)
+    assert result["failed"] == [["bad/0", "timed out after 2 s"]], result
+    record = json.loads((tmp_path / "store" / "records" / "00000.json").read_text())
+    assert record["status"] == "failed", record
+
+
+@pytest.mark.parametrize("strict", [False, True])
+def test_a_worker_that_closed_its_pipe_is_killed_without_grace(tmp_path, strict):
+    """A worker whose pipe is closed (dead, or running on without it) is only reaped: killed after the 1 s join,
+    not sent SIGTERM and given STOP_GRACE_S (its loader's ``finally`` does not run)."""
+    result = run_case(tmp_path, ["closing_its_pipe"], "timeout", workers=1, timeout=30, strict=strict)
+    assert result["outcome"] == ("DatasetError" if strict else "returned"), result
+    assert result["marks"] == [], result
+    clean(result)
