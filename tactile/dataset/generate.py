@@ -416,9 +416,7 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
         chunk files, and the semaphores a library made for the resource tracker to warn about): an idle one is told to
         exit, a busy one is sent SIGTERM (see :func:`_unwind`); any not gone within ``STOP_GRACE_S`` is killed.
         ``dead``: workers whose pipe is closed, only reaped."""
-        for worker in ending:
-            if dead:
-                continue
+        for worker in () if dead else ending:
             if worker.index is None:
                 with contextlib.suppress(OSError):
                     worker.conn.send(None)
