@@ -173,6 +173,51 @@ def exit_with(pid: int) -> None:
     threading.Thread(target=watch, name=f"exit-with-{pid}", daemon=True).start()
 
 
+def descendant_handles(pid: int) -> list[int]:
+    """pidfds of the living processes descended from process ``pid`` (its children, theirs, ...), listed from
+    /proc/PID/task/*/children (Linux). Each is checked, once opened, to be the child of the process it was listed
+    under, so a pid reused meanwhile is never taken for it; a pidfd then follows its process even once it is orphaned.
+    [] where the system has no such listing or no pidfds. The caller closes them (:func:`kill_handles`)."""
+    handles: list[int] = []
+    parents = [pid]
+    while parents:
+        parent = parents.pop()
+        for listing in Path(f"/proc/{parent}/task").glob("*/children"):
+            try:
+                kids = [int(kid) for kid in listing.read_text().split()]
+            except OSError:  # the thread or the process is gone
+                continue
+            for kid in kids:
+                try:
+                    handle = os.pidfd_open(kid)
+                except (AttributeError, OSError):
+                    continue
+                if _parent(kid) != parent:
+                    os.close(handle)
+                    continue
+                handles.append(handle)
+                parents.append(kid)
+    return handles
+
+
+def kill_handles(handles: list[int]) -> None:
+    """SIGKILL the processes behind the pidfds ``handles`` (:func:`descendant_handles`), those still there, and close
+    the pidfds."""
+    for handle in handles:
+        with contextlib.suppress(OSError):  # ProcessLookupError: gone already
+            signal.pidfd_send_signal(handle, signal.SIGKILL)
+        os.close(handle)
+
+
+def _parent(pid: int) -> int | None:
+    """The parent process id of ``pid`` (/proc/PID/stat), None if it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return int(f.read().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def _running(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -223,5 +268,6 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     return tqdm(iterable, disable=not progress_enabled(enabled), **options)
 
 
-__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "limit_cores", "machine", "machine_line", "package_version",
-           "progress_bar", "progress_enabled", "set_progress", "usable_cores", "versions", "without_main_module"]
+__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "descendant_handles", "kill_handles", "limit_cores",
+           "machine", "machine_line", "package_version", "progress_bar", "progress_enabled", "set_progress",
+           "usable_cores", "versions", "without_main_module"]

@@ -26,7 +26,9 @@ from pathlib import Path
 
 from perception.errors import DatasetError, InvalidArgumentError
 from perception.runtime import (
+    descendant_handles,
     exit_with,
+    kill_handles,
     libc,
     package_version,
     progress_bar,
@@ -193,8 +195,8 @@ def generate(
             store's bytes do not depend on ``workers``, the executor or the order objects finish in.
         workers: parallel workers (default: the usable cores; Ray: CPUs of a local instance it starts).
         executor: "local" (``workers`` processes, each exploring one object after another: a loader must leave no
-            global state behind, such as a patched function, which would reach the next object; a process it starts
-            is not stopped with a worker stopped on a timeout or an interrupt) or "ray" (one
+            global state behind, such as a patched function, which would reach the next object; the processes it
+            starts are killed with a worker stopped on a timeout or an interrupt) or "ray" (one
             task per object; an existing ``ray.init`` is used, else ``ray_address`` / ``RAY_ADDRESS``, else a local
             instance).
             Ray workers write to ``out`` themselves: on a cluster it must be on a shared file system.
@@ -415,7 +417,9 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
         """End the ``ending`` workers together, each so that its clean-up runs (a SIGKILL leaves half-written temporary
         chunk files, and the semaphores a library made for the resource tracker to warn about): an idle one is told to
         exit, a busy one is sent SIGTERM (see :func:`_unwind`); any not gone within ``STOP_GRACE_S`` is killed.
-        ``dead``: workers whose pipe is closed, only reaped."""
+        ``dead``: workers whose pipe is closed, only reaped. The processes a worker's loader started go with it: listed
+        before it is signalled (an orphan can no longer be traced to it), killed once it is gone."""
+        started = [descendant_handles(worker.process.pid) for worker in ending]
         for worker in () if dead else ending:
             if worker.index is None:
                 with contextlib.suppress(OSError):
@@ -423,10 +427,11 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
             else:
                 worker.process.terminate()
         deadline = time.monotonic() + (0.0 if dead else STOP_GRACE_S)
-        for worker in ending:
+        for worker, handles in zip(ending, started):
             worker.process.join(timeout=max(deadline - time.monotonic(), 0.0))
             worker.process.kill()
             worker.process.join()
+            kill_handles(handles)
             worker.conn.close()
             workers.remove(worker)
 

@@ -243,3 +243,31 @@ def test_a_worker_whose_parent_closed_its_end_takes_no_task_and_raises_nothing()
     assert _next_task(child) is None
     parent.close()
     assert _next_task(child) is None
+
+
+def test_descendants_are_listed_and_killed_even_once_orphaned():
+    """descendant_handles(pid): pidfds of pid's children and theirs; kill_handles ends them, the grandchild here after
+    its parent is gone (orphaned: no longer traceable through /proc from pid)."""
+    from perception.runtime import descendant_handles, kill_handles
+
+    code = ("import subprocess, sys, time; "
+            "g = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)']); "
+            "print(g.pid, flush=True); time.sleep(120)")
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        grandchild = int(child.stdout.readline())
+        theirs = descendant_handles(child.pid)
+        assert len(theirs) == 1
+        child.kill()
+        child.wait()  # the grandchild is an orphan now
+        time.sleep(0.3)
+        assert alive(grandchild)
+        kill_handles(theirs)
+        deadline = time.monotonic() + 10
+        while alive(grandchild) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not alive(grandchild)
+        assert descendant_handles(child.pid) == []  # gone: nothing listed
+    finally:
+        child.kill()
+        child.wait()

@@ -78,6 +78,14 @@ def writing_a_large_file(folder: str, tag: str):
     return _box()
 
 
+def spawning_a_child(folder: str, tag: str):
+    """Starts a child process (a plain subprocess, nothing ends it), notes its pid, then sleeps."""
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
+    Path(folder, f"child-{tag}").write_text(str(child.pid))
+    _started(folder, tag)
+    time.sleep(600)
+
+
 def closing_its_pipe(folder: str, tag: str):
     """Closes its descriptors but the pidfd that exit_with watches (its pipe among them: the parent sees EOF), then
     sleeps on; notes it if the sleep is unwound."""
@@ -139,6 +147,7 @@ SCRIPT = textwrap.dedent("""
 
 def run_case(tmp_path, loaders, mode, workers=2, timeout=None, strict=False, grace=2.0, box_first=False, limit=120):
     folder = str(tmp_path)
+    # Files, not pipes: a child process a loader started would hold a pipe open if it outlived its worker.
     with open(tmp_path / "stdout", "w") as stdout, open(tmp_path / "stderr", "w") as stderr:
         run = subprocess.run([sys.executable, "-c", SCRIPT, json.dumps([folder, loaders, mode, workers, timeout,
                                                                          strict, grace, box_first])],
@@ -149,11 +158,13 @@ def run_case(tmp_path, loaders, mode, workers=2, timeout=None, strict=False, gra
     result = json.loads((tmp_path / "stdout").read_text().strip().splitlines()[-1])
     result["stderr"] = err
     pids = [int(p.read_text()) for p in tmp_path.glob("pid-*")]
+    childs = [int(p.read_text()) for p in tmp_path.glob("child-*")]
     deadline = time.monotonic() + 3
-    while any(map(alive, pids)) and time.monotonic() < deadline:
+    while any(map(alive, pids + childs)) and time.monotonic() < deadline:
         time.sleep(0.05)
     result["workers_alive"] = [p for p in pids if alive(p)]
-    for pid in result["workers_alive"]:
+    result["children_alive"] = [p for p in childs if alive(p)]
+    for pid in result["workers_alive"] + result["children_alive"]:
         os.kill(pid, signal.SIGKILL)
     store = tmp_path / "store"
     result["hidden"] = sorted(str(p.relative_to(store)) for p in store.rglob(".*")) if store.exists() else []
@@ -163,7 +174,7 @@ def run_case(tmp_path, loaders, mode, workers=2, timeout=None, strict=False, gra
 
 def clean(result) -> None:
     assert "resource_tracker" not in result["stderr"] and "leaked" not in result["stderr"], result["stderr"]
-    assert result["workers_alive"] == [], result
+    assert result["workers_alive"] == [] and result["children_alive"] == [], result
     assert result["hidden"] == [], result
 
 
@@ -209,4 +220,13 @@ def test_a_worker_that_closed_its_pipe_is_killed_without_grace(tmp_path, strict)
     result = run_case(tmp_path, ["closing_its_pipe"], "timeout", workers=1, timeout=30, strict=strict)
     assert result["outcome"] == ("DatasetError" if strict else "returned"), result
     assert result["marks"] == [], result
+    clean(result)
+
+
+@pytest.mark.parametrize("mode", ["timeout", "interrupt"])
+def test_a_process_the_loader_started_ends_with_its_worker(tmp_path, mode):
+    """A loader's own child process (say an external converter that hangs) is killed with its stopped worker: it
+    would run on for ever, and hold the terminal's stdout (``generate ... | tee`` waited for it)."""
+    result = run_case(tmp_path, ["spawning_a_child"], mode, timeout=2 if mode == "timeout" else None)
+    assert result["outcome"] == ("returned" if mode == "timeout" else "KeyboardInterrupt"), result
     clean(result)
