@@ -196,7 +196,7 @@ def generate(
         workers: parallel workers (default: the usable cores; Ray: CPUs of a local instance it starts).
         executor: "local" (``workers`` processes, each exploring one object after another: a loader must leave no
             global state behind, such as a patched function, which would reach the next object; the processes it
-            starts are killed with a worker stopped on a timeout or an interrupt) or "ray" (one
+            starts end with its worker, at the end of the run or when the worker is stopped) or "ray" (one
             task per object; an existing ``ray.init`` is used, else ``ray_address`` / ``RAY_ADDRESS``, else a local
             instance).
             Ray workers write to ``out`` themselves: on a cluster it must be on a shared file system.
