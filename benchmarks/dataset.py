@@ -50,6 +50,7 @@ from typing import Self
 import numpy as np
 
 from benchmarks._common import DATA, machine
+from perception.runtime import child_pids
 
 RAYS_PER_CAST = 1 << 20
 
@@ -57,21 +58,11 @@ RAYS_PER_CAST = 1 << 20
 # ------------------------------------------------------------------------------------ memory
 def _descendants(pid: int) -> list[int]:
     """pid and all its descendants (Linux /proc)."""
-    children: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat", "rb") as f:
-                fields = f.read().rsplit(b")", 1)[1].split()
-            children.setdefault(int(fields[1]), []).append(int(entry))
-        except (OSError, IndexError, ValueError):
-            continue
     out, todo = [], [pid]
     while todo:
         p = todo.pop()
         out.append(p)
-        todo.extend(children.get(p, []))
+        todo.extend(child_pids(p))
     return out
 
 

@@ -182,22 +182,30 @@ def descendant_handles(pid: int) -> list[int]:
     parents = [pid]
     while parents:
         parent = parents.pop()
-        for listing in Path(f"/proc/{parent}/task").glob("*/children"):
+        for kid in child_pids(parent):
             try:
-                kids = [int(kid) for kid in listing.read_text().split()]
-            except OSError:  # the thread or the process is gone
+                handle = os.pidfd_open(kid)
+            except (AttributeError, OSError):
                 continue
-            for kid in kids:
-                try:
-                    handle = os.pidfd_open(kid)
-                except (AttributeError, OSError):
-                    continue
-                if _parent(kid) != parent:
-                    os.close(handle)
-                    continue
-                handles.append(handle)
-                parents.append(kid)
+            if _parent(kid) != parent:
+                os.close(handle)
+                continue
+            handles.append(handle)
+            parents.append(kid)
     return handles
+
+
+def child_pids(pid: int) -> list[int]:
+    """The child processes of process ``pid``, from /proc/PID/task/*/children (Linux; [] elsewhere, or once ``pid``
+    is gone). A pid may be reused as soon as its process is reaped: hold a pidfd to act on one safely
+    (:func:`descendant_handles`)."""
+    kids = []
+    for listing in Path(f"/proc/{pid}/task").glob("*/children"):
+        try:
+            kids += [int(kid) for kid in listing.read_text().split()]
+        except OSError:  # the thread or the process is gone
+            continue
+    return kids
 
 
 def kill_handles(handles: list[int]) -> None:
@@ -268,6 +276,6 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     return tqdm(iterable, disable=not progress_enabled(enabled), **options)
 
 
-__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "descendant_handles", "kill_handles", "limit_cores",
+__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "child_pids", "descendant_handles", "kill_handles", "limit_cores",
            "machine", "machine_line", "package_version", "progress_bar", "progress_enabled", "set_progress",
            "usable_cores", "versions", "without_main_module"]

@@ -182,15 +182,15 @@ class TactileDataset:
         other = [i for i in complete if written_with_other_settings(self._records[i], current)]
         if not other:
             return
-        first = f"{self.path}: object {self._settings['objects'][other[0]]['name']!r}"
+        first = (f"{self.path}: object {self._settings['objects'][other[0]]['name']!r} was written with other settings "
+                 "than the store's zarr.json now holds")
         if len(other) == len(complete):
-            raise DatasetError(f"{first} was written with other settings than the store's zarr.json now holds, as was "
-                               f"every object ({len(complete)}): the metadata was edited; regenerate the store")
+            raise DatasetError(f"{first}, as was every object ({len(complete)}): the metadata was edited; regenerate "
+                               "the store")
         # Some objects only: their records are the likelier damage, and generate explores damaged objects again.
-        raise DatasetError(f"{first} was written with other settings than the store's zarr.json now holds, as were "
-                           f"{len(other) - 1} of the {len(complete) - 1} other complete objects: their records are "
-                           "damaged or the metadata was edited. `visuotactile verify` lists them; re-running "
-                           "`visuotactile generate` with the store's settings explores them again")
+        raise DatasetError(f"{first}, as were {len(other) - 1} of the {len(complete) - 1} other complete objects: their "
+                           "records are damaged or the metadata was edited. `visuotactile verify` lists them; "
+                           "re-running `visuotactile generate` with the store's settings explores them again")
 
     def row_checksums(self, name: str, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(expected (N,) uint32, known (N,) bool): the record's checksum of each store row in ``rows`` of array
