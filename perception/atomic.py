@@ -24,22 +24,24 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    while True:
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{path.suffix}")
-        try:
-            # Mode 0o666 less the umask, as open() gives (mkstemp's 0o600 made reports unreadable to others);
-            # a file being replaced keeps its own mode.
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-            break
-        except FileExistsError:
-            continue
+    # The name is ours before the file exists: an interrupt (KeyboardInterrupt, a stopped worker's SystemExit) raised
+    # as the file is created, before any statement after it runs, still removes it.
+    tmp = None
     try:
+        while tmp is None:
+            tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{path.suffix}")
+            try:
+                # Mode 0o666 less the umask, as open() gives (mkstemp's 0o600 made reports unreadable to others);
+                # a file being replaced keeps its own mode.
+                os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            except FileExistsError:  # another writer's file: not ours to remove
+                tmp = None
         with contextlib.suppress(FileNotFoundError):
             os.chmod(tmp, stat.S_IMODE(os.stat(path).st_mode))
         yield Path(tmp)
         os.replace(tmp, path)
     finally:
-        if os.path.exists(tmp):
+        if tmp is not None and os.path.exists(tmp):
             os.remove(tmp)
 
 

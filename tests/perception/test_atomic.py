@@ -24,3 +24,21 @@ def test_interrupted_write_keeps_the_old_file(tmp_path):
         raise KeyboardInterrupt
     assert target.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["figure.png"]
+
+
+def test_an_interrupt_as_the_temporary_file_is_created_removes_it(tmp_path, monkeypatch):
+    """A signal handled just after the temporary file is created (a stopped generation worker's SystemExit, Ctrl-C),
+    before any statement after the creation runs: the file is still removed (it was left in a store once, in CI)."""
+    import perception.atomic as atomic
+
+    real_open = atomic.os.open
+
+    def open_then_interrupted(*args, **kwargs):
+        real_open(*args, **kwargs)  # the file exists now
+        raise SystemExit(143)
+
+    monkeypatch.setattr(atomic.os, "open", open_then_interrupted)
+    target = tmp_path / "chunk"
+    with pytest.raises(SystemExit), atomic_path(target):
+        pass
+    assert list(tmp_path.iterdir()) == []
