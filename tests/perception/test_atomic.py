@@ -29,7 +29,7 @@ def test_interrupted_write_keeps_the_old_file(tmp_path):
 def test_an_interrupt_as_the_temporary_file_is_created_removes_it(tmp_path, monkeypatch):
     """A signal handled just after the temporary file is created (a stopped generation worker's SystemExit, Ctrl-C),
     before any statement after the creation runs: the file is still removed (it was left in a store once, in CI)."""
-    import perception.atomic as atomic
+    from perception import atomic
 
     real_open = atomic.os.open
 
