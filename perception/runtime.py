@@ -143,11 +143,11 @@ MAX_PID = 2**31 - 1
 
 
 def exit_with(pid: int) -> None:
-    """Kill this process (SIGKILL) as soon as process ``pid`` has exited: a worker's guard against outliving the
-    run that started it. Its parent is no guide: a forkserver serves until its last child has ended, so a caller
-    terminated or killed would leave its workers computing (and writing) on for nobody. Watches a pidfd where the
-    system has one (Linux >= 5.3: no polling, no confusion with a later process of the same pid), else polls
-    every half second. Returns at once; the watch runs in a daemon thread.
+    """Kill this process (SIGKILL), and the processes it started, as soon as process ``pid`` has exited: a worker's
+    guard against outliving the run that started it. Its parent is no guide: a forkserver serves until its last
+    child has ended, so a caller terminated or killed would leave its workers computing (and writing) on for
+    nobody. Watches a pidfd where the system has one (Linux >= 5.3: no polling, no confusion with a later process
+    of the same pid), else polls every half second. Returns at once; the watch runs in a daemon thread.
 
     Raises:
         InvalidArgumentError: ``pid`` is not an integer in 1 .. :data:`MAX_PID`.
@@ -168,6 +168,9 @@ def exit_with(pid: int) -> None:
         else:
             while _running(pid):
                 time.sleep(0.5)
+        # first the processes this one started (e.g. a loader's converter): once it is gone they could no longer
+        # be traced to it, and would run on for nobody
+        kill_handles(descendant_handles(os.getpid()))
         os.kill(os.getpid(), signal.SIGKILL)
 
     threading.Thread(target=watch, name=f"exit-with-{pid}", daemon=True).start()

@@ -49,6 +49,38 @@ def test_a_worker_dies_when_the_process_it_watches_exits(watch):
         worker.wait()
 
 
+def test_a_worker_takes_the_processes_it_started_with_it():
+    """exit_with: a process the worker started (a loader's converter) and that process's own child end with the
+    worker when the watched process exits; before, the worker's SIGKILL left them running as orphans."""
+    caller = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    worker_code = ("import subprocess, sys, time; from perception.runtime import exit_with; "
+                   f"exit_with({caller.pid}); "
+                   "kid = subprocess.Popen([sys.executable, '-c', "
+                   "'import subprocess, sys, time; g = subprocess.Popen([\"sleep\", \"60\"]); "
+                   "print(g.pid, flush=True); time.sleep(60)'], stdout=subprocess.PIPE, text=True); "
+                   "print(kid.pid, kid.stdout.readline().strip(), flush=True); time.sleep(30)")
+    worker = subprocess.Popen([sys.executable, "-c", worker_code], stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
+    started: list[int] = []
+    try:
+        started = [int(p) for p in worker.stdout.readline().split()]
+        assert len(started) == 2 and all(map(alive, started))
+        caller.kill()
+        caller.wait()
+        worker.wait(timeout=10)
+        deadline = time.monotonic() + 5
+        while any(map(alive, started)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert worker.returncode == -signal.SIGKILL
+        assert not any(map(alive, started))
+    finally:
+        caller.kill()
+        worker.kill()
+        worker.wait()
+        for pid in filter(alive, started):
+            os.kill(pid, signal.SIGKILL)
+
+
 def test_generation_workers_die_when_generate_is_killed(tmp_path):
     """Killing ``generate``'s process ends its object workers at once, though their parent (the forkserver) waits
     for them: no orphan explores on and writes into the store."""
