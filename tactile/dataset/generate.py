@@ -450,6 +450,23 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
             return
         worker.index, worker.started = index, time.monotonic()
 
+    def receive(worker: _Running) -> None:
+        """Take one message of ``worker`` (its pipe is readable): progress, or its object's outcome."""
+        try:
+            kind, value = worker.conn.recv()
+        except (EOFError, OSError):  # the worker died (a native abort, killed) or closed its pipe
+            worker.process.join(timeout=1)  # one that closed its pipe and runs on is killed by stop
+            index = worker.index
+            stop(worker, dead=True)
+            if index is not None:
+                finished(index, False, _reason_for_exit(worker.process.exitcode))
+            return
+        if kind == "progress":
+            bar.update(value)
+            return
+        index, worker.index = worker.index, None  # idle before finished(), which raises when strict
+        finished(index, kind == "done", value)
+
     try:
         while pending or any(w.index is not None for w in workers):
             for worker in [w for w in workers if w.index is None]:
@@ -458,27 +475,17 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
             while pending and len(workers) < n_workers:
                 assign(start_worker(), fresh=True)
             for conn in wait([w.conn for w in workers], timeout=1.0):
-                worker = next(w for w in workers if w.conn is conn)
-                try:
-                    kind, value = conn.recv()
-                except (EOFError, OSError):  # the worker died (a native abort, killed) or closed its pipe
-                    worker.process.join(timeout=1)  # one that closed its pipe and runs on is killed by stop
-                    index = worker.index
-                    stop(worker, dead=True)
-                    if index is not None:
-                        finished(index, False, _reason_for_exit(worker.process.exitcode))
-                    continue
-                if kind == "progress":
-                    bar.update(value)
-                    continue
-                index, worker.index = worker.index, None  # idle before finished(), which raises when strict
-                finished(index, kind == "done", value)
+                receive(next(w for w in workers if w.conn is conn))
             if timeout_s is not None:
                 now = time.monotonic()
                 for worker in [w for w in workers if w.index is not None and now - w.started > timeout_s]:
-                    index = worker.index
-                    stop(worker)
-                    finished(index, False, f"timed out after {timeout_s:g} s")
+                    # an object finished while this loop was elsewhere is done, not timed out
+                    while worker in workers and worker.index is not None and worker.conn.poll():
+                        receive(worker)
+                    if worker in workers and worker.index is not None:
+                        index = worker.index
+                        stop(worker)
+                        finished(index, False, f"timed out after {timeout_s:g} s")
     finally:
         stop(*workers)  # done, interrupted or strict
 

@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -86,6 +87,22 @@ def spawning_a_child(folder: str, tag: str):
     time.sleep(600)
 
 
+def finishing_while_its_caller_is_stopped(folder: str, tag: str):
+    """Stops generate's process (SIGSTOP) until well past the object timeout, and lets its worker explore the box it
+    returns meanwhile: when generate goes on, the object's progress and its "done" both wait in the pipe."""
+    caller = int(Path(folder, "caller").read_text())
+    os.kill(caller, signal.SIGSTOP)
+    _started(folder, tag)
+
+    def resume():
+        time.sleep(2.0)  # the box is explored and written by then
+        os.kill(caller, signal.SIGCONT)
+
+    time.sleep(1.5)
+    threading.Thread(target=resume, daemon=True).start()
+    return _box()
+
+
 def closing_its_pipe(folder: str, tag: str):
     """Closes its descriptors but the pidfd that exit_with watches (its pipe among them: the parent sees EOF), then
     sleeps on; notes it if the sleep is unwound."""
@@ -112,6 +129,7 @@ SCRIPT = textwrap.dedent("""
     import tests.tactile.test_worker_stopping as hostile
 
     folder, loaders, mode, workers, timeout, strict, grace, box_first = json.loads(sys.argv[1])
+    Path(folder, "caller").write_text(str(os.getpid()))
     sys.modules["tactile.dataset.generate"].STOP_GRACE_S = grace  # the package's "generate" is the function
     out = {"interrupted_at": None}
 
@@ -229,4 +247,15 @@ def test_a_process_the_loader_started_ends_with_its_worker(tmp_path, mode):
     would run on for ever, and hold the terminal's stdout (``generate ... | tee`` waited for it)."""
     result = run_case(tmp_path, ["spawning_a_child"], mode, timeout=2 if mode == "timeout" else None)
     assert result["outcome"] == ("returned" if mode == "timeout" else "KeyboardInterrupt"), result
+    clean(result)
+
+
+def test_an_object_done_while_generate_was_held_up_is_kept(tmp_path):
+    """An object whose "done" waits in the pipe behind a progress message when generate next looks at the clock
+    (here generate was stopped past the timeout while the worker finished) is recorded completed, not timed out:
+    before, the object was recorded failed and its work was lost."""
+    result = run_case(tmp_path, ["finishing_while_its_caller_is_stopped"], "timeout", workers=1, timeout=1)
+    assert result["outcome"] == "returned", result
+    assert result["failed"] == [], result
+    assert result["completed"] == 4, result  # the bad object and the three good ones
     clean(result)
