@@ -163,14 +163,20 @@ def model_code_files(cls: type) -> list[Path]:
     the source), but :data:`NOT_MODEL_CODE`. For CNNClassifier, say: fusion/cnn.py, base.py, cues.py, leakage.py,
     modelfile.py; not fusion/demo.py, the commands or the experiments."""
     starts = [cls.__module__] + [c.__module__ for c in cls.__mro__[1:] if c.__module__.split(".")[0] == "fusion"]
+    return _code_files(starts, cls, NOT_MODEL_CODE)
+
+
+def _code_files(starts: list[str], cls: type | None, skip: frozenset) -> list[Path]:
+    """The source files of the ``fusion`` modules ``starts`` (and of ``cls``'s own module) and of every ``fusion``
+    module they import, transitively, but those in ``skip``."""
     seen, files, todo = set(), {}, list(dict.fromkeys(starts))
     while todo:
         name = todo.pop()
-        if name in seen or name in NOT_MODEL_CODE:
+        if name in seen or name in skip:
             continue
         seen.add(name)
         path = _module_file(name) if name.split(".")[0] == "fusion" else None
-        if path is None and name == cls.__module__:  # a classifier defined outside fusion (a test's stand-in)
+        if path is None and cls is not None and name == cls.__module__:  # a classifier defined outside fusion (a test's stand-in)
             import inspect
 
             try:
@@ -196,11 +202,23 @@ def model_code_version(cls: type) -> str:
     the commands, the experiments, :data:`NOT_MODEL_CODE`) keeps cached models valid. The versions of numpy and
     :data:`MODEL_LIBRARIES` are part of it: another PyTorch or scikit-learn trains again. Read once per process and
     class: the code that runs is the code that was imported, whatever happens to the files during a long run."""
+    return _files_version(model_code_files(cls))
+
+
+@functools.cache
+def calibration_code_version() -> str:
+    """A hash of the code :func:`fusion.openset.calibrate` runs beyond the classifier's own (:mod:`fusion.openset`,
+    :mod:`fusion.calibration`, :mod:`fusion.decide` and what they import) and of the library versions: a model
+    calibrated by other code is calibrated again. Read once per process, as :func:`model_code_version`."""
+    return _files_version(_code_files(["fusion.openset"], None, frozenset()))
+
+
+def _files_version(files: list[Path]) -> str:
     from perception.runtime import versions
 
     root = Path(__file__).resolve().parents[2]
-    return digest(*[f"{p.relative_to(root) if p.is_relative_to(root) else p.name}:{_source_text(p)}"
-                    for p in model_code_files(cls)], sorted(versions(*MODEL_LIBRARIES).items()))
+    return digest(*[f"{p.relative_to(root) if p.is_relative_to(root) else p.name}:{_source_text(p)}" for p in files],
+                  sorted(versions(*MODEL_LIBRARIES).items()))
 
 
 def describe(estimator: TactileClassifier) -> str:

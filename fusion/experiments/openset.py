@@ -18,18 +18,30 @@ training data, plus the share of unknown rejected at the threshold that keeps 95
 
 from __future__ import annotations
 
+import logging
+import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from fusion.base import class_indices
+from fusion.base import class_indices, load_model
 from fusion.calibration import ece_interval, ece_noise_floor, plot_reliability, reliability
 from fusion.decide import fuse_touches, touch_groups
 from fusion.experiments.context import Context
-from fusion.experiments.models import DISPLAY, Factory, pick
+from fusion.experiments.models import (
+    DISPLAY,
+    Factory,
+    cached_fit_seconds,
+    calibration_code_version,
+    model_record,
+    pick,
+    save_fitted,
+)
 from fusion.experiments.parallel import StoreRows, fit_cost
 from fusion.experiments.protocol import pose_stores, same_objects
 from fusion.experiments.report import pivot
+from fusion.modelfile import SUFFIX
 from fusion.openset import (
     SCORES,
     auroc,
@@ -41,6 +53,9 @@ from fusion.openset import (
     threshold_for,
     threshold_keeping,
 )
+from perception.errors import DatasetError, ModelMismatchError
+
+log = logging.getLogger(__name__)
 
 BOOTSTRAP = 1000
 
@@ -61,14 +76,33 @@ VARIANTS = {
 @dataclass(frozen=True)
 class CalibrationJob:
     """``factory()`` fitted on the rows ``train`` and calibrated there (:func:`fusion.openset.calibrate` with
-    ``options``): a job for :func:`fusion.experiments.parallel.run_jobs`."""
+    ``options``): a job for :func:`fusion.experiments.parallel.run_jobs`. With a ``path``, the calibrated model is
+    saved there with its record (the classifier, the rows, the options, the calibration code) and a re-run with the
+    same record loads it: an interrupted part keeps the calibrations it finished."""
 
     factory: Factory
     train: StoreRows
     options: dict
+    path: str | None = None
 
     def run(self):
-        return calibrate(self.factory(), self.train(), **self.options)
+        if self.path is None:
+            return calibrate(self.factory(), self.train(), **self.options)
+        path = Path(self.path)
+        record = model_record(self.factory, {"calibrated_on": list(self.train.key()), "options": self.options,
+                                             "calibration_code": calibration_code_version()})
+        if cached_fit_seconds(path, record) is not None:
+            try:
+                model = load_model(path)
+                if getattr(model, "calibration_", None) is not None:
+                    return model
+                log.warning("cached calibration %s holds no calibration; calibrating again", path)
+            except (DatasetError, ModelMismatchError, OSError, ValueError) as exc:
+                log.warning("cached calibration %s unusable (%s); calibrating again", path, exc)
+        start = time.perf_counter()
+        model = calibrate(self.factory(), self.train(), **self.options)
+        save_fitted(model, time.perf_counter() - start, path, record)
+        return model
 
     def cost(self) -> float:
         return fit_cost(self.factory, self.train)
@@ -85,8 +119,9 @@ def calibration_part(ctx: Context, objects) -> dict:
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
     factories = pick(ctx.classifiers, sizes.calibration_classifiers)
     options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed}
-    models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options)
-                                for train, _ in folds for factory in factories.values()]))
+    models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options,
+                                               str(ctx.path("calibration", f"fold{i + 1}-{name}{SUFFIX}")))
+                                for i, (train, _) in enumerate(folds) for name, factory in factories.items()]))
     collected: dict[str, list] = {}
     fits = []
     for i, (_, test) in enumerate(folds):
@@ -168,8 +203,9 @@ def openset_part(ctx: Context, objects) -> dict:
         splits.append((train, same_objects(ds, np.union1d(known_test, unknown_idx), test_ds, strategy)))
     factories = pick(ctx.classifiers, sizes.calibration_classifiers)
     options = {"max_touches": max(ks), "random_state": ctx.seed}
-    models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options)
-                                for train, _ in splits for factory in factories.values()]))
+    models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options,
+                                               str(ctx.path("openset", f"rotation{r + 1}-{name}{SUFFIX}")))
+                                for r, (train, _) in enumerate(splits) for name, factory in factories.items()]))
     pooled: dict = {}
     rotations = []
     for r, (_, test) in enumerate(splits):

@@ -802,6 +802,8 @@ def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
     assert {(r["k"], r["variant"].split(" ")[0]) for r in ece} >= {(k, v) for k in (1, 2) for v in ("before", "after")}
     assert all(0 <= r["low"] <= r["ece"] <= r["high"] <= 1 for r in ece)
     assert results["calibration"]["figures"] == ["reliability_em.png"]
+    saved = sorted(p.name for p in (tmp_path / "report" / "calibration").glob("*.vtm"))  # kept for a re-run
+    assert saved == [f"fold{i + 1}-em.vtm" for i in range(OPEN_SET_SIZES.unseen_folds)]
     assert (tmp_path / "report" / "reliability_em.png").read_bytes()[:4] == b"\x89PNG"
     rows = results["openset"]["rows"]
     assert {(r["k"], r["score"]) for r in rows} == {(k, s) for k in (1, 2)
@@ -824,6 +826,46 @@ def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
         (name,) = picked
         by = {(r["k"], r["score"]): r["auroc"] for r in rows}
         assert all(by[(k, "chosen")] == by[(k, name)] for k in (1, 2))
+
+
+def test_open_set_part_resumes_from_the_calibrations_it_saved(tmp_path, caplog):
+    """Each rotation's calibrated model is saved as it is made: a re-run of the part (its result file gone, as after an
+    interrupt) loads them, fits nothing and reports the same rows; a damaged model file is calibrated again, alone."""
+    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
+    fits = []
+
+    class Recording(EmbeddingMean):
+        def _fit(self, batch, y):
+            fits.append(len(batch))
+            super()._fit(batch, y)
+
+    def run():
+        (tmp_path / "report" / "parts" / "openset.json").unlink(missing_ok=True)
+        fits.clear()
+        return reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": Recording},
+                         parts=("openset",), workers=2, progress=False)["openset"]
+
+    first = run()
+    first_fits = len(fits)
+    saved = sorted(p.name for p in (tmp_path / "report" / "openset").glob("*.vtm"))
+    assert saved == ["rotation1-em.vtm", "rotation2-em.vtm"]
+    assert first_fits >= 2 * 3  # per rotation: the model and its inner folds
+    again = run()
+    assert fits == []
+    assert again["rows"] == first["rows"] and again["rotations"] == first["rotations"]
+    damaged = tmp_path / "report" / "openset" / "rotation2-em.vtm"
+    damaged.write_bytes(damaged.read_bytes()[:100])
+    with caplog.at_level("WARNING", logger="fusion.experiments.openset"):
+        third = run()
+    assert "rotation2-em.vtm unusable" in caplog.text
+    assert 0 < len(fits) < first_fits  # the damaged rotation only
+    assert third["rows"] == first["rows"]
+    record = tmp_path / "report" / "openset" / "rotation1-em.json"  # made with other settings: calibrated again
+    meta = json.loads(record.read_text())
+    meta["record"]["options"]["max_touches"] = 7
+    record.write_text(json.dumps(meta))
+    run()
+    assert 0 < len(fits) < first_fits
 
 
 def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
