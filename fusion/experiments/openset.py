@@ -111,6 +111,26 @@ class CalibrationJob:
         return f"calibrating {type(self.factory()).__name__} on {len(self.train.index)} sequences of {self.train.path}"
 
 
+#: Calibration folds of the parts' :func:`fusion.openset.calibrate` calls, where every class has that many training
+#: objects (fewer in a small run: ``--quick`` trains on 2 or 3 objects of a class).
+CALIBRATION_FOLDS = 3
+
+
+def calibration_folds(ds, trains, part: str) -> int:
+    """:data:`CALIBRATION_FOLDS`, or the fewest objects of one class in any of the training rows ``trains`` of the
+    opened store ``ds`` if that is smaller.
+
+    Raises:
+        DatasetError: a training set holds a single object of some class (calibration needs two folds).
+    """
+    fewest = min(int(np.unique(ds.object_ids[train][ds.labels[train] == c]).size)
+                 for train in trains for c in np.unique(ds.labels[train]))
+    if fewest < 2:
+        raise DatasetError(f"{ds.path}: the {part} part needs at least 2 training objects of every class in each "
+                           "fold; give more objects per class")
+    return min(CALIBRATION_FOLDS, fewest)
+
+
 def calibration_part(ctx: Context, objects) -> dict:
     """ECE rows and reliability figures (module docstring); returns {"rows", "fits", "figures"}."""
     sizes = ctx.sizes
@@ -118,7 +138,8 @@ def calibration_part(ctx: Context, objects) -> dict:
     ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
     factories = pick(ctx.classifiers, sizes.calibration_classifiers)
-    options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed}
+    options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed,
+               "cv": calibration_folds(ds, [train for train, _ in folds], "calibration")}
     models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options,
                                                str(ctx.path("calibration", f"fold{i + 1}-{name}{SUFFIX}")))
                                 for i, (train, _) in enumerate(folds) for name, factory in factories.items()]))
@@ -202,7 +223,8 @@ def openset_part(ctx: Context, objects) -> dict:
         train = np.setdiff1d(index[~np.isin(labels_all[index], left_out[r])], known_test)
         splits.append((train, same_objects(ds, np.union1d(known_test, unknown_idx), test_ds, strategy)))
     factories = pick(ctx.classifiers, sizes.calibration_classifiers)
-    options = {"max_touches": max(ks), "random_state": ctx.seed}
+    options = {"max_touches": max(ks), "random_state": ctx.seed,
+               "cv": calibration_folds(ds, [train for train, _ in splits], "open-set")}
     models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options,
                                                str(ctx.path("openset", f"rotation{r + 1}-{name}{SUFFIX}")))
                                 for r, (train, _) in enumerate(splits) for name, factory in factories.items()]))

@@ -1014,3 +1014,31 @@ def test_the_poses_of_grouped_kfold_must_share_their_training_store():
     stores = {pose: (SimpleNamespace(path=f"/stores/{pose}.zarr"), {}, None, {}) for pose in ("upright", "any pose")}
     with pytest.raises(InvalidArgumentError, match="must share one training store"):
         grouped_kfold(None, "unseen", stores, ("blind",), {}, 3)
+
+
+def test_calibration_folds_follow_the_fewest_training_objects_of_a_class():
+    """Three calibration folds where every class has three training objects or more; fewer where a fold's training
+    rows hold fewer (a quick run: 2); a class with a single training object is refused, naming the part."""
+    from types import SimpleNamespace
+
+    from fusion.experiments.openset import calibration_folds
+
+    # rows: (object, class); objects 0-4 of class 0, 5-6 of class 1, 7 of class 2
+    objects = np.array([0, 0, 1, 2, 3, 4, 5, 5, 6, 7])
+    labels = np.array([0, 0, 0, 0, 0, 0, 1, 1, 1, 2])
+    ds = SimpleNamespace(object_ids=objects, labels=labels, path="store.zarr")
+    assert calibration_folds(ds, [np.arange(6)], "calibration") == 3  # class 0 alone: 5 objects
+    assert calibration_folds(ds, [np.arange(6), np.arange(9)], "calibration") == 2  # class 1 has 2
+    assert calibration_folds(ds, [np.array([0, 2, 6, 8])], "calibration") == 2
+    with pytest.raises(DatasetError, match="store.zarr: the open-set part needs at least 2 training objects"):
+        calibration_folds(ds, [np.arange(10)], "open-set")  # class 2: one object
+
+
+def test_calibration_part_runs_on_two_training_objects_per_class(tmp_path):
+    """Three objects per class in three folds leave two training objects of a class: the part calibrates on two
+    folds (as ``--quick`` does; it stopped with "fewer objects than the 3 calibration folds" before)."""
+    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES[:4], per_class=3)
+    results = reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+                        parts=("calibration",), workers=1, progress=False)
+    assert {(r["k"], r["variant"].split(" ")[0]) for r in results["calibration"]["rows"]} >= {
+        (k, v) for k in (1, 2) for v in ("before", "after")}
