@@ -46,18 +46,28 @@ class Context:
     def cached_part(self, name: str, record: dict, compute: Callable[[], dict]) -> dict:
         """The JSON result of part ``name``: from ``parts/<name>.json`` when made with the same ``record``
         (measured timings are kept, so a re-run reports the same numbers), else ``compute()`` saved there."""
+        saved = self._saved_part(name, record)
+        if saved is not None:
+            return saved
+        result = compute()
+        write_text(self.path("parts", f"{name}.json"),
+                   json.dumps({"key": digest(record), "record": record, "result": result}, indent=2, default=str))
+        return result
+
+    def has_part(self, name: str, record: dict) -> bool:
+        """Whether :meth:`cached_part` would read part ``name`` made with ``record`` instead of computing it."""
+        return self._saved_part(name, record) is not None
+
+    def _saved_part(self, name: str, record: dict) -> dict | None:
         path = self.path("parts", f"{name}.json")
-        key = digest(record)
         if path.is_file():
             try:
                 saved = json.loads(path.read_text())
-                if saved.get("key") == key:
+                if saved.get("key") == digest(record):
                     return saved["result"]
-            except (OSError, ValueError) as exc:
+            except (OSError, ValueError, AttributeError) as exc:
                 log.warning("%s unreadable (%s); recomputing", path, exc)
-        result = compute()
-        write_text(path, json.dumps({"key": key, "record": record, "result": result}, indent=2, default=str))
-        return result
+        return None
 
     def run(self, tasks: list) -> list:
         """The predictions of :class:`fusion.experiments.parallel.FitTask` ``tasks``, in their order, trained side

@@ -131,18 +131,39 @@ def calibration_folds(ds, trains, part: str) -> int:
     return min(CALIBRATION_FOLDS, fewest)
 
 
+def calibrate_parts(ctx: Context, objects, parts) -> None:
+    """Make every calibrated model the named ``parts`` ("calibration", "openset") need, side by side in one pool
+    (saved where the parts load them): on 2 workers the 3 + 5 CNN calibrations of both parts take 4 rounds together,
+    5 one part after the other."""
+    jobs = []
+    if "calibration" in parts:
+        jobs += _calibration_plan(ctx, objects)[-1]
+    if "openset" in parts:
+        jobs += _openset_plan(ctx, objects)[-1]
+    ctx.run_jobs(jobs)
+
+
+def _calibration_plan(ctx: Context, objects) -> tuple:
+    """(test store, grouped folds, classifier factories, the calibration jobs in fold-then-classifier order) of the
+    calibration part."""
+    sizes = ctx.sizes
+    ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
+    folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(sizes.calibration_strategy))
+    factories = pick(ctx.classifiers, sizes.calibration_classifiers)
+    options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed,
+               "cv": calibration_folds(ds, [train for train, _ in folds], "calibration")}
+    jobs = [CalibrationJob(factory, StoreRows(str(ds.path), train), options,
+                           str(ctx.path("calibration", f"fold{i + 1}-{name}{SUFFIX}")))
+            for i, (train, _) in enumerate(folds) for name, factory in factories.items()]
+    return ds, test_ds, folds, factories, jobs
+
+
 def calibration_part(ctx: Context, objects) -> dict:
     """ECE rows and reliability figures (module docstring); returns {"rows", "fits", "figures"}."""
     sizes = ctx.sizes
     strategy = sizes.calibration_strategy
-    ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
-    folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
-    factories = pick(ctx.classifiers, sizes.calibration_classifiers)
-    options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed,
-               "cv": calibration_folds(ds, [train for train, _ in folds], "calibration")}
-    models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options,
-                                               str(ctx.path("calibration", f"fold{i + 1}-{name}{SUFFIX}")))
-                                for i, (train, _) in enumerate(folds) for name, factory in factories.items()]))
+    ds, test_ds, folds, factories, jobs = _calibration_plan(ctx, objects)
+    models = iter(ctx.run_jobs(jobs))
     collected: dict[str, list] = {}
     fits = []
     for i, (_, test) in enumerate(folds):
@@ -202,8 +223,9 @@ def _objects_bootstrap(known_scores, known_obj, unknown_scores, unknown_obj, sta
     return float(low), float(high)
 
 
-def openset_part(ctx: Context, objects) -> dict:
-    """Open-set rows (module docstring); returns {"rows", "rotations"}."""
+def _openset_plan(ctx: Context, objects) -> tuple:
+    """(test store, classes left out per rotation, (training rows, test rows) per rotation, classifier factories,
+    the calibration jobs in rotation-then-classifier order) of the open-set part."""
     sizes = ctx.sizes
     strategy = sizes.calibration_strategy
     ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
@@ -215,7 +237,6 @@ def openset_part(ctx: Context, objects) -> dict:
     order = rng.permutation(len(class_names))
     left_out = [sorted(class_names[order[r::n_rot]].tolist()) for r in range(n_rot)]
     labels_all = class_names[ds.labels]
-    ks = list(sizes.touches)
     splits = []  # (training rows, test rows of the test store) of each rotation
     for r, (_, fold_test) in enumerate(folds):
         unknown_idx = index[np.isin(labels_all[index], left_out[r])]
@@ -223,11 +244,21 @@ def openset_part(ctx: Context, objects) -> dict:
         train = np.setdiff1d(index[~np.isin(labels_all[index], left_out[r])], known_test)
         splits.append((train, same_objects(ds, np.union1d(known_test, unknown_idx), test_ds, strategy)))
     factories = pick(ctx.classifiers, sizes.calibration_classifiers)
-    options = {"max_touches": max(ks), "random_state": ctx.seed,
+    options = {"max_touches": max(sizes.touches), "random_state": ctx.seed,
                "cv": calibration_folds(ds, [train for train, _ in splits], "open-set")}
-    models = iter(ctx.run_jobs([CalibrationJob(factory, StoreRows(str(ds.path), train), options,
-                                               str(ctx.path("openset", f"rotation{r + 1}-{name}{SUFFIX}")))
-                                for r, (train, _) in enumerate(splits) for name, factory in factories.items()]))
+    jobs = [CalibrationJob(factory, StoreRows(str(ds.path), train), options,
+                           str(ctx.path("openset", f"rotation{r + 1}-{name}{SUFFIX}")))
+            for r, (train, _) in enumerate(splits) for name, factory in factories.items()]
+    return test_ds, left_out, splits, factories, jobs
+
+
+def openset_part(ctx: Context, objects) -> dict:
+    """Open-set rows (module docstring); returns {"rows", "rotations"}."""
+    sizes = ctx.sizes
+    strategy = sizes.calibration_strategy
+    ks = list(sizes.touches)
+    test_ds, left_out, splits, factories, jobs = _openset_plan(ctx, objects)
+    models = iter(ctx.run_jobs(jobs))
     pooled: dict = {}
     rotations = []
     for r, (_, test) in enumerate(splits):

@@ -187,14 +187,17 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
         figures.plot_pareto(result, out / "pareto.png")
         results["runtime"] = {**result, "contours": sizes.runtime_contours, "figure": "pareto.png"}
         _write(out, results)  # a partial report after every part
-    for part in ("calibration", "openset"):
-        if part not in parts:
-            continue
+    calibrating = [part for part in ("calibration", "openset") if part in parts]
+    if calibrating:
         from fusion.experiments import openset as experiment
 
         unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
         record = {"objects": [str(p) for p, _ in unseen_list], "sizes": sizes.to_dict(), "seed": ctx.seed,
                   "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers]}
+        todo = [part for part in calibrating if not ctx.has_part(part, record)]
+        if len(todo) > 1:  # both parts' calibrations in one pool: they pack on the workers better than part by part
+            timed("calibrations", lambda: experiment.calibrate_parts(ctx, unseen_list, todo))
+    for part in calibrating:
         compute = getattr(experiment, f"{part}_part")
         def run_part(part=part, record=record, compute=compute, objects=unseen_list):
             return ctx.cached_part(part, record, lambda: compute(ctx, objects))

@@ -1042,3 +1042,34 @@ def test_calibration_part_runs_on_two_training_objects_per_class(tmp_path):
                         parts=("calibration",), workers=1, progress=False)
     assert {(r["k"], r["variant"].split(" ")[0]) for r in results["calibration"]["rows"]} >= {
         (k, v) for k in (1, 2) for v in ("before", "after")}
+
+
+def test_calibration_and_open_set_calibrate_in_one_pool(tmp_path, monkeypatch):
+    """Both parts asked for: every calibration of both is made in one pool before either part runs (the parts then
+    load them), and the rows are those of the two parts run one at a time."""
+    from fusion.experiments.context import Context
+
+    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
+    pools = []
+    real = Context.run_jobs
+
+    def recording(self, jobs):
+        pools.append(sorted({Path(job.path).parent.name for job in jobs}))
+        out = real(self, jobs)
+        if len(pools) == 1:  # the models the pool saved, to check that the parts only load them
+            saved.update({p: p.stat().st_mtime_ns for p in (tmp_path / "both").rglob("*.vtm")})
+        return out
+
+    saved = {}
+
+    monkeypatch.setattr(Context, "run_jobs", recording)
+    both = reproduce(data, tmp_path / "both", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+                     parts=("calibration", "openset"), workers=2, progress=False)
+    assert pools[0] == ["calibration", "openset"] and len(pools) == 3
+    assert "calibrations" in both["seconds"]
+    assert len(saved) == OPEN_SET_SIZES.unseen_folds + OPEN_SET_SIZES.openset_rotations  # one classifier
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "both").rglob("*.vtm")} == saved  # none made again
+    alone = {part: reproduce(data, tmp_path / part, sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+                             parts=(part,), workers=2, progress=False)[part] for part in ("calibration", "openset")}
+    assert both["openset"]["rows"] == alone["openset"]["rows"]
+    assert both["calibration"]["rows"] == alone["calibration"]["rows"]
