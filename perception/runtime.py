@@ -169,9 +169,15 @@ def exit_with(pid: int) -> None:
             while _running(pid):
                 time.sleep(0.5)
         # first the processes this one started (e.g. a loader's converter): once it is gone they could no longer
-        # be traced to it, and would run on for nobody
-        kill_handles(descendant_handles(os.getpid()))
-        os.kill(os.getpid(), signal.SIGKILL)
+        # be traced to it, and would run on for nobody; again while one was started meanwhile, a few times at most
+        try:
+            for _ in range(3):
+                handles = descendant_handles(os.getpid())
+                if not handles:
+                    break
+                kill_handles(handles)
+        finally:
+            os.kill(os.getpid(), signal.SIGKILL)
 
     threading.Thread(target=watch, name=f"exit-with-{pid}", daemon=True).start()
 

@@ -65,7 +65,7 @@ class Context:
                 saved = json.loads(path.read_text())
                 if saved.get("key") == digest(record):
                     return saved["result"]
-            except (OSError, ValueError, AttributeError) as exc:
+            except (OSError, ValueError, AttributeError, KeyError, TypeError) as exc:
                 log.warning("%s unreadable (%s); recomputing", path, exc)
         return None
 

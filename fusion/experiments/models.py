@@ -276,7 +276,9 @@ def cached_fit_seconds(path: Path, full_record: dict) -> float | None:
 
 def save_fitted(estimator: TactileClassifier, fit_seconds: float, path: Path, full_record: dict) -> None:
     """Save a fitted ``estimator`` at ``path`` with its record (:func:`model_record`) and training time, where
-    :func:`fit_cached` finds it (the model first: a record never names a model that is not there)."""
+    :func:`fit_cached` finds it (the model first: a record never names a model that is not there; the old record
+    goes before the model is replaced, so an interrupt in between never pairs it with the new model)."""
+    path.with_suffix(".json").unlink(missing_ok=True)
     estimator.save(path)
     write_text(path.with_suffix(".json"), json.dumps({"record": full_record, "fit_seconds": fit_seconds}, indent=2,
                                                      default=str))

@@ -34,6 +34,7 @@ from fusion.experiments.models import (
     Factory,
     cached_fit_seconds,
     calibration_code_version,
+    digest,
     model_record,
     pick,
     save_fitted,
@@ -77,20 +78,22 @@ VARIANTS = {
 class CalibrationJob:
     """``factory()`` fitted on the rows ``train`` and calibrated there (:func:`fusion.openset.calibrate` with
     ``options``): a job for :func:`fusion.experiments.parallel.run_jobs`. With a ``path``, the calibrated model is
-    saved there with its record (the classifier, the rows, the options, the calibration code) and a re-run with the
-    same record loads it: an interrupted part keeps the calibrations it finished."""
+    saved there with its record (the classifier, the store's data (``data``: the digest of the store's record, so that
+    a report folder moved elsewhere still finds it), the rows, the options, the calibration code) and a re-run with
+    the same record loads it: an interrupted part keeps the calibrations it finished."""
 
     factory: Factory
     train: StoreRows
     options: dict
     path: str | None = None
+    data: str = ""
 
     def run(self):
         if self.path is None:
             return calibrate(self.factory(), self.train(), **self.options)
         path = Path(self.path)
-        record = model_record(self.factory, {"calibrated_on": list(self.train.key()), "options": self.options,
-                                             "calibration_code": calibration_code_version()})
+        record = model_record(self.factory, {"store": self.data or self.train.path, "train": digest(self.train.index),
+                                             "options": self.options, "calibration_code": calibration_code_version()})
         if cached_fit_seconds(path, record) is not None:
             try:
                 model = load_model(path)
@@ -123,8 +126,11 @@ def calibration_folds(ds, trains, part: str) -> int:
     Raises:
         DatasetError: a training set holds a single object of some class (calibration needs two folds).
     """
-    fewest = min(int(np.unique(ds.object_ids[train][ds.labels[train] == c]).size)
-                 for train in trains for c in np.unique(ds.labels[train]))
+    counts = [int(np.unique(ds.object_ids[train][ds.labels[train] == c]).size)
+              for train in trains for c in np.unique(ds.labels[train])]
+    if not counts:
+        raise DatasetError(f"{ds.path}: the {part} part has no training rows")
+    fewest = min(counts)
     if fewest < 2:
         raise DatasetError(f"{ds.path}: the {part} part needs at least 2 training objects of every class in each "
                            "fold; give more objects per class")
@@ -144,16 +150,16 @@ def calibrate_parts(ctx: Context, objects, parts) -> None:
 
 
 def _calibration_plan(ctx: Context, objects) -> tuple:
-    """(test store, grouped folds, classifier factories, the calibration jobs in fold-then-classifier order) of the
-    calibration part."""
+    """(training store, test store, grouped folds, classifier factories, the calibration jobs in
+    fold-then-classifier order) of the calibration part."""
     sizes = ctx.sizes
-    ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
+    ds, record, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(sizes.calibration_strategy))
     factories = pick(ctx.classifiers, sizes.calibration_classifiers)
     options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed,
                "cv": calibration_folds(ds, [train for train, _ in folds], "calibration")}
     jobs = [CalibrationJob(factory, StoreRows(str(ds.path), train), options,
-                           str(ctx.path("calibration", f"fold{i + 1}-{name}{SUFFIX}")))
+                           str(ctx.path("calibration", f"fold{i + 1}-{name}{SUFFIX}")), digest(record))
             for i, (train, _) in enumerate(folds) for name, factory in factories.items()]
     return ds, test_ds, folds, factories, jobs
 
@@ -228,7 +234,7 @@ def _openset_plan(ctx: Context, objects) -> tuple:
     the calibration jobs in rotation-then-classifier order) of the open-set part."""
     sizes = ctx.sizes
     strategy = sizes.calibration_strategy
-    ds, _, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
+    ds, record, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
     index = ds.indices(strategy)
     n_rot = sizes.openset_rotations
     folds = ds.kfold_by_object(n_rot, seed=ctx.seed, index=index)
@@ -247,7 +253,7 @@ def _openset_plan(ctx: Context, objects) -> tuple:
     options = {"max_touches": max(sizes.touches), "random_state": ctx.seed,
                "cv": calibration_folds(ds, [train for train, _ in splits], "open-set")}
     jobs = [CalibrationJob(factory, StoreRows(str(ds.path), train), options,
-                           str(ctx.path("openset", f"rotation{r + 1}-{name}{SUFFIX}")))
+                           str(ctx.path("openset", f"rotation{r + 1}-{name}{SUFFIX}")), digest(record))
             for r, (train, _) in enumerate(splits) for name, factory in factories.items()]
     return test_ds, left_out, splits, factories, jobs
 

@@ -37,7 +37,7 @@ from fusion.experiments.protocol import (
 )
 from fusion.experiments.report import render
 from perception.atomic import write_text
-from perception.errors import InvalidArgumentError
+from perception.errors import InvalidArgumentError, VisuotactileError
 from perception.runtime import machine_line as machine
 
 log = logging.getLogger(__name__)
@@ -196,7 +196,10 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
                   "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers]}
         todo = [part for part in calibrating if not ctx.has_part(part, record)]
         if len(todo) > 1:  # both parts' calibrations in one pool: they pack on the workers better than part by part
-            timed("calibrations", lambda: experiment.calibrate_parts(ctx, unseen_list, todo))
+            try:
+                timed("calibrations", lambda: experiment.calibrate_parts(ctx, unseen_list, todo))
+            except VisuotactileError as exc:  # each part below meets it again, in turn, after the others are written
+                log.warning("calibrating both parts together failed (%s); each part calibrates on its own", exc)
     for part in calibrating:
         compute = getattr(experiment, f"{part}_part")
         def run_part(part=part, record=record, compute=compute, objects=unseen_list):

@@ -55,6 +55,8 @@ log = logging.getLogger(__name__)
 EXECUTORS = ("local", "ray")
 #: Seconds a worker asked to stop has to exit by itself before it is killed.
 STOP_GRACE_S = 2.0
+#: Messages of an overdue worker read before its timeout is enforced (its object may have finished meanwhile).
+MAX_WAITING_MESSAGES = 1000
 #: What the workers' forkserver imports before it forks them, with Ctrl-C held off meanwhile (the guards).
 WORKER_PRELOAD = ["perception.preload_guard", "tactile.dataset.worker", "zarr", "numcodecs.blosc", "google_crc32c",
                   "perception.preload_guard_end"]
@@ -479,8 +481,11 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
             if timeout_s is not None:
                 now = time.monotonic()
                 for worker in [w for w in workers if w.index is not None and now - w.started > timeout_s]:
-                    # an object finished while this loop was elsewhere is done, not timed out
-                    while worker in workers and worker.index is not None and worker.conn.poll():
+                    # an object finished while this loop was elsewhere is done, not timed out (the messages
+                    # waiting now; a bound, so that a stream of progress cannot put the timeout off for ever)
+                    for _ in range(MAX_WAITING_MESSAGES):
+                        if worker not in workers or worker.index is None or not worker.conn.poll():
+                            break
                         receive(worker)
                     if worker in workers and worker.index is not None:
                         index = worker.index

@@ -568,6 +568,40 @@ def test_model_cache_reloads_only_the_same_estimator_on_the_same_data(tmp_path):
     assert len(calls) == 3
 
 
+def test_a_model_saved_over_an_old_one_never_pairs_with_the_old_record(tmp_path):
+    """save_fitted removes the old record before it writes the model: a save interrupted in between leaves no record
+    (the model is trained again), never the old record beside a model it does not describe."""
+    from fusion.experiments.models import cached_fit_seconds, model_record, save_fitted
+
+    batch = touch_objects([make_object("box", 0), make_object("can", 0)], ["box", "can"], "blind", 3, probes=6)
+    path = tmp_path / "m.vtm"
+    old = NearestMean().fit(batch)
+    save_fitted(old, 1.0, path, model_record(NearestMean, {"data": "a"}))
+    assert cached_fit_seconds(path, model_record(NearestMean, {"data": "a"})) == 1.0
+
+    class Interrupted(NearestMean):
+        def save(self, where):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        save_fitted(Interrupted().fit(batch), 2.0, path, model_record(NearestMean, {"data": "b"}))
+    assert cached_fit_seconds(path, model_record(NearestMean, {"data": "a"})) is None
+
+
+def test_a_saved_part_without_its_result_is_computed_again(tmp_path, caplog):
+    from fusion.experiments.context import Context
+    from fusion.experiments.models import digest
+
+    ctx = Context(tmp_path, 0, TINY, {})
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "x.json").write_text(json.dumps({"key": digest({"a": 1})}))  # no "result"
+    with caplog.at_level("WARNING"):
+        assert not ctx.has_part("x", {"a": 1})
+        assert ctx.cached_part("x", {"a": 1}, lambda: {"made": True}) == {"made": True}
+    assert "x.json unreadable" in caplog.text
+    assert ctx.has_part("x", {"a": 1}) and not ctx.has_part("x", {"a": 2})
+
+
 class TestModelCodeVersion:
     """A cached model's code key covers the modules its classifier's code lives in, and only those."""
 
@@ -866,6 +900,12 @@ def test_open_set_part_resumes_from_the_calibrations_it_saved(tmp_path, caplog):
     record.write_text(json.dumps(meta))
     run()
     assert 0 < len(fits) < first_fits
+    (tmp_path / "report").rename(tmp_path / "moved")  # a report folder moved elsewhere still resumes
+    fits.clear()
+    (tmp_path / "moved" / "parts" / "openset.json").unlink()
+    moved = reproduce(data, tmp_path / "moved", sizes=OPEN_SET_SIZES, classifiers={"em": Recording},
+                      parts=("openset",), workers=2, progress=False)["openset"]
+    assert fits == [] and moved["rows"] == first["rows"]
 
 
 def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
@@ -1032,6 +1072,19 @@ def test_calibration_folds_follow_the_fewest_training_objects_of_a_class():
     assert calibration_folds(ds, [np.array([0, 2, 6, 8])], "calibration") == 2
     with pytest.raises(DatasetError, match="store.zarr: the open-set part needs at least 2 training objects"):
         calibration_folds(ds, [np.arange(10)], "open-set")  # class 2: one object
+    with pytest.raises(DatasetError, match="store.zarr: the calibration part has no training rows"):
+        calibration_folds(ds, [np.array([], dtype=np.int64)], "calibration")
+
+
+def test_a_part_that_cannot_calibrate_does_not_stop_the_other(tmp_path):
+    """Both parts asked for, the open-set part's rotations leaving a single training object of a class: the
+    calibration part is still made and written, then the open-set part stops with its own message."""
+    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES[:4], per_class=3)
+    with pytest.raises(DatasetError, match="the open-set part needs at least 2 training objects"):
+        reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+                  parts=("calibration", "openset"), workers=1, progress=False)
+    saved = json.loads((tmp_path / "report" / "parts" / "calibration.json").read_text())
+    assert {r["k"] for r in saved["result"]["rows"]} == {1, 2}
 
 
 def test_calibration_part_runs_on_two_training_objects_per_class(tmp_path):

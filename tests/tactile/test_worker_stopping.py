@@ -88,17 +88,21 @@ def spawning_a_child(folder: str, tag: str):
 
 
 def finishing_while_its_caller_is_stopped(folder: str, tag: str):
-    """Stops generate's process (SIGSTOP) until well past the object timeout, and lets its worker explore the box it
+    """Stops generate's process (SIGSTOP) past the object timeout (3 s), and lets its worker explore the box it
     returns meanwhile: when generate goes on, the object's progress and its "done" both wait in the pipe."""
     caller = int(Path(folder, "caller").read_text())
     os.kill(caller, signal.SIGSTOP)
     _started(folder, tag)
+    record = Path(folder, "store", "records", f"{int(tag):05d}.json")  # the object's index is its tag here
 
-    def resume():
-        time.sleep(2.0)  # the box is explored and written by then
+    def resume():  # once the worker has written the object (and then sent "done"), however slow the machine
+        deadline = time.monotonic() + 60
+        while not record.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
         os.kill(caller, signal.SIGCONT)
 
-    time.sleep(1.5)
+    time.sleep(3.5)
     threading.Thread(target=resume, daemon=True).start()
     return _box()
 
@@ -254,7 +258,7 @@ def test_an_object_done_while_generate_was_held_up_is_kept(tmp_path):
     """An object whose "done" waits in the pipe behind a progress message when generate next looks at the clock
     (here generate was stopped past the timeout while the worker finished) is recorded completed, not timed out:
     before, the object was recorded failed and its work was lost."""
-    result = run_case(tmp_path, ["finishing_while_its_caller_is_stopped"], "timeout", workers=1, timeout=1)
+    result = run_case(tmp_path, ["finishing_while_its_caller_is_stopped"], "timeout", workers=1, timeout=3)
     assert result["outcome"] == "returned", result
     assert result["failed"] == [], result
     assert result["completed"] == 4, result  # the bad object and the three good ones
