@@ -155,13 +155,20 @@ def _calibration_plan(ctx: Context, objects) -> tuple:
     sizes = ctx.sizes
     ds, record, test_ds, _ = pose_stores(ctx, objects, "any pose", sizes.strategies, sizes.unseen_contours)
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(sizes.calibration_strategy))
-    factories = pick(ctx.classifiers, sizes.calibration_classifiers)
-    options = {"open_set": False, "max_touches": max(sizes.touches), "random_state": ctx.seed,
-               "cv": calibration_folds(ds, [train for train, _ in folds], "calibration")}
-    jobs = [CalibrationJob(factory, StoreRows(str(ds.path), train), options,
-                           str(ctx.path("calibration", f"fold{i + 1}-{name}{SUFFIX}")), digest(record))
-            for i, (train, _) in enumerate(folds) for name, factory in factories.items()]
+    factories, jobs = _jobs(ctx, ds, record, [train for train, _ in folds], "calibration", "fold", open_set=False)
     return ds, test_ds, folds, factories, jobs
+
+
+def _jobs(ctx: Context, ds, record: dict, trains: list, part: str, label: str, **options) -> tuple:
+    """(classifier factories, a :class:`CalibrationJob` per training rows and classifier, saved as
+    ``<part>/<label><i>-<classifier>.vtm``) of a part on the store ``ds`` made with ``record``."""
+    factories = pick(ctx.classifiers, ctx.sizes.calibration_classifiers)
+    options |= {"max_touches": max(ctx.sizes.touches), "random_state": ctx.seed,
+                "cv": calibration_folds(ds, trains, part)}
+    jobs = [CalibrationJob(factory, StoreRows(str(ds.path), train), options,
+                           str(ctx.path(part, f"{label}{i + 1}-{name}{SUFFIX}")), digest(record))
+            for i, train in enumerate(trains) for name, factory in factories.items()]
+    return factories, jobs
 
 
 def calibration_part(ctx: Context, objects) -> dict:
@@ -249,12 +256,7 @@ def _openset_plan(ctx: Context, objects) -> tuple:
         known_test = fold_test[~np.isin(labels_all[fold_test], left_out[r])]
         train = np.setdiff1d(index[~np.isin(labels_all[index], left_out[r])], known_test)
         splits.append((train, same_objects(ds, np.union1d(known_test, unknown_idx), test_ds, strategy)))
-    factories = pick(ctx.classifiers, sizes.calibration_classifiers)
-    options = {"max_touches": max(sizes.touches), "random_state": ctx.seed,
-               "cv": calibration_folds(ds, [train for train, _ in splits], "open-set")}
-    jobs = [CalibrationJob(factory, StoreRows(str(ds.path), train), options,
-                           str(ctx.path("openset", f"rotation{r + 1}-{name}{SUFFIX}")), digest(record))
-            for r, (train, _) in enumerate(splits) for name, factory in factories.items()]
+    factories, jobs = _jobs(ctx, ds, record, [train for train, _ in splits], "openset", "rotation")
     return test_ds, left_out, splits, factories, jobs
 
 

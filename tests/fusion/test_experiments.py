@@ -1070,8 +1070,8 @@ def test_calibration_folds_follow_the_fewest_training_objects_of_a_class():
     assert calibration_folds(ds, [np.arange(6)], "calibration") == 3  # class 0 alone: 5 objects
     assert calibration_folds(ds, [np.arange(6), np.arange(9)], "calibration") == 2  # class 1 has 2
     assert calibration_folds(ds, [np.array([0, 2, 6, 8])], "calibration") == 2
-    with pytest.raises(DatasetError, match="store.zarr: the open-set part needs at least 2 training objects"):
-        calibration_folds(ds, [np.arange(10)], "open-set")  # class 2: one object
+    with pytest.raises(DatasetError, match="store.zarr: the openset part needs at least 2 training objects"):
+        calibration_folds(ds, [np.arange(10)], "openset")  # class 2: one object
     with pytest.raises(DatasetError, match="store.zarr: the calibration part has no training rows"):
         calibration_folds(ds, [np.array([], dtype=np.int64)], "calibration")
 
@@ -1080,7 +1080,7 @@ def test_a_part_that_cannot_calibrate_does_not_stop_the_other(tmp_path):
     """Both parts asked for, the open-set part's rotations leaving a single training object of a class: the
     calibration part is still made and written, then the open-set part stops with its own message."""
     data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES[:4], per_class=3)
-    with pytest.raises(DatasetError, match="the open-set part needs at least 2 training objects"):
+    with pytest.raises(DatasetError, match="the openset part needs at least 2 training objects"):
         reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
                   parts=("calibration", "openset"), workers=1, progress=False)
     saved = json.loads((tmp_path / "report" / "parts" / "calibration.json").read_text())
