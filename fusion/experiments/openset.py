@@ -139,8 +139,8 @@ def calibration_folds(ds, trains, part: str) -> int:
 
 def calibrate_parts(ctx: Context, objects, parts) -> None:
     """Make every calibrated model the named ``parts`` ("calibration", "openset") need, side by side in one pool
-    (saved where the parts load them): on 2 workers the 3 + 5 CNN calibrations of both parts take 4 rounds together,
-    5 one part after the other."""
+    (saved where the parts load them): part by part, a worker idles while the last calibration of each part runs
+    (on 2 workers: the 3 of the calibration part, each 4 fits, then the 5 of the open-set part, each 8 fits)."""
     jobs = []
     if "calibration" in parts:
         jobs += _calibration_plan(ctx, objects)[-1]
