@@ -236,12 +236,9 @@ def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[Tacti
     Returns the model and its training time in seconds (as measured when it was trained).
     """
     full_record = model_record(factory, record)
-    seconds = cached_fit_seconds(path, full_record)
-    if seconds is not None:
-        try:
-            return load_model(path), seconds
-        except (DatasetError, ModelMismatchError, OSError, ValueError) as exc:
-            log.warning("cached model %s unusable (%s); training again", path, exc)
+    cached = load_cached(path, full_record)
+    if cached is not None:
+        return cached
     estimator = factory()
     batch = train() if callable(train) else train
     start = time.perf_counter()
@@ -258,6 +255,19 @@ def model_record(factory: Factory, record: dict) -> dict:
     """The record a model trained by ``factory()`` on the data ``record`` names is cached with: ``record`` and
     the estimator's class, parameters and code version, as JSON reads it back."""
     return json.loads(json.dumps({**record, "estimator": describe(factory())}, default=str))
+
+
+def load_cached(path: Path, full_record: dict) -> tuple[TactileClassifier, float] | None:
+    """The model saved at ``path`` with ``full_record`` (:func:`save_fitted`) and its training seconds; None when
+    there is none, it was saved with another record, or it cannot be loaded (then with a warning: make it again)."""
+    seconds = cached_fit_seconds(path, full_record)
+    if seconds is None:
+        return None
+    try:
+        return load_model(path), seconds
+    except (DatasetError, ModelMismatchError, OSError, ValueError) as exc:
+        log.warning("cached model %s unusable (%s); making it again", path, exc)
+        return None
 
 
 def cached_fit_seconds(path: Path, full_record: dict) -> float | None:

@@ -25,16 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.base import class_indices, load_model
+from fusion.base import class_indices
 from fusion.calibration import ece_interval, ece_noise_floor, plot_reliability, reliability
 from fusion.decide import fuse_touches, touch_groups
 from fusion.experiments.context import Context
 from fusion.experiments.models import (
     DISPLAY,
     Factory,
-    cached_fit_seconds,
     calibration_code_version,
     digest,
+    load_cached,
     model_record,
     pick,
     save_fitted,
@@ -54,7 +54,7 @@ from fusion.openset import (
     threshold_for,
     threshold_keeping,
 )
-from perception.errors import DatasetError, ModelMismatchError
+from perception.errors import DatasetError
 
 log = logging.getLogger(__name__)
 
@@ -94,14 +94,11 @@ class CalibrationJob:
         path = Path(self.path)
         record = model_record(self.factory, {"store": self.data or self.train.path, "train": digest(self.train.index),
                                              "options": self.options, "calibration_code": calibration_code_version()})
-        if cached_fit_seconds(path, record) is not None:
-            try:
-                model = load_model(path)
-                if getattr(model, "calibration_", None) is not None:
-                    return model
-                log.warning("cached calibration %s holds no calibration; calibrating again", path)
-            except (DatasetError, ModelMismatchError, OSError, ValueError) as exc:
-                log.warning("cached calibration %s unusable (%s); calibrating again", path, exc)
+        cached = load_cached(path, record)
+        if cached is not None:
+            if getattr(cached[0], "calibration_", None) is not None:
+                return cached[0]
+            log.warning("cached calibration %s holds no calibration; calibrating again", path)
         start = time.perf_counter()
         model = calibrate(self.factory(), self.train(), **self.options)
         save_fitted(model, time.perf_counter() - start, path, record)
