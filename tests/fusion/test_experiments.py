@@ -906,6 +906,12 @@ def test_open_set_part_resumes_from_the_calibrations_it_saved(tmp_path, caplog):
     moved = reproduce(data, tmp_path / "moved", sizes=OPEN_SET_SIZES, classifiers={"em": Recording},
                       parts=("openset",), workers=2, progress=False)["openset"]
     assert fits == [] and moved["rows"] == first["rows"]
+    # three rotations train each on other rows of the same store: no saved rotation fits them, all are made again
+    before = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "moved" / "openset").glob("*.vtm")}
+    reproduce(data, tmp_path / "moved", sizes=OPEN_SET_SIZES.with_(openset_rotations=3), classifiers={"em": Recording},
+              parts=("openset",), workers=2, progress=False)
+    after = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "moved" / "openset").glob("*.vtm")}
+    assert all(after[name] != stamp for name, stamp in before.items())
 
 
 def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
