@@ -115,7 +115,7 @@ class Sizes:
         if epochs is not None and (isinstance(epochs, bool) or not isinstance(epochs, int) or epochs < 1):
             raise InvalidArgumentError(f"Sizes.epochs (--epochs) must be a positive integer or None (the "
                                        f"classifier's default), got {epochs!r}")
-        for name in ("unseen_folds", "attention_folds"):
+        for name in ("unseen_folds", "attention_folds", "openset_rotations"):
             if getattr(self, name) < 2:
                 raise InvalidArgumentError(f"Sizes.{name} must be at least 2, got {getattr(self, name)!r}")
         if not 0 < self.test_fraction < 1:
@@ -166,6 +166,7 @@ QUICK = Sizes(
     runtime_probes=(5, 25),
     runtime_grids=(8, 32),
     epochs=10,  # 5 stopped the CNN pair short of convergence (69 % on SHREC quick)
+    openset_rotations=2,  # each leaves 5 of SHREC's 10 classes out: 2 x 8 calibration fits instead of 5 x 8
     active_policies=("random", "information"),
     active_candidates=12,
     active_variants=1,

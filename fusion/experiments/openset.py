@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -80,13 +80,16 @@ class CalibrationJob:
     ``options``): a job for :func:`fusion.experiments.parallel.run_jobs`. With a ``path``, the calibrated model is
     saved there with its record (the classifier, the store's data (``data``: the digest of the store's record, so that
     a report folder moved elsewhere still finds it), the rows, the options, the calibration code) and a re-run with
-    the same record loads it: an interrupted part keeps the calibrations it finished."""
+    the same record loads it: an interrupted part keeps the calibrations it finished. ``keep=False`` (with a
+    ``path``) returns None instead of the model: a pool that only makes the models for later does not send them
+    back."""
 
     factory: Factory
     train: StoreRows
     options: dict
     path: str | None = None
     data: str = ""
+    keep: bool = True
 
     def run(self):
         if self.path is None:
@@ -97,12 +100,12 @@ class CalibrationJob:
         cached = load_cached(path, record)
         if cached is not None:
             if getattr(cached[0], "calibration_", None) is not None:
-                return cached[0]
+                return cached[0] if self.keep else None
             log.warning("cached calibration %s holds no calibration; calibrating again", path)
         start = time.perf_counter()
         model = calibrate(self.factory(), self.train(), **self.options)
         save_fitted(model, time.perf_counter() - start, path, record)
-        return model
+        return model if self.keep else None
 
     def cost(self) -> float:
         return fit_cost(self.factory, self.train)
@@ -143,7 +146,7 @@ def calibrate_parts(ctx: Context, objects, parts) -> None:
         jobs += _calibration_plan(ctx, objects)[-1]
     if "openset" in parts:
         jobs += _openset_plan(ctx, objects)[-1]
-    ctx.run_jobs(jobs)
+    ctx.run_jobs([replace(job, keep=False) for job in jobs])
 
 
 def _calibration_plan(ctx: Context, objects) -> tuple:

@@ -294,6 +294,8 @@ def test_sizes_refuse_bad_values():
         Sizes(paper_contours=0)
     with pytest.raises(InvalidArgumentError, match="unseen_folds"):
         Sizes(unseen_folds=1)
+    with pytest.raises(InvalidArgumentError, match="openset_rotations"):  # one rotation would test no known object
+        Sizes(openset_rotations=1)
     with pytest.raises(InvalidArgumentError, match="unknown kinds"):
         Sizes(noise_levels={"cosmic_rays": (1.0,)})
 
@@ -1117,6 +1119,7 @@ def test_calibration_and_open_set_calibrate_in_one_pool(tmp_path, monkeypatch):
         out = real(self, jobs)
         if len(pools) == 1:  # the models the pool saved, to check that the parts only load them
             saved.update({p: p.stat().st_mtime_ns for p in (tmp_path / "both").rglob("*.vtm")})
+            assert out == [None] * len(jobs)  # saved, not sent back to this process
         return out
 
     saved = {}
