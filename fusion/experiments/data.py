@@ -61,14 +61,22 @@ def mesh_digest(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+#: (duplicate, original) pairs already warned about: every part of a run lists the objects again.
+_WARNED: set[tuple[str, str]] = set()
+
+
 def unique_meshes(items: list[tuple[Path, str]]) -> list[tuple[Path, str]]:
-    """``items`` without the files whose bytes (SHA-256) equal an earlier one's (logged as a warning)."""
+    """``items`` without the files whose bytes (SHA-256) equal an earlier one's (logged as a warning, once per
+    process and pair)."""
     seen: dict[str, Path] = {}
     out = []
     for path, label in items:
         key = mesh_digest(path)
         if key in seen:
-            log.warning("%s is byte-identical to %s: counted as one object", path, seen[key])
+            pair = (str(path), str(seen[key]))
+            if pair not in _WARNED:
+                _WARNED.add(pair)
+                log.warning("%s is byte-identical to %s: counted as one object", *pair)
             continue
         seen[key] = Path(path)
         out.append((path, label))

@@ -382,6 +382,18 @@ def test_folder_objects_choose_and_refuse(tmp_path):
         folder_objects(tmp_path, per_class=3)
 
 
+def test_folder_objects_leave_out_a_copy_and_warn_once(tmp_path, caplog):
+    """A byte-identical copy counts once; every part of a run lists the objects again, but the warning is said once."""
+    (tmp_path / "a").mkdir()
+    for name, text in (("0.off", "OFF\n# one\n"), ("1.off", "OFF\n# one\n"), ("2.off", "OFF\n# two\n")):
+        (tmp_path / "a" / name).write_text(text)
+    with caplog.at_level("WARNING", logger="fusion.experiments.data"):
+        for _ in range(3):
+            assert [p.name for p, _ in folder_objects(tmp_path)] == ["0.off", "2.off"]
+    warnings = [r.getMessage() for r in caplog.records if "byte-identical" in r.getMessage()]
+    assert len(warnings) == 1 and "1.off is byte-identical to" in warnings[0] and warnings[0].count("0.off") == 1
+
+
 def test_reproduce_refuses_bad_parts(tmp_path):
     with pytest.raises(InvalidArgumentError, match="unknown parts"):
         reproduce(tmp_path, tmp_path / "r", parts=("paper", "tea"), classifiers=STANDINS)
