@@ -1,8 +1,9 @@
 """Sizes of the experiments: the full run, ``--quick`` and the demo, in one place (and in every report).
 
 Contour counts are per object and per strategy. The paper protocol uses the paper's 950 contours per object;
-the parts beyond the paper use fewer, chosen so the full run fits in 30 minutes and ``--quick`` in 5 on
-two CPU cores (see the report's "Sizes" section for what a run used).
+the parts beyond the paper use fewer, chosen so the full run of the default parts fits in 30 minutes and ``--quick``
+with every part in 5 on two CPU cores (the full run with every part, the opt-in calibration, open-set and active
+parts too, took 52 minutes on 2026-12-04: README); see the report's "Sizes" section for what a run used.
 """
 
 from __future__ import annotations
@@ -149,7 +150,7 @@ class Sizes:
                 "noise_mm": self.active_noise_mm, "visual": self.active_visual, "episodes": self.active_episodes}
 
 
-#: The full run (target: within 30 minutes on 2 cores).
+#: The full run (target: the default parts within 30 minutes on 2 cores).
 FULL = Sizes()
 
 #: ``--quick`` (target: within 5 minutes on 2 cores, smoke-sized: a check that every part runs, not a measurement).
