@@ -117,8 +117,9 @@ class Sizes:
             raise InvalidArgumentError(f"Sizes.epochs (--epochs) must be a positive integer or None (the "
                                        f"classifier's default), got {epochs!r}")
         for name in ("unseen_folds", "attention_folds", "openset_rotations"):
-            if getattr(self, name) < 2:
-                raise InvalidArgumentError(f"Sizes.{name} must be at least 2, got {getattr(self, name)!r}")
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 2:
+                raise InvalidArgumentError(f"Sizes.{name} must be an integer of at least 2, got {value!r}")
         if not 0 < self.test_fraction < 1:
             raise InvalidArgumentError(f"Sizes.test_fraction must be in (0, 1), got {self.test_fraction!r}")
         if not self.touches or min(self.touches) < 1:

@@ -296,6 +296,10 @@ def test_sizes_refuse_bad_values():
         Sizes(unseen_folds=1)
     with pytest.raises(InvalidArgumentError, match="openset_rotations"):  # one rotation would test no known object
         Sizes(openset_rotations=1)
+    for bad in ("2", 2.5, True):  # a folder count from a config file: a project error, not a TypeError or 2.5 folds
+        for name in ("unseen_folds", "attention_folds", "openset_rotations"):
+            with pytest.raises(InvalidArgumentError, match=name):
+                Sizes(**{name: bad})
     with pytest.raises(InvalidArgumentError, match="unknown kinds"):
         Sizes(noise_levels={"cosmic_rays": (1.0,)})
 
