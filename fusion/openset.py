@@ -50,6 +50,7 @@ calibrated probabilities, ``predict_proba_touches`` the tempered rule, ``known_s
 
 from __future__ import annotations
 
+import hashlib
 import logging
 
 import numpy as np
@@ -80,6 +81,8 @@ SCORES = ("probability", "distance", "class_distance", "set_distance")
 DISTANCE_SCORES = ("distance", "class_distance", "set_distance")
 #: Distances below this count as this much (mm-free feature units; keeps every log finite).
 DISTANCE_FLOOR = 1e-9
+#: How many units of log a p-value below every known score may fall at most (:func:`conformal_log_p`; keeps it finite).
+TAIL_CAP = 1e6
 #: Bounds on a model file's calibration state.
 MAX_TOUCHES = 64
 MAX_REFERENCE = 2_000_000
@@ -396,6 +399,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
         _, object_index = np.unique(keys, return_inverse=True)
         known_scores: dict = {}
         unknown_scores: dict = {}
+        known_groups = hashlib.sha256(np.asarray(keys, dtype=str).tobytes())  # which groups the known scores are
         for j, out in enumerate(left_out):
             unknown = np.isin(yi, out)
             held_known = ~unknown & (held_folds == j % holdout)
@@ -418,6 +422,8 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                     g = _groups(keys, np.flatnonzero(which), k, random_state + j)
                     if not len(g):
                         continue
+                    if store is known_scores:
+                        known_groups.update(np.asarray([k, len(g)], dtype=np.int64).tobytes() + g.tobytes())
                     s = group_scores(cal[:, present], position[g], state, dist, by_object)
                     for name in SCORES:
                         if name in s:
@@ -427,11 +433,13 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                       if (n, k) in known_scores and (n, k) in unknown_scores else float("nan")
                       for k in range(1, max_touches + 1)] for n in available}
         chosen = score if score != "auto" else max(available, key=lambda n: np.nanmean(aurocs[n]))
-        thresholds = []
+        thresholds, fold_known = [], []
         for k in range(1, max_touches + 1):
             known = known_scores.get((chosen, k))
-            thresholds.append(threshold_keeping(np.concatenate(known), keep) if known else thresholds[-1])
+            fold_known.append(np.concatenate(known) if known else fold_known[-1])
+            thresholds.append(threshold_keeping(fold_known[-1], keep))
         state |= {"score": chosen, "thresholds": np.asarray(thresholds, dtype=np.float64),
+                  "fold_known": fold_known, "fold_groups": known_groups.hexdigest(),
                   "inner_auroc": {n: [round(float(a), 6) if np.isfinite(a) else None for a in v]
                                   for n, v in aurocs.items()}}
 
@@ -485,21 +493,119 @@ def decide(model, X, groups=None) -> dict[str, np.ndarray]:
     Raises:
         NotFittedError: not calibrated. InvalidArgumentError: calibrated without the open-set folds.
     """
+    batch, groups = _batch_and_groups(X, groups, "decide")
+    threshold = threshold_for(model, groups.shape[1])
+    s = _scores_of(model, batch, groups)
+    score = s[_state(model)["score"]]
+    return _decision(model, s, score, threshold)
+
+
+def _batch_and_groups(X, groups, where: str):
     from fusion.base import as_batch
 
     batch = as_batch(X)
     groups = np.arange(len(batch))[:, None] if groups is None else np.asarray(groups, dtype=np.int64)
     if groups.ndim != 2 or groups.size == 0 or groups.min() < 0 or groups.max() >= len(batch):
-        raise InvalidArgumentError(f"decide: groups must be a (G, K) index array into {len(batch)} sequences")
+        raise InvalidArgumentError(f"{where}: groups must be a (G, K) index array into {len(batch)} sequences")
+    return batch, groups
+
+
+def _scores_of(model, batch, groups) -> dict[str, np.ndarray]:
+    """:func:`group_scores` of a calibrated ``model`` (the distances to each training object only where its chosen
+    score reads them)."""
     cal = _state(model)
-    threshold = threshold_for(model, groups.shape[1])
-    # the distances to each training object only where the chosen score reads them
-    proba, distances, by_object = per_touch(model, batch, by_object=cal["score"] == "set_distance")
-    s = group_scores(proba, groups, cal, distances, by_object)
+    proba, distances, by_object = per_touch(model, batch, by_object=cal.get("score") == "set_distance")
+    return group_scores(proba, groups, cal, distances, by_object)
+
+
+def _decision(model, s: dict, score: np.ndarray, threshold: float) -> dict[str, np.ndarray]:
     closest = np.asarray(model.classes_, dtype=object)[s["decision"]]
-    unknown = s[cal["score"]] < threshold
+    unknown = score < threshold
     return {"label": np.where(unknown, UNKNOWN, closest).astype(object), "closest": closest,
-            "probability": s["probability"], "score": s[cal["score"]], "threshold": threshold, "fused": s["fused"]}
+            "probability": s["probability"], "score": score, "threshold": threshold, "fused": s["fused"]}
+
+
+# ------------------------------------------------------------------------------------ several models at once
+def conformal_log_p(known, scores) -> np.ndarray:
+    """Log p-values of ``scores`` against the ``known`` scores (higher = fits a known class better): log of (1 + how
+    many known scores are <= s) / (len(known) + 1), the conformal p-value (a score drawn like the known ones has a
+    uniform p-value). Below every known score it would stop at 1 / (len(known) + 1), so that one model's far misfit
+    could weigh no more than a near one; there it goes on falling by one unit of log per standard deviation of the
+    known scores below the smallest (at most :data:`TAIL_CAP` units)."""
+    known = np.sort(np.asarray(known, dtype=np.float64).ravel())
+    scores = np.asarray(scores, dtype=np.float64)
+    log_p = np.log((1.0 + np.searchsorted(known, scores, side="right")) / (len(known) + 1.0))
+    spread = max(float(known.std()), 1e-12)
+    return log_p - np.clip(known[0] - scores, 0.0, TAIL_CAP * spread) / spread
+
+
+def _leave_one_out_p(known: np.ndarray) -> np.ndarray:
+    """The known scores' own p-values, each against the others (as :func:`conformal_log_p`, without itself)."""
+    return np.searchsorted(np.sort(known), known, side="right") / float(len(known))
+
+
+def _joint_state(models, where: str) -> list[dict]:
+    """The models' calibrations, checked to come from the same leave-classes-out folds and classes."""
+    models = list(models)
+    if len(models) < 2:
+        raise InvalidArgumentError(f"{where}: needs at least two calibrated models, got {len(models)}")
+    states = [_state(m) for m in models]
+    for m, cal in zip(models, states):
+        if "fold_known" not in cal:
+            raise InvalidArgumentError(f"{where}: {type(m).__name__} was calibrated without the open-set folds or "
+                                       "before they were kept; calibrate it again")
+    first = states[0]
+    for m, cal in zip(models[1:], states[1:]):
+        if (cal["fold_groups"] != first["fold_groups"] or list(m.classes_) != list(models[0].classes_)
+                or cal["keep"] != first["keep"]):
+            raise InvalidArgumentError(
+                f"{where}: {type(models[0]).__name__} and {type(m).__name__} were not calibrated on the same data, "
+                "classes, folds (random_state, cv, class_folds, holdout) and keep: their scores cannot be combined")
+    return states
+
+
+def joint_threshold(models, k: int) -> float:
+    """The reject threshold of :func:`joint_decide` for ``k`` touches: the joint statistic of the leave-classes-out
+    folds' held-out known groups (each model's score as its p-value among the others), at the models' ``keep``."""
+    states = _joint_state(models, "joint_threshold")
+    i = min(int(k), len(states[0]["fold_known"])) - 1
+    statistic = sum(np.log(_leave_one_out_p(cal["fold_known"][i])) for cal in states)
+    return threshold_keeping(statistic, states[0]["keep"])
+
+
+def joint_decide(models, X, groups=None) -> dict[str, np.ndarray]:
+    """Open-set decisions of several calibrated models together (e.g. the CNN pair and the kNN: their feature spaces
+    miss different unknown classes). Each model's known score becomes a p-value against the scores its
+    leave-classes-out folds gave held-out known objects (:func:`conformal_log_p`); the joint score is Fisher's sum of
+    their logs (higher = fits a known class better), thresholded at :func:`joint_threshold`, fitted on training data
+    only. The first model names the class ("closest"). The models must be calibrated on the same training data
+    with the same fold settings (their folds then hold out the same groups, checked by digest).
+
+    Returns:
+        as :func:`decide`, "score" being the joint statistic; also "log_p": (G, models) each model's log p-value.
+
+    Raises:
+        NotFittedError: a model not calibrated. InvalidArgumentError: fewer than two models, a model calibrated without
+        the open-set folds, or models calibrated on different data, classes or folds.
+    """
+    models = list(models)
+    states = _joint_state(models, "joint_decide")
+    batch, groups = _batch_and_groups(X, groups, "joint_decide")
+    scores = [_scores_of(m, batch, groups) for m in models]
+    log_p = joint_log_p(models, [s[cal["score"]] for s, cal in zip(scores, states)], groups.shape[1])
+    out = _decision(models[0], scores[0], log_p.sum(axis=1), joint_threshold(models, groups.shape[1]))
+    return out | {"log_p": log_p}
+
+
+def joint_log_p(models, scores, k: int) -> np.ndarray:
+    """(G, models) each model's log p-value (:func:`conformal_log_p` against its folds' known scores for ``k``
+    touches) of ``scores``: per model, (G,) its chosen score of the same G groups of ``k`` touches. Their sum over
+    models is :func:`joint_decide`'s score."""
+    states = _joint_state(models, "joint_log_p")
+    if len(scores) != len(states):
+        raise InvalidArgumentError(f"joint_log_p: {len(scores)} score arrays for {len(states)} models")
+    i = min(int(k), len(states[0]["fold_known"])) - 1
+    return np.stack([conformal_log_p(cal["fold_known"][i], s) for s, cal in zip(scores, states)], axis=1)
 
 
 def _state(model) -> dict:
@@ -525,7 +631,8 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
     if not isinstance(state, dict):
         raise bad("no mapping")
     allowed = {"temperature", "smoothing", "dependence", "keep", "neighbors", "max_touches", "score", "thresholds",
-               "inner_auroc", "reference", "reference_labels", "reference_objects", "map_knots", "map_values"}
+               "inner_auroc", "reference", "reference_labels", "reference_objects", "map_knots", "map_values",
+               "fold_known", "fold_groups"}
     if set(state) - allowed:
         raise bad(f"unknown entries {sorted(set(state) - allowed)[:5]}")
     try:
@@ -555,6 +662,14 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
         if (not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.shape != (state["max_touches"],)
                 or not np.isfinite(t).all()):
             raise bad(f"no {state['max_touches']} finite thresholds")
+    if "fold_known" in state or "fold_groups" in state:  # absent in models calibrated before joint decisions
+        known, digest = state.get("fold_known"), state.get("fold_groups")
+        if not (isinstance(known, list) and len(known) == state["max_touches"]
+                and all(isinstance(a, np.ndarray) and a.dtype == np.float64 and a.ndim == 1
+                        and 1 <= len(a) <= MAX_REFERENCE and np.isfinite(a).all() for a in known)):
+            raise bad(f"no {state['max_touches']} arrays of finite fold scores")
+        if not (isinstance(digest, str) and len(digest) == 64 and set(digest) <= set("0123456789abcdef")):
+            raise bad("a malformed fold digest")
     # Checked wherever present (per_touch uses them whatever the score), and required by the score that reads them.
     score = state.get("score")
     ref, labels, owners = state.get("reference"), state.get("reference_labels"), state.get("reference_objects")
@@ -573,5 +688,6 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
 
 
 __all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "auroc", "calibrate", "calibrated_fusion",
-           "check_calibration", "class_distances", "decide", "embedding", "group_scores", "object_keys",
-           "objects_per_class", "per_touch", "rejected_share", "threshold_for", "threshold_keeping"]
+           "check_calibration", "class_distances", "conformal_log_p", "decide", "embedding", "group_scores",
+           "joint_decide", "joint_log_p", "joint_threshold", "object_keys", "objects_per_class", "per_touch", "rejected_share",
+           "threshold_for", "threshold_keeping"]

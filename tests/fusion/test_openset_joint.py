@@ -1,0 +1,165 @@
+"""Several calibrated models deciding "unknown" together (:func:`fusion.openset.joint_decide`): conformal p-values
+and the joint threshold against hand-computed values, and a toy problem where each model alone misses one far
+cluster (it lies among known readings in that model's feature) while the two together reject both."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fusion.base import TactileClassifier, load_model
+from fusion.openset import UNKNOWN, calibrate, conformal_log_p, decide, joint_decide, joint_threshold
+from perception.errors import InvalidArgumentError, ModelFileError, NotFittedError
+from tests.fusion._synthetic import circle_batch
+
+
+class TaxelClassifier(TactileClassifier):
+    """A stand-in that reads one taxel (its mean over the probes): Gaussian class-conditional posteriors, that value
+    as its feature space."""
+
+    def __init__(self, taxel: int = 0):
+        self.taxel = taxel
+
+    def _x(self, batch) -> np.ndarray:
+        return batch.frames.reshape(len(batch), batch.frames.shape[1], -1)[:, :, self.taxel].astype(np.float64).mean(1)
+
+    def _fit(self, batch, y_index):
+        x = self._x(batch)
+        self.means_ = np.array([x[y_index == c].mean() for c in range(len(self.classes_))])
+        self.scale_ = float(max(np.std(x - self.means_[y_index]), 1e-3))
+
+    def _predict_proba(self, batch):
+        z = -0.5 * ((self._x(batch)[:, None] - self.means_[None]) / self.scale_) ** 2
+        p = np.exp(z - z.max(axis=1, keepdims=True))
+        return p / p.sum(axis=1, keepdims=True)
+
+    def embed(self, batch):
+        return self._x(batch)[:, None] / self.scale_
+
+
+def two_taxel_batch(centres, objects_per_class=8, per_object=6, seed=0, class_names=None):
+    """Sequences on a 2 x 2 pad whose taxel 0 reads near a class's first centre and taxel 3 near its second (object
+    offsets + sequence noise, independent per taxel); the other taxels read 0."""
+    rng = np.random.default_rng(seed)
+    rows, labels, objects = [], [], []
+    for c, (a, b) in enumerate(centres):
+        for _ in range(objects_per_class):
+            offset = rng.normal(0, 0.5, size=2)
+            for _ in range(per_object):
+                rows.append((a, b) + offset + rng.normal(0, 1.0, size=2))
+                labels.append(c)
+                objects.append(len(objects) // per_object)
+    rows = np.asarray(rows, dtype=np.float32)
+    batch = circle_batch(np.full(len(rows), 30.0), probes=4, grid=(2, 2), seed=seed, labels=labels)
+    frames = np.zeros_like(batch.frames)
+    frames[:, :, 0, 0] = rows[:, :1]
+    frames[:, :, 1, 1] = rows[:, 1:]
+    n_objects = objects[-1] + 1
+    return dataclasses.replace(
+        batch, frames=frames, object_ids=np.asarray(objects),
+        object_names=tuple(f"o{seed}-{k}" for k in range(n_objects)),
+        class_names=tuple(class_names or (f"c{k}" for k in range(len(centres)))))
+
+
+KNOWN = [(10.0, 10.0), (20.0, 20.0), (30.0, 30.0), (40.0, 40.0)]
+OPTIONS = {"class_folds": 2, "max_touches": 3, "score": "class_distance"}
+
+
+@pytest.fixture(scope="module")
+def pair():
+    train = two_taxel_batch(KNOWN, seed=1)
+    return [calibrate(TaxelClassifier(taxel), train, **OPTIONS) for taxel in (0, 3)]
+
+
+class Stub:
+    """Only what the joint threshold reads: classes and a calibration."""
+
+    classes_ = np.array(["a", "b"], dtype=object)
+
+    def __init__(self, known, keep=0.5, digest="0" * 64):
+        self.calibration_ = {"fold_known": [np.asarray(known, dtype=np.float64)], "fold_groups": digest, "keep": keep}
+
+
+def test_conformal_log_p_hand_computed():
+    # (1 + how many known scores are <= s) / (3 + 1); below the smallest known score, one unit of log less per
+    # standard deviation of the known scores (1, 2, 3: sqrt(2 / 3)) further down
+    expected = np.log([0.5, 0.75, 1.0, 0.25]) - np.array([0.0, 0.0, 0.0, 3.0 / np.sqrt(2 / 3)])
+    np.testing.assert_allclose(conformal_log_p([3.0, 1.0, 2.0], [1.0, 2.0, 5.0, -2.0]), expected)
+    assert np.isfinite(conformal_log_p([1.0, 1.0], [-1e300]))  # no spread, far below: very low but finite
+
+
+def test_joint_threshold_hand_computed():
+    """Leave-one-out p-values: model a's known scores 1, 2, 3, 4 give 1/4, 2/4, 3/4, 1; model b's (the same groups)
+    4, 3, 2, 1 give 1, 3/4, 2/4, 1/4. Sums of logs: log 1/4, log 3/8, log 3/8, log 1/4; keeping half of the groups
+    means the threshold log 3/8 (two of the four at or above it)."""
+    models = [Stub([1, 2, 3, 4]), Stub([4, 3, 2, 1])]
+    assert joint_threshold(models, 1) == pytest.approx(np.log(3 / 8))
+    assert joint_threshold(models, 5) == pytest.approx(np.log(3 / 8))  # a larger K uses the last K's scores
+
+
+def test_each_model_misses_the_cluster_its_taxel_cannot_see_and_together_they_reject_both(pair):
+    """Far cluster A reads (200, 20): taxel 0 sees it far off, taxel 3 sees class c1. Far cluster B reads
+    (20, 200): the other way round. Each model alone keeps one cluster as c1; the joint rule rejects both and keeps
+    the known classes' new objects about as often as each model alone."""
+    by_taxel0, by_taxel3 = pair
+    far_a = two_taxel_batch([(200.0, 20.0)], objects_per_class=5, seed=8, class_names=["c0"])
+    far_b = two_taxel_batch([(20.0, 200.0)], objects_per_class=5, seed=9, class_names=["c0"])
+    known = two_taxel_batch(KNOWN, objects_per_class=10, seed=7)
+    groups = {name: np.arange(len(b)).reshape(-1, 3) for name, b in (("a", far_a), ("b", far_b), ("k", known))}
+
+    def unknown_share(decision):
+        return float(np.mean(decision["label"] == UNKNOWN))
+
+    assert unknown_share(decide(by_taxel0, far_a, groups["a"])) == 1.0
+    # a cluster a model sees among known readings is rejected about as often as known objects are (5 % asked)
+    assert unknown_share(decide(by_taxel0, far_b, groups["b"])) <= 0.2
+    assert (decide(by_taxel0, far_b, groups["b"])["closest"] == "c1").all()
+    assert unknown_share(decide(by_taxel3, far_a, groups["a"])) <= 0.2
+    assert unknown_share(decide(by_taxel3, far_b, groups["b"])) == 1.0
+    for batch, g in ((far_a, groups["a"]), (far_b, groups["b"])):
+        joint = joint_decide(pair, batch, g)
+        assert (joint["label"] == UNKNOWN).all()
+        # the far model's p-value lies far below 1 / (fold scores + 1): below every known fold score, by many spreads
+        assert (joint["log_p"].min(axis=1) < -20).all()
+    joint = joint_decide(pair, known, groups["k"])
+    kept = 1 - unknown_share(joint)
+    assert kept >= 0.85
+    names = np.asarray(known.class_names, dtype=object)[known.labels[groups["k"][:, 0]]]
+    assert np.mean(joint["closest"] == names) > 0.95  # the first model names the class
+    assert joint["threshold"] == joint_threshold(pair, 3)
+
+
+def test_refuses_models_it_cannot_combine(pair):
+    with pytest.raises(InvalidArgumentError, match="at least two"):
+        joint_decide(pair[:1], two_taxel_batch(KNOWN, seed=3))
+    other = calibrate(TaxelClassifier(3), two_taxel_batch(KNOWN, seed=2), **OPTIONS)  # other training objects
+    with pytest.raises(InvalidArgumentError, match="same data"):
+        joint_decide([pair[0], other], two_taxel_batch(KNOWN, seed=3))
+    reseeded = calibrate(TaxelClassifier(3), two_taxel_batch(KNOWN, seed=1), random_state=5, **OPTIONS)
+    with pytest.raises(InvalidArgumentError, match="same data"):
+        joint_decide([pair[0], reseeded], two_taxel_batch(KNOWN, seed=3))
+    closed = calibrate(TaxelClassifier(3), two_taxel_batch(KNOWN, seed=1), open_set=False)
+    with pytest.raises(InvalidArgumentError, match="without the open-set folds"):
+        joint_decide([pair[0], closed], two_taxel_batch(KNOWN, seed=3))
+    with pytest.raises(NotFittedError):
+        joint_decide([pair[0], TaxelClassifier(3).fit(two_taxel_batch(KNOWN, seed=1))], two_taxel_batch(KNOWN, seed=3))
+
+
+def test_the_fold_scores_survive_the_model_file_and_damage_is_refused(pair, tmp_path):
+    loaded = [load_model(m.save(tmp_path / f"m{i}.vtm")) for i, m in enumerate(pair)]
+    batch = two_taxel_batch(KNOWN + [(200.0, 20.0)], seed=11)
+    groups = np.arange(len(batch)).reshape(-1, 3)
+    a, b = joint_decide(pair, batch, groups), joint_decide(loaded, batch, groups)
+    assert np.array_equal(a["score"], b["score"]) and np.array_equal(a["label"], b["label"])
+    saved = dict(pair[0].calibration_)
+    for change in ({"fold_known": [np.array([np.nan])] * 3}, {"fold_known": saved["fold_known"][:2]},
+                   {"fold_groups": "not a digest"}):
+        try:
+            pair[0].calibration_ = {**saved, **change}
+            path = pair[0].save(tmp_path / "bad.vtm")
+        finally:
+            pair[0].calibration_ = saved
+        with pytest.raises(ModelFileError, match="calibration"):
+            load_model(path)
