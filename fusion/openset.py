@@ -46,6 +46,13 @@ feature space only ``"probability"`` is available. The result is the fitted attr
 data, saved in the model file and checked on loading by :func:`check_calibration`): ``predict_proba`` then gives
 calibrated probabilities, ``predict_proba_touches`` the tempered rule, ``known_score`` the score, and
 ``predict(X, reject=True)`` answers :data:`UNKNOWN` below the threshold.
+
+Several classifiers calibrated on the same training data (same folds) can answer "unknown" together
+(:func:`joint_decide`): their feature spaces miss different unknown classes (on the shared SHREC set the CNN pair's
+passes teddies that the kNN's z-scored contourlet features reject). The leave-classes-out folds' held-out known
+scores of the chosen score are kept (``fold_known``, per K, and a digest of which groups they are), so each
+model's score becomes a conformal p-value against them; Fisher's rule sums the log p-values, and the threshold keeps
+``keep`` of the folds' known groups under the same statistic (each of their p-values against the other groups).
 """
 
 from __future__ import annotations

@@ -13,7 +13,9 @@ classes out inside training), and tests the known classes' objects of fold r and
 classes, all in any pose. Per score (max probability, feature distance, class distance, set distance) and K: AUROC
 known vs unknown (interval: bootstrap over objects, known and unknown resampled separately), and for the score the training
 folds chose: the share of known objects kept and of unknown ones answered "unknown" at the threshold fitted on
-training data, plus the share of unknown rejected at the threshold that keeps 95 % of the *test* known decisions.
+training data, plus the share of unknown rejected at the threshold that keeps 95 % of the *test* known decisions. With two or more
+classifiers, the rows named :data:`JOINT` are their decisions together (:func:`fusion.openset.joint_decide`: each
+one's chosen score as a p-value against its folds' known scores, combined by Fisher's rule).
 """
 
 from __future__ import annotations

@@ -86,15 +86,18 @@ class Recognition:
 
 
 def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, strategy: str = "guided",
-              seed: int = 0, rule: str | None = None) -> Recognition:
+              seed: int = 0, rule: str | None = None, others=()) -> Recognition:
     """Touch ``obj`` along ``touches`` contours chosen by ``strategy`` with the model's sensor, classify.
 
     ``rule``: the fusion rule (default: the tempered log rule for a calibrated model, else the log rule). A model
     calibrated with a reject option (:func:`fusion.openset.calibrate`) answers ``"unknown"`` when the touches fit
-    no known class (``label`` is then "unknown" and ``closest`` the best known class).
+    no known class (``label`` is then "unknown" and ``closest`` the best known class). ``others``: more models
+    calibrated on the same training data that join that answer (:func:`fusion.openset.joint_decide`; ``model``
+    still names the class; ``known_score`` and ``threshold`` are then the joint ones).
 
     Raises:
-        InvalidArgumentError: touches < 1. ContourError: unknown strategy, or planes that miss the object.
+        InvalidArgumentError: touches < 1; ``others`` without a calibrated ``model`` and the tempered rule, or with
+            another sensor or probe count. ContourError: unknown strategy, or planes that miss the object.
 
     Examples:
         >>> from fusion.conventional import ConventionalClassifier
@@ -108,6 +111,16 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
     """
     if isinstance(touches, bool) or int(touches) != touches or touches < 1:
         raise InvalidArgumentError(f"touches must be a positive integer, got {touches!r}")
+    calibration = getattr(model, "calibration_", None) or {}
+    rule = rule or ("tempered" if calibration else "log")
+    others = list(others)
+    if others and not ("thresholds" in calibration and rule == "tempered"):
+        raise InvalidArgumentError("other models join the 'unknown' answer of a model calibrated with the open-set "
+                                   "folds, under the tempered rule")
+    for other in others:
+        if other.sensor().spec() != model.sensor().spec() or other.probes != model.probes:
+            raise InvalidArgumentError(f"{type(other).__name__} touches with another sensor or probe count than "
+                                       f"{type(model).__name__}: they cannot read the same touches")
     timing = TouchTiming()
     contours: list[Contour] = []
     sequences = touch(obj, strategy, int(touches), model.sensor(), model.probes, seed, seeding="object",
@@ -118,13 +131,12 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
                                          sensor_spec=model.sensor().spec())
     start = time.perf_counter()
     per_touch = model.predict_proba(batch)
-    calibration = getattr(model, "calibration_", None) or {}
-    rule = rule or ("tempered" if calibration else "log")
     known_score = threshold = None
     if "thresholds" in calibration and rule == "tempered":
-        from fusion.openset import decide
+        from fusion.openset import decide, joint_decide
 
-        decision = decide(model, batch, np.arange(len(batch))[None])
+        groups = np.arange(len(batch))[None]
+        decision = joint_decide([model, *others], batch, groups) if others else decide(model, batch, groups)
         fused, known_score, threshold = decision["fused"][0], float(decision["score"][0]), decision["threshold"]
     else:
         fused = fuse_touches(per_touch, rule=rule, dependence=calibration.get("dependence", 0.0))
@@ -147,9 +159,11 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
 
 
 def recognize_file(mesh: str | Path, model_path: str | Path, *, touches: int = 4, strategy: str = "guided",
-                   seed: int = 0, rule: str | None = None, trust_pickle: bool = False) -> tuple[ObjectModel, Recognition]:
-    """:func:`recognize` a mesh file with a model file: the strategy is checked first, then the model and the mesh
-    are loaded (pose-free frame, no label). Returns the object as touched and the recognition.
+                   seed: int = 0, rule: str | None = None, trust_pickle: bool = False,
+                   others: tuple = ()) -> tuple[ObjectModel, Recognition]:
+    """:func:`recognize` a mesh file with a model file (and ``others``: more model files that join its "unknown"
+    answer): the strategy is checked first, then the models and the mesh are loaded (pose-free frame, no label).
+    Returns the object as touched and the recognition.
 
     Raises:
         InvalidArgumentError: an unknown strategy (before anything loads), touches < 1.
@@ -161,12 +175,14 @@ def recognize_file(mesh: str | Path, model_path: str | Path, *, touches: int = 4
     from tactile.touching import check_strategy
 
     check_strategy(strategy)
-    if not Path(model_path).is_file():
-        raise DatasetError(f"{model_path}: no model there; run `visuotactile demo` (writes out/demo/models/cnn.vtm) "
-                           "or `visuotactile train`, or pass --model")
+    for path in (model_path, *others):
+        if not Path(path).is_file():
+            raise DatasetError(f"{path}: no model there; run `visuotactile demo` (writes out/demo/models/cnn.vtm) "
+                               "or `visuotactile train`, or pass --model")
     model = load_model(model_path, trust_pickle=trust_pickle)
+    more = [load_model(path, trust_pickle=trust_pickle) for path in others]
     obj = load_object(mesh, label=None)
-    return obj, recognize(model, obj, touches=touches, strategy=strategy, seed=seed, rule=rule)
+    return obj, recognize(model, obj, touches=touches, strategy=strategy, seed=seed, rule=rule, others=more)
 
 
 def plot_recognition(obj: ObjectModel, result: Recognition, path: str | Path, top: int = 8) -> Path:

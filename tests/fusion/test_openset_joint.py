@@ -4,7 +4,9 @@ cluster (it lies among known readings in that model's feature) while the two tog
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -163,3 +165,33 @@ def test_the_fold_scores_survive_the_model_file_and_damage_is_refused(pair, tmp_
             pair[0].calibration_ = saved
         with pytest.raises(ModelFileError, match="calibration"):
             load_model(path)
+
+
+def test_recognize_asks_the_other_models_and_the_command_line_too(pair, tmp_path, capsys):
+    """A box pressed by the 2 x 2 pad reads near 0 on both taxels: each model alone and the two together answer
+    "unknown"; the joint answer's threshold is the joint one for K touches. ``--also`` passes the second model."""
+    from fusion.cli import main
+    from fusion.experiments.recognize import recognize
+    from perception.shapes import make_object
+    from tests.fusion.test_experiments import write_off
+
+    box = make_object("box", 0)
+    result = recognize(pair[0], box, touches=2, strategy="blind", others=[pair[1]])
+    assert result.unknown and result.label == UNKNOWN and result.threshold == joint_threshold(pair, 2)
+    alone = recognize(pair[0], box, touches=2, strategy="blind")
+    assert alone.unknown and alone.threshold != result.threshold
+    with pytest.raises(InvalidArgumentError, match="tempered"):
+        recognize(pair[0], box, touches=2, strategy="blind", rule="log", others=[pair[1]])
+    other = copy.copy(pair[1])
+    other.n_probes_ = 7
+    with pytest.raises(InvalidArgumentError, match="probe count"):
+        recognize(pair[0], box, touches=2, strategy="blind", others=[other])
+    paths = [m.save(tmp_path / f"m{i}.vtm") for i, m in enumerate(pair)]
+    mesh = write_off(box, tmp_path / "box.off")
+    assert main(["recognize", str(mesh), "--model", str(paths[0]), "--also", str(paths[1]), "--touches", "2",
+                 "--strategy", "blind", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["unknown"] is True and out["also"] == [str(paths[1])]
+    assert out["threshold"] == pytest.approx(joint_threshold(pair, 2), abs=1e-6)
+    assert main(["recognize", str(mesh), "--model", str(paths[0]), "--also", str(tmp_path / "none.vtm")]) == 2
+    assert "none.vtm: no model there" in capsys.readouterr().err
