@@ -153,6 +153,19 @@ def reconstruct_capture(frames, *, virtual: bool, target=None, target_pixel=None
     return reconstruct_frames(frames, target=target, target_pixel=target_pixel, name=name, seed=seed, **settings)
 
 
+def load_models(model_path, also, trust_pickle: bool) -> tuple:
+    """(the classifier or None, the models that join its "unknown" answer)."""
+    if model_path is None:
+        return None, []
+    from fusion.base import load_model
+    from fusion.openset import check_joinable
+
+    clf = load_model(model_path, trust_pickle=trust_pickle)
+    others = [load_model(path, trust_pickle=trust_pickle) for path in also]
+    check_joinable(clf, others)
+    return clf, others
+
+
 def recognize_capture(
     source: str,
     *,
@@ -165,18 +178,23 @@ def recognize_capture(
     out: str | Path | None = None,
     target_pixel: tuple[float, float] | None = None,
     trust_pickle: bool = False,
+    also: tuple = (),
 ) -> dict:
     """The whole camera path; returns the summary (see the module docstring). ``target_pixel``: (column, row)
-    of the object to touch in the first frame.
+    of the object to touch in the first frame; ``also``: more calibrated model files that join the model's
+    "unknown" answer (:func:`fusion.openset.joint_decide`).
 
     Raises:
-        VisuotactileError subclasses: bad source, no device, no object, unreadable model.
+        VisuotactileError subclasses: bad source, no device, no object, unreadable model, ``also`` without a
+        model that can take it (:func:`fusion.openset.check_joinable`).
 
     Examples:
         >>> summary = recognize_capture("virtual:box/1", views=2, contours=2)  # no model: up to the touches
         >>> summary["true_class"], summary["sequences"], summary["prediction"]
         ('box', 2, None)
     """
+    if also and model_path is None:
+        raise InvalidArgumentError("--also models join a --model's 'unknown' answer; give --model too")
     timings = {}
     start = time.perf_counter()
     frames, truth, target, true_class = acquire(source, views, distance_mm, seed)
@@ -220,11 +238,7 @@ def recognize_capture(
     if virtual:
         summary["true_class"] = true_class
         summary["reconstruction"]["error_mm"] = surface_error(rec.model, truth)
-    clf = None
-    if model_path is not None:
-        from fusion.base import load_model
-
-        clf = load_model(model_path, trust_pickle=trust_pickle)
+    clf, others = load_models(model_path, also, trust_pickle)
     sensor = clf.sensor() if clf is not None else None
     probes = clf.probes if clf is not None else 25
     # Touch the object at the size the classifiers were trained at (catalogue and loaders: 150 mm, pose-free).
@@ -239,23 +253,14 @@ def recognize_capture(
     summary["probes"] = batch.n_probes
     summary["prediction"] = None
     if clf is not None:
-        from fusion.decide import fuse_touches
+        from fusion.openset import answer
 
         start = time.perf_counter()
-        calibration = getattr(clf, "calibration_", None) or {}
-        open_set = {}
-        if "thresholds" in calibration:  # calibrated with a reject option: fusion.openset
-            from fusion.openset import UNKNOWN, decide
-
-            decision = decide(clf, batch, np.arange(len(batch))[None])
-            fused = decision["fused"][0]
-            unknown = bool(decision["label"][0] == UNKNOWN)
-            open_set = {"unknown": unknown, "closest": str(decision["closest"][0]),
-                        "known_score": float(decision["score"][0]), "threshold": float(decision["threshold"])}
-        else:
-            proba = clf.predict_proba(batch)
-            fused = fuse_touches(proba, rule="tempered" if calibration else "log",
-                                 dependence=calibration.get("dependence", 0.0))
+        decision = answer(clf, batch, others=others)
+        fused = decision["fused"]
+        open_set = {} if decision["known_score"] is None else {
+            "unknown": decision["unknown"], "closest": class_names[int(np.argmax(fused))],
+            "known_score": decision["known_score"], "threshold": decision["threshold"]}
         timings["classify_s"] = time.perf_counter() - start
         order = np.argsort(-fused)
         summary["prediction"] = {
@@ -276,4 +281,5 @@ def recognize_capture(
     return summary
 
 
-__all__ = ["REAL_RECONSTRUCTION", "VIRTUAL_RECONSTRUCTION", "acquire", "recognize_capture", "reconstruct_capture"]
+__all__ = ["REAL_RECONSTRUCTION", "VIRTUAL_RECONSTRUCTION", "acquire", "load_models", "recognize_capture",
+           "reconstruct_capture"]

@@ -625,6 +625,52 @@ def _state(model) -> dict:
     return cal
 
 
+def check_joinable(model, others, rule: str | None = None) -> str:
+    """The rule :func:`answer` will use for ``model`` (default: the tempered log rule for a calibrated model, else
+    the log rule), after checking that ``others`` can join its "unknown" answer.
+
+    Raises:
+        InvalidArgumentError: ``others`` given without a model calibrated with the open-set folds under the tempered
+            rule, or reading another sensor or probe count than ``model``.
+    """
+    calibration = getattr(model, "calibration_", None) or {}
+    rule = rule or ("tempered" if calibration else "log")
+    others = list(others)
+    if others and not ("thresholds" in calibration and rule == "tempered"):
+        raise InvalidArgumentError("other models join the 'unknown' answer of a model calibrated with the open-set "
+                                   "folds, under the tempered rule")
+    for other in others:
+        if other.sensor().spec() != model.sensor().spec() or other.probes != model.probes:
+            raise InvalidArgumentError(f"{type(other).__name__} touches with another sensor or probe count than "
+                                       f"{type(model).__name__}: they cannot read the same touches")
+    return rule
+
+
+def answer(model, batch, *, rule: str | None = None, others=(), proba=None) -> dict:
+    """One decision on every sequence of ``batch`` (K touches of one object), as ``recognize`` and ``camera`` give
+    it: the fused posterior by ``rule`` (see :func:`check_joinable`) and, for a model calibrated with the open-set
+    folds under the tempered rule, its known score, threshold and "unknown" answer (:func:`decide`; with ``others``,
+    :func:`joint_decide`, the model still naming the class). ``proba``: the model's ``predict_proba(batch)`` if
+    the caller has it already.
+
+    Returns:
+        {"fused": (C,) posterior, "rule", "known_score" and "threshold" (None without a reject option),
+        "unknown": bool}.
+    """
+    from fusion.decide import fuse_touches
+
+    rule = check_joinable(model, others, rule)
+    calibration = getattr(model, "calibration_", None) or {}
+    if "thresholds" in calibration and rule == "tempered":
+        groups = np.arange(len(batch))[None]
+        decision = joint_decide([model, *others], batch, groups) if others else decide(model, batch, groups)
+        return {"fused": decision["fused"][0], "rule": rule, "known_score": float(decision["score"][0]),
+                "threshold": float(decision["threshold"]), "unknown": bool(decision["label"][0] == UNKNOWN)}
+    proba = model.predict_proba(batch) if proba is None else proba
+    fused = fuse_touches(proba, rule=rule, dependence=calibration.get("dependence", 0.0))
+    return {"fused": fused, "rule": rule, "known_score": None, "threshold": None, "unknown": False}
+
+
 def check_calibration(state, n_classes: int, where: str) -> dict:
     """``state`` (a model file's ``calibration_``) checked: finite temperature > 0, rho in [0, 1], keep in (0, 1],
     a known score, finite thresholds, reference features consistent with the classes.
@@ -694,7 +740,7 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
     return state
 
 
-__all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "auroc", "calibrate", "calibrated_fusion",
-           "check_calibration", "class_distances", "conformal_log_p", "decide", "embedding", "group_scores",
+__all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "answer", "auroc", "calibrate",
+           "calibrated_fusion", "check_calibration", "check_joinable", "class_distances", "conformal_log_p", "decide", "embedding", "group_scores",
            "joint_decide", "joint_log_p", "joint_threshold", "object_keys", "objects_per_class", "per_touch", "rejected_share",
            "threshold_for", "threshold_keeping"]

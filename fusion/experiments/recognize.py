@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.base import TactileClassifier
-from fusion.decide import fuse_touches
+from fusion.openset import UNKNOWN, answer, check_joinable
 from perception.atomic import save_figure
 from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
@@ -111,16 +111,8 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
     """
     if isinstance(touches, bool) or int(touches) != touches or touches < 1:
         raise InvalidArgumentError(f"touches must be a positive integer, got {touches!r}")
-    calibration = getattr(model, "calibration_", None) or {}
-    rule = rule or ("tempered" if calibration else "log")
     others = list(others)
-    if others and not ("thresholds" in calibration and rule == "tempered"):
-        raise InvalidArgumentError("other models join the 'unknown' answer of a model calibrated with the open-set "
-                                   "folds, under the tempered rule")
-    for other in others:
-        if other.sensor().spec() != model.sensor().spec() or other.probes != model.probes:
-            raise InvalidArgumentError(f"{type(other).__name__} touches with another sensor or probe count than "
-                                       f"{type(model).__name__}: they cannot read the same touches")
+    check_joinable(model, others, rule)  # before touching
     timing = TouchTiming()
     contours: list[Contour] = []
     sequences = touch(obj, strategy, int(touches), model.sensor(), model.probes, seed, seeding="object",
@@ -131,29 +123,20 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
                                          sensor_spec=model.sensor().spec())
     start = time.perf_counter()
     per_touch = model.predict_proba(batch)
-    known_score = threshold = None
-    if "thresholds" in calibration and rule == "tempered":
-        from fusion.openset import decide, joint_decide
-
-        groups = np.arange(len(batch))[None]
-        decision = joint_decide([model, *others], batch, groups) if others else decide(model, batch, groups)
-        fused, known_score, threshold = decision["fused"][0], float(decision["score"][0]), decision["threshold"]
-    else:
-        fused = fuse_touches(per_touch, rule=rule, dependence=calibration.get("dependence", 0.0))
+    decision = answer(model, batch, rule=rule, others=others, proba=per_touch)
+    fused = decision["fused"]
     inference = time.perf_counter() - start
     classes = [str(c) for c in model.classes_]
     closest = classes[int(np.argmax(fused))]
     result = Recognition(
         label=closest,
         probabilities=dict(sorted(zip(classes, map(float, fused)), key=lambda kv: -kv[1])),
-        per_touch=per_touch, classes=classes, contours=contours, rule=rule,
+        per_touch=per_touch, classes=classes, contours=contours, rule=decision["rule"],
         seconds={"saliency": sum(timing.saliency_seconds), "touching": sum(timing.contour_seconds),
                  "inference": inference},
-        closest=closest, known_score=known_score, threshold=threshold,
+        closest=closest, known_score=decision["known_score"], threshold=decision["threshold"],
     )
     if result.unknown:
-        from fusion.openset import UNKNOWN
-
         result.label = UNKNOWN
     return result
 

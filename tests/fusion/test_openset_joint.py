@@ -195,3 +195,18 @@ def test_recognize_asks_the_other_models_and_the_command_line_too(pair, tmp_path
     assert out["threshold"] == pytest.approx(joint_threshold(pair, 2), abs=1e-6)
     assert main(["recognize", str(mesh), "--model", str(paths[0]), "--also", str(tmp_path / "none.vtm")]) == 2
     assert "none.vtm: no model there" in capsys.readouterr().err
+
+
+def test_the_camera_command_asks_the_other_models_too(pair, tmp_path, capsys):
+    """A virtual capture of a box, touched twice with the toy models' 2 x 2 pad: the joint answer is "unknown" at
+    the joint threshold; ``--also`` without ``--model`` is refused before any capture."""
+    from fusion.cli import main
+
+    paths = [m.save(tmp_path / f"m{i}.vtm") for i, m in enumerate(pair)]
+    assert main(["camera", "--source", "virtual:box/1", "--views", "2", "--contours", "2", "--model", str(paths[0]),
+                 "--also", str(paths[1]), "--json"]) == 0
+    prediction = json.loads(capsys.readouterr().out)["prediction"]
+    assert prediction["unknown"] is True and prediction["class"] == UNKNOWN
+    assert prediction["threshold"] == pytest.approx(joint_threshold(pair, 2))
+    assert main(["camera", "--source", "virtual:box/1", "--also", str(paths[1])]) == 2
+    assert "give --model too" in capsys.readouterr().err
