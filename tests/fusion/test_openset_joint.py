@@ -11,34 +11,22 @@ import json
 import numpy as np
 import pytest
 
-from fusion.base import TactileClassifier, load_model
+from fusion.base import load_model
 from fusion.openset import UNKNOWN, calibrate, conformal_log_p, decide, joint_decide, joint_threshold
 from perception.errors import InvalidArgumentError, ModelFileError, NotFittedError
 from tests.fusion._synthetic import circle_batch
+from tests.fusion.test_openset import MeanClassifier
 
 
-class TaxelClassifier(TactileClassifier):
-    """A stand-in that reads one taxel (its mean over the probes): Gaussian class-conditional posteriors, that value
-    as its feature space."""
+class TaxelClassifier(MeanClassifier):
+    """The open-set tests' stand-in reading one taxel (its mean over the probes) instead of the whole pad."""
 
-    def __init__(self, taxel: int = 0):
+    def __init__(self, taxel: int = 0, width: float = 1.0):
         self.taxel = taxel
+        self.width = width
 
     def _x(self, batch) -> np.ndarray:
         return batch.frames.reshape(len(batch), batch.frames.shape[1], -1)[:, :, self.taxel].astype(np.float64).mean(1)
-
-    def _fit(self, batch, y_index):
-        x = self._x(batch)
-        self.means_ = np.array([x[y_index == c].mean() for c in range(len(self.classes_))])
-        self.scale_ = float(max(np.std(x - self.means_[y_index]), 1e-3))
-
-    def _predict_proba(self, batch):
-        z = -0.5 * ((self._x(batch)[:, None] - self.means_[None]) / self.scale_) ** 2
-        p = np.exp(z - z.max(axis=1, keepdims=True))
-        return p / p.sum(axis=1, keepdims=True)
-
-    def embed(self, batch):
-        return self._x(batch)[:, None] / self.scale_
 
 
 def two_taxel_batch(centres, objects_per_class=8, per_object=6, seed=0, class_names=None):
