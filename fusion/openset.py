@@ -90,6 +90,8 @@ DISTANCE_SCORES = ("distance", "class_distance", "set_distance")
 DISTANCE_FLOOR = 1e-9
 #: How many units of log a p-value below every known score may fall at most (:func:`conformal_log_p`; keeps it finite).
 TAIL_CAP = 1e6
+#: The largest known score in absolute value (they are log distances or probabilities; keeps their spread finite).
+MAX_SCORE = 1e6
 #: Bounds on a model file's calibration state.
 MAX_TOUCHES = 64
 MAX_REFERENCE = 2_000_000
@@ -511,10 +513,14 @@ def _batch_and_groups(X, groups, where: str):
     from fusion.base import as_batch
 
     batch = as_batch(X)
-    groups = np.arange(len(batch))[:, None] if groups is None else np.asarray(groups, dtype=np.int64)
-    if groups.ndim != 2 or groups.size == 0 or groups.min() < 0 or groups.max() >= len(batch):
-        raise InvalidArgumentError(f"{where}: groups must be a (G, K) index array into {len(batch)} sequences")
-    return batch, groups
+    if groups is None:
+        return batch, np.arange(len(batch))[:, None]
+    raw = np.asarray(groups)
+    if (raw.dtype.kind not in "iu" or raw.ndim != 2 or raw.size == 0 or raw.min() < 0
+            or raw.max() >= len(batch)):
+        raise InvalidArgumentError(f"{where}: groups must be a (G, K) integer index array into {len(batch)} "
+                                   f"sequences, got {raw.dtype} of shape {raw.shape}")
+    return batch, raw.astype(np.int64)
 
 
 def _scores_of(model, batch, groups) -> dict[str, np.ndarray]:
@@ -541,6 +547,12 @@ def conformal_log_p(known, scores) -> np.ndarray:
     known scores below the smallest (at most :data:`TAIL_CAP` units)."""
     known = np.sort(np.asarray(known, dtype=np.float64).ravel())
     scores = np.asarray(scores, dtype=np.float64)
+    if len(known) == 0 or not (np.isfinite(known).all() and np.isfinite(scores).all()):
+        raise DatasetError("conformal_log_p: need at least one known score, and finite scores")
+    if np.abs(known).max() > MAX_SCORE:
+        raise DatasetError(f"conformal_log_p: known scores beyond +-{MAX_SCORE:g} (a known score is a log distance "
+                           "or a probability)")
+    scores = np.clip(scores, -MAX_SCORE, MAX_SCORE)  # as far beyond as the tail reaches
     log_p = np.log((1.0 + np.searchsorted(known, scores, side="right")) / (len(known) + 1.0))
     spread = max(float(known.std()), 1e-12)
     return log_p - np.clip(known[0] - scores, 0.0, TAIL_CAP * spread) / spread
@@ -551,31 +563,51 @@ def _leave_one_out_p(known: np.ndarray) -> np.ndarray:
     return np.searchsorted(np.sort(known), known, side="right") / float(len(known))
 
 
+def _named(model) -> str:
+    """The model's file where it came from one, else its class name (for messages)."""
+    return getattr(model, "_source_file", None) or type(model).__name__
+
+
+def _models(models, where: str) -> list:
+    if isinstance(models, (str, bytes, dict)) or not hasattr(models, "__iter__"):
+        raise InvalidArgumentError(f"{where}: models must be a list of calibrated models, got {type(models).__name__}")
+    return list(models)
+
+
 def _joint_state(models, where: str) -> list[dict]:
     """The models' calibrations, checked to come from the same leave-classes-out folds and classes."""
-    models = list(models)
+    models = _models(models, where)
     if len(models) < 2:
         raise InvalidArgumentError(f"{where}: needs at least two calibrated models, got {len(models)}")
+    if len({id(m) for m in models}) < len(models):
+        raise InvalidArgumentError(f"{where}: a model is given twice (its evidence would count twice)")
     states = [_state(m) for m in models]
     for m, cal in zip(models, states):
-        if "fold_known" not in cal:
-            raise InvalidArgumentError(f"{where}: {type(m).__name__} was calibrated without the open-set folds or "
-                                       "before they were kept; calibrate it again")
+        if "fold_known" not in cal or "thresholds" not in cal:
+            raise InvalidArgumentError(f"{where}: {_named(m)} was calibrated without the open-set folds or before "
+                                       "they were kept; calibrate it again")
     first = states[0]
     for m, cal in zip(models[1:], states[1:]):
         if (cal["fold_groups"] != first["fold_groups"] or list(m.classes_) != list(models[0].classes_)
-                or cal["keep"] != first["keep"]):
+                or cal["keep"] != first["keep"] or [len(a) for a in cal["fold_known"]]
+                != [len(a) for a in first["fold_known"]]):
             raise InvalidArgumentError(
-                f"{where}: {type(models[0]).__name__} and {type(m).__name__} were not calibrated on the same data, "
-                "classes, folds (random_state, cv, class_folds, holdout) and keep: their scores cannot be combined")
+                f"{where}: {_named(models[0])} and {_named(m)} were not calibrated on the same data, classes, folds "
+                "(random_state, cv, class_folds, holdout, max_touches) and keep: their scores cannot be combined")
     return states
+
+
+def _touches(k, where: str) -> int:
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise InvalidArgumentError(f"{where}: k must be a positive integer (touches), got {k!r}")
+    return int(k)
 
 
 def joint_threshold(models, k: int) -> float:
     """The reject threshold of :func:`joint_decide` for ``k`` touches: the joint statistic of the leave-classes-out
     folds' held-out known groups (each model's score as its p-value among the others), at the models' ``keep``."""
     states = _joint_state(models, "joint_threshold")
-    i = min(int(k), len(states[0]["fold_known"])) - 1
+    i = min(_touches(k, "joint_threshold"), len(states[0]["fold_known"])) - 1
     statistic = sum(np.log(_leave_one_out_p(cal["fold_known"][i])) for cal in states)
     return threshold_keeping(statistic, states[0]["keep"])
 
@@ -595,7 +627,7 @@ def joint_decide(models, X, groups=None) -> dict[str, np.ndarray]:
         NotFittedError: a model not calibrated. InvalidArgumentError: fewer than two models, a model calibrated without
         the open-set folds, or models calibrated on different data, classes or folds.
     """
-    models = list(models)
+    models = _models(models, "joint_decide")
     states = _joint_state(models, "joint_decide")
     batch, groups = _batch_and_groups(X, groups, "joint_decide")
     scores = [_scores_of(m, batch, groups) for m in models]
@@ -609,9 +641,11 @@ def joint_log_p(models, scores, k: int) -> np.ndarray:
     touches) of ``scores``: per model, (G,) its chosen score of the same G groups of ``k`` touches. Their sum over
     models is :func:`joint_decide`'s score."""
     states = _joint_state(models, "joint_log_p")
-    if len(scores) != len(states):
-        raise InvalidArgumentError(f"joint_log_p: {len(scores)} score arrays for {len(states)} models")
-    i = min(int(k), len(states[0]["fold_known"])) - 1
+    scores = [np.asarray(a, dtype=np.float64) for a in scores]
+    if len(scores) != len(states) or len({a.shape for a in scores}) != 1 or scores[0].ndim != 1:
+        raise InvalidArgumentError(f"joint_log_p: need one (G,) score array per model ({len(states)}), got shapes "
+                                   f"{[a.shape for a in scores]}")
+    i = min(_touches(k, "joint_log_p"), len(states[0]["fold_known"])) - 1
     return np.stack([conformal_log_p(cal["fold_known"][i], s) for s, cal in zip(scores, states)], axis=1)
 
 
@@ -633,16 +667,24 @@ def check_joinable(model, others, rule: str | None = None) -> str:
         InvalidArgumentError: ``others`` given without a model calibrated with the open-set folds under the tempered
             rule, or reading another sensor or probe count than ``model``.
     """
+    from fusion.base import TactileClassifier
+    from perception.errors import NotFittedError
+
     calibration = getattr(model, "calibration_", None) or {}
     rule = rule or ("tempered" if calibration else "log")
-    others = list(others)
+    others = _models(others, "others")
+    for other in others:
+        if not isinstance(other, TactileClassifier):
+            raise InvalidArgumentError(f"others: {type(other).__name__} is not a classifier")
+        if not hasattr(other, "classes_"):
+            raise NotFittedError(f"others: {_named(other)} is not fitted")
     if others and not ("thresholds" in calibration and rule == "tempered"):
         raise InvalidArgumentError("other models join the 'unknown' answer of a model calibrated with the open-set "
                                    "folds, under the tempered rule")
     for other in others:
         if other.sensor().spec() != model.sensor().spec() or other.probes != model.probes:
-            raise InvalidArgumentError(f"{type(other).__name__} touches with another sensor or probe count than "
-                                       f"{type(model).__name__}: they cannot read the same touches")
+            raise InvalidArgumentError(f"{_named(other)} touches with another sensor or probe count than "
+                                       f"{_named(model)}: they cannot read the same touches")
     return rule
 
 
@@ -719,8 +761,11 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
         known, digest = state.get("fold_known"), state.get("fold_groups")
         if not (isinstance(known, list) and len(known) == state["max_touches"]
                 and all(isinstance(a, np.ndarray) and a.dtype == np.float64 and a.ndim == 1
-                        and 1 <= len(a) <= MAX_REFERENCE and np.isfinite(a).all() for a in known)):
-            raise bad(f"no {state['max_touches']} arrays of finite fold scores")
+                        and 1 <= len(a) <= MAX_REFERENCE and np.isfinite(a).all() and np.abs(a).max() <= MAX_SCORE
+                        for a in known)):
+            raise bad(f"no {state['max_touches']} arrays of finite fold scores within +-{MAX_SCORE:g}")
+        if "thresholds" not in state:
+            raise bad("fold scores without the thresholds they were fitted with")
         if not (isinstance(digest, str) and len(digest) == 64 and set(digest) <= set("0123456789abcdef")):
             raise bad("a malformed fold digest")
     # Checked wherever present (per_touch uses them whatever the score), and required by the score that reads them.

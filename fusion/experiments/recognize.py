@@ -111,7 +111,8 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
     """
     if isinstance(touches, bool) or int(touches) != touches or touches < 1:
         raise InvalidArgumentError(f"touches must be a positive integer, got {touches!r}")
-    others = list(others)
+    if not isinstance(others, (list, tuple)):
+        raise InvalidArgumentError(f"others must be a list of models, got {type(others).__name__}")
     check_joinable(model, others, rule)  # before touching
     timing = TouchTiming()
     contours: list[Contour] = []
@@ -158,6 +159,10 @@ def recognize_file(mesh: str | Path, model_path: str | Path, *, touches: int = 4
     from tactile.touching import check_strategy
 
     check_strategy(strategy)
+    if isinstance(others, (str, Path)) or not isinstance(others, (list, tuple)):
+        raise InvalidArgumentError(f"others must be a list of model files, got {type(others).__name__}")
+    if len({Path(p).resolve() for p in (model_path, *others)}) < 1 + len(others):
+        raise InvalidArgumentError("a model file is given twice (its evidence would count twice)")
     for path in (model_path, *others):
         if not Path(path).is_file():
             raise DatasetError(f"{path}: no model there; run `visuotactile demo` (writes out/demo/models/cnn.vtm) "

@@ -12,8 +12,16 @@ import numpy as np
 import pytest
 
 from fusion.base import load_model
-from fusion.openset import UNKNOWN, calibrate, conformal_log_p, decide, joint_decide, joint_threshold
-from perception.errors import InvalidArgumentError, ModelFileError, NotFittedError
+from fusion.openset import (
+    UNKNOWN,
+    calibrate,
+    conformal_log_p,
+    decide,
+    joint_decide,
+    joint_log_p,
+    joint_threshold,
+)
+from perception.errors import DatasetError, InvalidArgumentError, ModelFileError, NotFittedError
 from tests.fusion._synthetic import circle_batch
 from tests.fusion.test_openset import MeanClassifier
 
@@ -69,7 +77,8 @@ class Stub:
     classes_ = np.array(["a", "b"], dtype=object)
 
     def __init__(self, known, keep=0.5, digest="0" * 64):
-        self.calibration_ = {"fold_known": [np.asarray(known, dtype=np.float64)], "fold_groups": digest, "keep": keep}
+        self.calibration_ = {"fold_known": [np.asarray(known, dtype=np.float64)], "fold_groups": digest, "keep": keep,
+                             "thresholds": np.zeros(1)}
 
 
 def test_conformal_log_p_hand_computed():
@@ -198,3 +207,87 @@ def test_the_camera_command_asks_the_other_models_too(pair, tmp_path, capsys):
     assert prediction["threshold"] == pytest.approx(joint_threshold(pair, 2))
     assert main(["camera", "--source", "virtual:box/1", "--also", str(paths[1])]) == 2
     assert "give --model too" in capsys.readouterr().err
+
+
+def test_the_first_model_names_the_class_when_they_disagree(pair):
+    """Sequences reading (20, 30): the first model (taxel 0) says c1, the second (taxel 3) c2; joint_decide answers
+    the first's class, in either order."""
+    batch = two_taxel_batch([(20.0, 30.0)], objects_per_class=2, seed=12, class_names=["c0"])
+    groups = np.arange(len(batch)).reshape(-1, 3)
+    assert (decide(pair[0], batch, groups)["closest"] == "c1").all()
+    assert (decide(pair[1], batch, groups)["closest"] == "c2").all()
+    assert (joint_decide(pair, batch, groups)["closest"] == "c1").all()
+    assert (joint_decide(pair[::-1], batch, groups)["closest"] == "c2").all()
+
+
+@pytest.mark.parametrize("change", ["classes", "keep", "scores", "twice"])
+def test_refuses_models_calibrated_otherwise(pair, change):
+    """Same training objects and folds (the digest matches), but other class names, another keep, fold scores of
+    other lengths, or one model given twice: refused, naming the problem."""
+    train = two_taxel_batch(KNOWN, seed=1)
+    if change == "classes":
+        other = calibrate(TaxelClassifier(3), dataclasses.replace(train, class_names=("d0", "d1", "d2", "d3")),
+                          **OPTIONS)
+        assert other.calibration_["fold_groups"] == pair[0].calibration_["fold_groups"]
+    elif change == "keep":
+        other = calibrate(TaxelClassifier(3), train, keep=0.9, **OPTIONS)
+    elif change == "scores":
+        other = copy.deepcopy(pair[1])
+        other.calibration_["fold_known"] = [a[:-1] for a in other.calibration_["fold_known"]]
+    else:
+        other = pair[0]
+    with pytest.raises(InvalidArgumentError, match="twice" if change == "twice" else "same data"):
+        joint_decide([pair[0], other], train)
+
+
+def test_refuses_hostile_arguments(pair):
+    batch = two_taxel_batch(KNOWN, seed=3)
+    for models in (pair[0], None, "ab", {"a": pair[0], "b": pair[1]}):
+        with pytest.raises(InvalidArgumentError, match="list of calibrated models"):
+            joint_decide(models, batch)
+    for k in (0, -1, 1.5, True, "3", None):
+        with pytest.raises(InvalidArgumentError, match="positive integer"):
+            joint_threshold(pair, k)
+    for groups in ([["a"]], [[np.nan]], [[2**70]], [[0.5, 1.2]], [[True]]):
+        with pytest.raises(InvalidArgumentError, match="integer index array"):
+            joint_decide(pair, batch, groups)
+    with pytest.raises(InvalidArgumentError, match="one \\(G,\\) score array per model"):
+        joint_log_p(pair, [np.zeros(3), np.zeros(4)], 1)
+    for known, scores in (([], [0.0]), ([1.0, np.nan], [0.0]), ([1.0], [np.inf]), ([1.7e308, -1.7e308], [0.0])):
+        with pytest.raises(DatasetError):
+            conformal_log_p(known, scores)
+    from fusion.experiments.recognize import recognize
+    from perception.shapes import make_object
+
+    box = make_object("box", 0)
+    for others, error in ((None, InvalidArgumentError), (pair[1], InvalidArgumentError),
+                          (["x"], InvalidArgumentError), ([TaxelClassifier(3)], NotFittedError)):
+        with pytest.raises(error):
+            recognize(pair[0], box, touches=2, strategy="blind", others=others)
+
+
+def test_a_model_file_with_fold_scores_but_no_thresholds_or_extreme_scores_is_refused(pair, tmp_path):
+    saved = dict(pair[1].calibration_)
+    for change in ({"thresholds": None, "score": None}, {"fold_known": [np.full(len(a), 1.7e308)
+                                                                         for a in saved["fold_known"]]},
+                   {"fold_groups": "0" * 63}):
+        try:
+            pair[1].calibration_ = {k: v for k, v in {**saved, **change}.items() if v is not None}
+            path = pair[1].save(tmp_path / "bad.vtm")
+        finally:
+            pair[1].calibration_ = saved
+        with pytest.raises(ModelFileError, match="calibration"):
+            load_model(path)
+
+
+def test_recognize_file_refuses_a_bare_path_and_a_file_given_twice(pair, tmp_path):
+    from fusion.experiments.recognize import recognize_file
+    from perception.shapes import make_object
+    from tests.fusion.test_experiments import write_off
+
+    paths = [m.save(tmp_path / f"m{i}.vtm") for i, m in enumerate(pair)]
+    mesh = write_off(make_object("box", 0), tmp_path / "box.off")
+    with pytest.raises(InvalidArgumentError, match="list of model files"):
+        recognize_file(mesh, paths[0], others=str(paths[1]))
+    with pytest.raises(InvalidArgumentError, match="twice"):
+        recognize_file(mesh, paths[0], others=(tmp_path / "." / "m0.vtm",))
