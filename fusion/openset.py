@@ -50,14 +50,17 @@ calibrated probabilities, ``predict_proba_touches`` the tempered rule, ``known_s
 Several classifiers calibrated on the same training data (same folds) can answer "unknown" together
 (:func:`joint_decide`): their feature spaces miss different unknown classes (on the shared SHREC set the CNN pair's
 passes teddies that the kNN's z-scored contourlet features reject). The leave-classes-out folds' held-out known
-scores of the chosen score are kept (``fold_known``, per K, and a digest of which groups they are), so each
-model's score becomes a conformal p-value against them; Fisher's rule sums the log p-values, and the threshold keeps
-``keep`` of the folds' known groups under the same statistic (each of their p-values against the other groups).
+and unknown scores of every score are kept (``fold_known`` and ``fold_unknown``: per score, per K; and a digest of
+which groups they are): each model's score becomes a conformal p-value against its known ones, Fisher's rule sums
+the log p-values, the threshold keeps ``keep`` of the folds' known groups under the same statistic (each of their
+p-values against the other groups), and which score of each model is read is chosen on the folds' unknown groups
+(:func:`joint_scores`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import logging
 
 import numpy as np
@@ -408,7 +411,7 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
         _, object_index = np.unique(keys, return_inverse=True)
         known_scores: dict = {}
         unknown_scores: dict = {}
-        known_groups = hashlib.sha256(np.asarray(keys, dtype=str).tobytes())  # which groups the known scores are
+        fold_groups = hashlib.sha256(np.asarray(keys, dtype=str).tobytes())  # which groups the fold scores are of
         for j, out in enumerate(left_out):
             unknown = np.isin(yi, out)
             held_known = ~unknown & (held_folds == j % holdout)
@@ -431,8 +434,8 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                     g = _groups(keys, np.flatnonzero(which), k, random_state + j)
                     if not len(g):
                         continue
-                    if store is known_scores:
-                        known_groups.update(np.asarray([k, len(g)], dtype=np.int64).tobytes() + g.tobytes())
+                    fold_groups.update(np.asarray([k, len(g), store is known_scores], dtype=np.int64).tobytes()
+                                       + g.tobytes())
                     s = group_scores(cal[:, present], position[g], state, dist, by_object)
                     for name in SCORES:
                         if name in s:
@@ -442,13 +445,11 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                       if (n, k) in known_scores and (n, k) in unknown_scores else float("nan")
                       for k in range(1, max_touches + 1)] for n in available}
         chosen = score if score != "auto" else max(available, key=lambda n: np.nanmean(aurocs[n]))
-        thresholds, fold_known = [], []
-        for k in range(1, max_touches + 1):
-            known = known_scores.get((chosen, k))
-            fold_known.append(np.concatenate(known) if known else fold_known[-1])
-            thresholds.append(threshold_keeping(fold_known[-1], keep))
-        state |= {"score": chosen, "thresholds": np.asarray(thresholds, dtype=np.float64),
-                  "fold_known": fold_known, "fold_groups": known_groups.hexdigest(),
+        kept = {side: {n: _per_k(store, n, max_touches) for n in available}
+                for side, store in (("fold_known", known_scores), ("fold_unknown", unknown_scores))}
+        thresholds = [threshold_keeping(known, keep) for known in kept["fold_known"][chosen]]
+        state |= {"score": chosen, "thresholds": np.asarray(thresholds, dtype=np.float64), **kept,
+                  "fold_groups": fold_groups.hexdigest(),
                   "inner_auroc": {n: [round(float(a), 6) if np.isfinite(a) else None for a in v]
                                   for n, v in aurocs.items()}}
 
@@ -460,6 +461,15 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                   "reference_objects": owner.astype(np.int64)}
     model.calibration_ = state
     return model
+
+
+def _per_k(store: dict, name: str, max_touches: int) -> list[np.ndarray]:
+    """The folds' scores ``name`` for K = 1..max_touches (a K without groups: the last K's)."""
+    out: list[np.ndarray] = []
+    for k in range(1, max_touches + 1):
+        parts = store.get((name, k))
+        out.append(np.concatenate(parts) if parts else out[-1])
+    return out
 
 
 # ------------------------------------------------------------------------------------------ using it
@@ -583,14 +593,17 @@ def _joint_state(models, where: str) -> list[dict]:
         raise InvalidArgumentError(f"{where}: a model is given twice (its evidence would count twice)")
     states = [_state(m) for m in models]
     for m, cal in zip(models, states):
-        if "fold_known" not in cal or "thresholds" not in cal:
+        if not isinstance(cal.get("fold_known"), dict) or "thresholds" not in cal:
             raise InvalidArgumentError(f"{where}: {_named(m)} was calibrated without the open-set folds or before "
-                                       "they were kept; calibrate it again")
+                                       "their scores were kept; calibrate it again")
+
+    def sizes(cal: dict) -> list:
+        return [len(a) for side in ("fold_known", "fold_unknown") for a in next(iter(cal[side].values()))]
+
     first = states[0]
     for m, cal in zip(models[1:], states[1:]):
         if (cal["fold_groups"] != first["fold_groups"] or list(m.classes_) != list(models[0].classes_)
-                or cal["keep"] != first["keep"] or [len(a) for a in cal["fold_known"]]
-                != [len(a) for a in first["fold_known"]]):
+                or cal["keep"] != first["keep"] or sizes(cal) != sizes(first)):
             raise InvalidArgumentError(
                 f"{where}: {_named(models[0])} and {_named(m)} were not calibrated on the same data, classes, folds "
                 "(random_state, cv, class_folds, holdout, max_touches) and keep: their scores cannot be combined")
@@ -603,50 +616,97 @@ def _touches(k, where: str) -> int:
     return int(k)
 
 
-def joint_threshold(models, k: int) -> float:
+def _known_statistic(states, chosen, i: int) -> np.ndarray:
+    """The joint statistic of the folds' held-out known groups (K index ``i``), each p-value among the others."""
+    return sum(np.log(_leave_one_out_p(cal["fold_known"][n][i])) for cal, n in zip(states, chosen))
+
+
+def joint_scores(models) -> tuple[str, ...]:
+    """The score of each model that :func:`joint_decide` reads: of every combination of the scores each model kept,
+    the one whose joint statistic best tells the leave-classes-out folds' unknown groups from their known ones
+    (mean AUROC over K; the unknown groups' p-values against the known ones; a tie goes to the scores with the best
+    mean AUROC alone). Training data only, as each model's
+    own choice; that choice is not always the best partner (on the shared SHREC set the kNN alone often prefers
+    its probability, which adds little to the CNN pair's distance)."""
+    states = _joint_state(models, "joint_scores")
+    names = [[n for n in SCORES if n in cal["fold_known"] and n in cal["fold_unknown"]] for cal in states]
+    n_k = len(states[0]["fold_known"][names[0][0]])
+
+    def alone(cal: dict, n: str) -> float:
+        return float(np.mean([auroc(cal["fold_known"][n][i], cal["fold_unknown"][n][i]) for i in range(n_k)]))
+
+    best, best_value = None, (-np.inf, -np.inf)
+    for chosen in itertools.product(*names):
+        together = np.mean([auroc(_known_statistic(states, chosen, i),
+                                  sum(conformal_log_p(cal["fold_known"][n][i], cal["fold_unknown"][n][i])
+                                      for cal, n in zip(states, chosen))) for i in range(n_k)])
+        # a tie (e.g. folds told apart perfectly) goes to the scores that do best alone
+        value = (round(float(together), 12), np.mean([alone(cal, n) for cal, n in zip(states, chosen)]))
+        if value > best_value:
+            best, best_value = chosen, value
+    return best
+
+
+def joint_threshold(models, k: int, chosen=None) -> float:
     """The reject threshold of :func:`joint_decide` for ``k`` touches: the joint statistic of the leave-classes-out
-    folds' held-out known groups (each model's score as its p-value among the others), at the models' ``keep``."""
+    folds' held-out known groups (each model's score as its p-value among the others), at the models' ``keep``.
+    ``chosen``: :func:`joint_scores` (found when not given)."""
     states = _joint_state(models, "joint_threshold")
-    i = min(_touches(k, "joint_threshold"), len(states[0]["fold_known"])) - 1
-    statistic = sum(np.log(_leave_one_out_p(cal["fold_known"][i])) for cal in states)
-    return threshold_keeping(statistic, states[0]["keep"])
+    chosen = joint_scores(models) if chosen is None else _check_chosen(chosen, states)
+    i = min(_touches(k, "joint_threshold"), len(states[0]["fold_known"][chosen[0]])) - 1
+    return threshold_keeping(_known_statistic(states, chosen, i), states[0]["keep"])
+
+
+def _check_chosen(chosen, states) -> tuple[str, ...]:
+    chosen = tuple(chosen)
+    if len(chosen) != len(states) or any(n not in cal["fold_known"] for n, cal in zip(chosen, states)):
+        raise InvalidArgumentError(f"chosen scores {chosen!r} do not name a kept score of each of the "
+                                   f"{len(states)} models")
+    return chosen
 
 
 def joint_decide(models, X, groups=None) -> dict[str, np.ndarray]:
     """Open-set decisions of several calibrated models together (e.g. the CNN pair and the kNN: their feature spaces
-    miss different unknown classes). Each model's known score becomes a p-value against the scores its
-    leave-classes-out folds gave held-out known objects (:func:`conformal_log_p`); the joint score is Fisher's sum of
-    their logs (higher = fits a known class better), thresholded at :func:`joint_threshold`, fitted on training data
-    only. The first model names the class ("closest"). The models must be calibrated on the same training data
-    with the same fold settings (their folds then hold out the same groups, checked by digest).
+    miss different unknown classes). Each model's known score (:func:`joint_scores`) becomes a p-value against the
+    scores its leave-classes-out folds gave held-out known objects (:func:`conformal_log_p`); the joint score is
+    Fisher's sum of their logs (higher = fits a known class better), thresholded at :func:`joint_threshold`, fitted
+    on training data only. The first model names the class ("closest"). The models must be calibrated on the same
+    training data with the same fold settings (their folds then hold out the same groups, checked by digest).
 
     Returns:
-        as :func:`decide`, "score" being the joint statistic; also "log_p": (G, models) each model's log p-value.
+        as :func:`decide`, "score" being the joint statistic; also "log_p": (G, models) each model's log p-value
+        and "scores": the score read of each model.
 
     Raises:
         NotFittedError: a model not calibrated. InvalidArgumentError: fewer than two models, a model calibrated without
         the open-set folds, or models calibrated on different data, classes or folds.
     """
     models = _models(models, "joint_decide")
-    states = _joint_state(models, "joint_decide")
+    chosen = joint_scores(models)
     batch, groups = _batch_and_groups(X, groups, "joint_decide")
     scores = [_scores_of(m, batch, groups) for m in models]
-    log_p = joint_log_p(models, [s[cal["score"]] for s, cal in zip(scores, states)], groups.shape[1])
-    out = _decision(models[0], scores[0], log_p.sum(axis=1), joint_threshold(models, groups.shape[1]))
-    return out | {"log_p": log_p}
+    log_p = joint_log_p(models, scores, groups.shape[1], chosen)
+    out = _decision(models[0], scores[0], log_p.sum(axis=1), joint_threshold(models, groups.shape[1], chosen))
+    return out | {"log_p": log_p, "scores": chosen}
 
 
-def joint_log_p(models, scores, k: int) -> np.ndarray:
+def joint_log_p(models, scores, k: int, chosen=None) -> np.ndarray:
     """(G, models) each model's log p-value (:func:`conformal_log_p` against its folds' known scores for ``k``
-    touches) of ``scores``: per model, (G,) its chosen score of the same G groups of ``k`` touches. Their sum over
-    models is :func:`joint_decide`'s score."""
+    touches) of its score ``chosen`` (default :func:`joint_scores`): ``scores`` holds per model {score name: (G,)}
+    (:func:`group_scores` of the same G groups of ``k`` touches). Their sum over models is :func:`joint_decide`'s
+    score."""
     states = _joint_state(models, "joint_log_p")
-    scores = [np.asarray(a, dtype=np.float64) for a in scores]
-    if len(scores) != len(states) or len({a.shape for a in scores}) != 1 or scores[0].ndim != 1:
-        raise InvalidArgumentError(f"joint_log_p: need one (G,) score array per model ({len(states)}), got shapes "
-                                   f"{[a.shape for a in scores]}")
-    i = min(_touches(k, "joint_log_p"), len(states[0]["fold_known"])) - 1
-    return np.stack([conformal_log_p(cal["fold_known"][i], s) for s, cal in zip(scores, states)], axis=1)
+    chosen = joint_scores(models) if chosen is None else _check_chosen(chosen, states)
+    if (isinstance(scores, (str, bytes, dict)) or len(scores) != len(states)
+            or not all(isinstance(s, dict) and n in s for s, n in zip(scores, chosen))):
+        raise InvalidArgumentError(f"joint_log_p: need per model a mapping with its score ({', '.join(chosen)})")
+    picked = [np.asarray(s[n], dtype=np.float64) for s, n in zip(scores, chosen)]
+    if len({a.shape for a in picked}) != 1 or picked[0].ndim != 1:
+        raise InvalidArgumentError(f"joint_log_p: need one (G,) score array per model, got shapes "
+                                   f"{[a.shape for a in picked]}")
+    i = min(_touches(k, "joint_log_p"), len(states[0]["fold_known"][chosen[0]])) - 1
+    return np.stack([conformal_log_p(cal["fold_known"][n][i], a) for a, cal, n in zip(picked, states, chosen)],
+                    axis=1)
 
 
 def _state(model) -> dict:
@@ -727,7 +787,7 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
         raise bad("no mapping")
     allowed = {"temperature", "smoothing", "dependence", "keep", "neighbors", "max_touches", "score", "thresholds",
                "inner_auroc", "reference", "reference_labels", "reference_objects", "map_knots", "map_values",
-               "fold_known", "fold_groups"}
+               "fold_known", "fold_unknown", "fold_groups"}
     if set(state) - allowed:
         raise bad(f"unknown entries {sorted(set(state) - allowed)[:5]}")
     try:
@@ -757,13 +817,22 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
         if (not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.shape != (state["max_touches"],)
                 or not np.isfinite(t).all()):
             raise bad(f"no {state['max_touches']} finite thresholds")
-    if "fold_known" in state or "fold_groups" in state:  # absent in models calibrated before joint decisions
-        known, digest = state.get("fold_known"), state.get("fold_groups")
-        if not (isinstance(known, list) and len(known) == state["max_touches"]
-                and all(isinstance(a, np.ndarray) and a.dtype == np.float64 and a.ndim == 1
-                        and 1 <= len(a) <= MAX_REFERENCE and np.isfinite(a).all() and np.abs(a).max() <= MAX_SCORE
-                        for a in known)):
-            raise bad(f"no {state['max_touches']} arrays of finite fold scores within +-{MAX_SCORE:g}")
+    if "fold_known" in state or "fold_unknown" in state or "fold_groups" in state:  # since joint decisions
+        digest = state.get("fold_groups")
+        n = state["max_touches"]
+        for side in ("fold_known", "fold_unknown"):
+            kept = state.get(side)
+            if not (isinstance(kept, dict) and 1 <= len(kept) and set(kept) <= set(SCORES)
+                    and all(isinstance(v, list) and len(v) == n for v in kept.values())
+                    and all(isinstance(a, np.ndarray) and a.dtype == np.float64 and a.ndim == 1
+                            and 1 <= len(a) <= MAX_REFERENCE and np.isfinite(a).all()
+                            and np.abs(a).max() <= MAX_SCORE for v in kept.values() for a in v)):
+                raise bad(f"no {side} scores: per score {n} arrays of finite values within +-{MAX_SCORE:g}")
+            lengths = {tuple(len(a) for a in v) for v in kept.values()}
+            if len(lengths) != 1:
+                raise bad(f"{side} scores of different groups")
+        if set(state["fold_known"]) != set(state["fold_unknown"]) or state.get("score") not in state["fold_known"]:
+            raise bad("fold scores that do not match each other or the chosen score")
         if "thresholds" not in state:
             raise bad("fold scores without the thresholds they were fitted with")
         if not (isinstance(digest, str) and len(digest) == 64 and set(digest) <= set("0123456789abcdef")):
@@ -787,5 +856,5 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
 
 __all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "answer", "auroc", "calibrate",
            "calibrated_fusion", "check_calibration", "check_joinable", "class_distances", "conformal_log_p", "decide", "embedding", "group_scores",
-           "joint_decide", "joint_log_p", "joint_threshold", "object_keys", "objects_per_class", "per_touch", "rejected_share",
+           "joint_decide", "joint_log_p", "joint_scores", "joint_threshold", "object_keys", "objects_per_class", "per_touch", "rejected_share",
            "threshold_for", "threshold_keeping"]

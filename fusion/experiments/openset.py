@@ -15,7 +15,8 @@ known vs unknown (interval: bootstrap over objects, known and unknown resampled 
 folds chose: the share of known objects kept and of unknown ones answered "unknown" at the threshold fitted on
 training data, plus the share of unknown rejected at the threshold that keeps 95 % of the *test* known decisions. With two or more
 classifiers, the rows named :data:`JOINT` are their decisions together (:func:`fusion.openset.joint_decide`: each
-one's chosen score as a p-value against its folds' known scores, combined by Fisher's rule).
+one's score (:func:`fusion.openset.joint_scores`, chosen on the training folds) as a p-value against its folds' known
+scores, combined by Fisher's rule).
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ from fusion.openset import (
     calibrated_fusion,
     group_scores,
     joint_log_p,
+    joint_scores,
     joint_threshold,
     per_touch,
     rejected_share,
@@ -277,7 +279,7 @@ def openset_part(ctx: Context, objects) -> dict:
     rotations = []
     for r, (_, test) in enumerate(splits):
         batch = test_ds.load(test)
-        rotation_models, chosen = {}, {}  # this rotation's models, and their chosen scores per (classifier, K)
+        rotation_models, scored = {}, {}  # this rotation's models, and their scores per (classifier, K)
         for name in factories:
             model = rotation_models[name] = next(models)
             proba, distances, by_object = per_touch(model, batch)
@@ -295,15 +297,19 @@ def openset_part(ctx: Context, objects) -> dict:
             for k in ks:
                 groups = touch_groups(ids, k, seed=ctx.seed)  # the same groups for every classifier
                 s = group_scores(proba, groups, cal, distances, by_object)
-                chosen[name, k] = s["chosen"] = s[cal["score"]]
+                s["chosen"] = s[cal["score"]]
+                scored[name, k] = s
                 _pool(pooled, (name, k), s, threshold_for(model, k), groups, r, is_unknown, label, obj)
         if len(rotation_models) >= 2:  # every classifier's known score, combined (fusion.openset.joint_decide)
             together = list(rotation_models.values())
+            chosen = joint_scores(together)
+            rotations.append({"rotation": r + 1, "classifier": JOINT, "left_out": left_out[r],
+                              "score": " + ".join(chosen)})
             for k in ks:
-                log_p = joint_log_p(together, [chosen[name, k] for name in rotation_models], k)
+                log_p = joint_log_p(together, [scored[name, k] for name in rotation_models], k, chosen)
                 groups = touch_groups(ids, k, seed=ctx.seed)
-                _pool(pooled, (JOINT, k), {"chosen": log_p.sum(axis=1)}, joint_threshold(together, k), groups, r,
-                      is_unknown, label, obj)
+                _pool(pooled, (JOINT, k), {"chosen": log_p.sum(axis=1)}, joint_threshold(together, k, chosen), groups,
+                      r, is_unknown, label, obj)
     rows = []
     for (name, k), p in pooled.items():
         unknown = np.concatenate(p["unknown"])

@@ -19,6 +19,7 @@ from fusion.openset import (
     decide,
     joint_decide,
     joint_log_p,
+    joint_scores,
     joint_threshold,
 )
 from perception.errors import DatasetError, InvalidArgumentError, ModelFileError, NotFittedError
@@ -72,12 +73,16 @@ def pair():
 
 
 class Stub:
-    """Only what the joint threshold reads: classes and a calibration."""
+    """Only what the joint decision's choice and threshold read: classes and a calibration with the folds' scores
+    (one K) of two scores."""
 
     classes_ = np.array(["a", "b"], dtype=object)
 
-    def __init__(self, known, keep=0.5, digest="0" * 64):
-        self.calibration_ = {"fold_known": [np.asarray(known, dtype=np.float64)], "fold_groups": digest, "keep": keep,
+    def __init__(self, known, unknown=None, keep=0.5, digest="0" * 64):
+        known = {n: [np.asarray(v, dtype=np.float64)] for n, v in
+                 (known if isinstance(known, dict) else {"class_distance": known}).items()}
+        unknown = {n: [np.asarray(v, dtype=np.float64)] for n, v in (unknown or {n: [0.0] for n in known}).items()}
+        self.calibration_ = {"fold_known": known, "fold_unknown": unknown, "fold_groups": digest, "keep": keep,
                              "thresholds": np.zeros(1)}
 
 
@@ -96,6 +101,19 @@ def test_joint_threshold_hand_computed():
     models = [Stub([1, 2, 3, 4]), Stub([4, 3, 2, 1])]
     assert joint_threshold(models, 1) == pytest.approx(np.log(3 / 8))
     assert joint_threshold(models, 5) == pytest.approx(np.log(3 / 8))  # a larger K uses the last K's scores
+
+
+def test_joint_scores_hand_computed():
+    """Both models kept two scores with the known fold scores 1, 2, 3, 4 (leave-one-out p-values 1/4 .. 1). The
+    folds' unknown groups score 1.5 (p = 2/5) by class_distance and 10 (p = 1) by probability. Joint statistics of
+    the known groups: 2 log(1/4, 2/4, 3/4, 1) = -2.77, -1.39, -0.58, 0. Unknown: class_distance twice 2 log 0.4 =
+    -1.83, AUROC 3/4; one of each log 0.4 = -0.92, AUROC 1/2; probability twice 0, AUROC 1/8 (a tie counts half):
+    class_distance for both."""
+    known = {"probability": [1, 2, 3, 4], "class_distance": [1, 2, 3, 4]}
+    unknown = {"probability": [10, 10], "class_distance": [1.5, 1.5]}
+    assert joint_scores([Stub(known, unknown), Stub(known, unknown)]) == ("class_distance", "class_distance")
+    flipped = {"probability": [1.5, 1.5], "class_distance": [10, 10]}
+    assert joint_scores([Stub(known, unknown), Stub(known, flipped)]) == ("class_distance", "probability")
 
 
 def test_each_model_misses_the_cluster_its_taxel_cannot_see_and_together_they_reject_both(pair):
@@ -153,8 +171,12 @@ def test_the_fold_scores_survive_the_model_file_and_damage_is_refused(pair, tmp_
     a, b = joint_decide(pair, batch, groups), joint_decide(loaded, batch, groups)
     assert np.array_equal(a["score"], b["score"]) and np.array_equal(a["label"], b["label"])
     saved = dict(pair[0].calibration_)
-    for change in ({"fold_known": [np.array([np.nan])] * 3}, {"fold_known": saved["fold_known"][:2]},
-                   {"fold_groups": "not a digest"}):
+    known = saved["fold_known"]
+    for change in ({"fold_known": {n: [np.array([np.nan])] * 3 for n in known}},
+                   {"fold_known": {n: v[:2] for n, v in known.items()}},
+                   {"fold_known": {n: v[:1] * 3 if n == "distance" else v for n, v in known.items()}},
+                   {"fold_unknown": {**saved["fold_unknown"], "magic": known["distance"]}},
+                   {"fold_known": [known["class_distance"]]}, {"fold_groups": "not a digest"}):
         try:
             pair[0].calibration_ = {**saved, **change}
             path = pair[0].save(tmp_path / "bad.vtm")
@@ -233,7 +255,7 @@ def test_refuses_models_calibrated_otherwise(pair, change):
         other = calibrate(TaxelClassifier(3), train, keep=0.9, **OPTIONS)
     elif change == "scores":
         other = copy.deepcopy(pair[1])
-        other.calibration_["fold_known"] = [a[:-1] for a in other.calibration_["fold_known"]]
+        other.calibration_["fold_known"] = {n: [a[:-1] for a in v] for n, v in other.calibration_["fold_known"].items()}
     else:
         other = pair[0]
     with pytest.raises(InvalidArgumentError, match="twice" if change == "twice" else "same data"):
@@ -252,7 +274,11 @@ def test_refuses_hostile_arguments(pair):
         with pytest.raises(InvalidArgumentError, match="integer index array"):
             joint_decide(pair, batch, groups)
     with pytest.raises(InvalidArgumentError, match="one \\(G,\\) score array per model"):
-        joint_log_p(pair, [np.zeros(3), np.zeros(4)], 1)
+        joint_log_p(pair, [{"distance": np.zeros(3)}, {"distance": np.zeros(4)}], 1, ("distance", "distance"))
+    with pytest.raises(InvalidArgumentError, match="a mapping with its score"):
+        joint_log_p(pair, [np.zeros(3), np.zeros(3)], 1)
+    with pytest.raises(InvalidArgumentError, match="kept score"):
+        joint_threshold(pair, 1, ("magic", "distance"))
     for known, scores in (([], [0.0]), ([1.0, np.nan], [0.0]), ([1.0], [np.inf]), ([1.7e308, -1.7e308], [0.0])):
         with pytest.raises(DatasetError):
             conformal_log_p(known, scores)
@@ -268,8 +294,8 @@ def test_refuses_hostile_arguments(pair):
 
 def test_a_model_file_with_fold_scores_but_no_thresholds_or_extreme_scores_is_refused(pair, tmp_path):
     saved = dict(pair[1].calibration_)
-    for change in ({"thresholds": None, "score": None}, {"fold_known": [np.full(len(a), 1.7e308)
-                                                                         for a in saved["fold_known"]]},
+    for change in ({"thresholds": None, "score": None},
+                   {"fold_known": {n: [np.full(len(a), 1.7e308) for a in v] for n, v in saved["fold_known"].items()}},
                    {"fold_groups": "0" * 63}):
         try:
             pair[1].calibration_ = {k: v for k, v in {**saved, **change}.items() if v is not None}
