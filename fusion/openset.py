@@ -533,11 +533,11 @@ def _batch_and_groups(X, groups, where: str):
     return batch, raw.astype(np.int64)
 
 
-def _scores_of(model, batch, groups) -> dict[str, np.ndarray]:
-    """:func:`group_scores` of a calibrated ``model`` (the distances to each training object only where its chosen
-    score reads them)."""
+def _scores_of(model, batch, groups, score: str | None = None) -> dict[str, np.ndarray]:
+    """:func:`group_scores` of a calibrated ``model`` (the distances to each training object only where ``score``,
+    by default its chosen one, reads them)."""
     cal = _state(model)
-    proba, distances, by_object = per_touch(model, batch, by_object=cal.get("score") == "set_distance")
+    proba, distances, by_object = per_touch(model, batch, by_object=(score or cal.get("score")) == "set_distance")
     return group_scores(proba, groups, cal, distances, by_object)
 
 
@@ -625,9 +625,9 @@ def joint_scores(models) -> tuple[str, ...]:
     """The score of each model that :func:`joint_decide` reads: of every combination of the scores each model kept,
     the one whose joint statistic best tells the leave-classes-out folds' unknown groups from their known ones
     (mean AUROC over K; the unknown groups' p-values against the known ones; a tie goes to the scores with the best
-    mean AUROC alone). Training data only, as each model's
-    own choice; that choice is not always the best partner (on the shared SHREC set the kNN alone often prefers
-    its probability, which adds little to the CNN pair's distance)."""
+    mean AUROC alone). Training data only, as each model's own choice; that choice is not always the best partner
+    (on the shared SHREC set the kNN alone often prefers its probability, which adds little to the CNN pair's
+    distance)."""
     states = _joint_state(models, "joint_scores")
     names = [[n for n in SCORES if n in cal["fold_known"] and n in cal["fold_unknown"]] for cal in states]
     n_k = len(states[0]["fold_known"][names[0][0]])
@@ -684,7 +684,7 @@ def joint_decide(models, X, groups=None) -> dict[str, np.ndarray]:
     models = _models(models, "joint_decide")
     chosen = joint_scores(models)
     batch, groups = _batch_and_groups(X, groups, "joint_decide")
-    scores = [_scores_of(m, batch, groups) for m in models]
+    scores = [_scores_of(m, batch, groups, n) for m, n in zip(models, chosen)]
     log_p = joint_log_p(models, scores, groups.shape[1], chosen)
     out = _decision(models[0], scores[0], log_p.sum(axis=1), joint_threshold(models, groups.shape[1], chosen))
     return out | {"log_p": log_p, "scores": chosen}

@@ -317,3 +317,23 @@ def test_recognize_file_refuses_a_bare_path_and_a_file_given_twice(pair, tmp_pat
         recognize_file(mesh, paths[0], others=str(paths[1]))
     with pytest.raises(InvalidArgumentError, match="twice"):
         recognize_file(mesh, paths[0], others=(tmp_path / "." / "m0.vtm",))
+
+
+def test_a_set_distance_chosen_for_the_joint_decision_is_computed_even_where_the_model_chose_another(pair,
+                                                                                                    monkeypatch):
+    """Both models chose class_distance alone; if the joint choice reads their set distance, joint_decide computes
+    it (the distances to each training object) and scores as the experiment's per-touch path does."""
+    from fusion import openset
+    from fusion.openset import group_scores, per_touch
+
+    monkeypatch.setattr(openset, "joint_scores", lambda models: ("set_distance", "set_distance"))
+    batch = two_taxel_batch(KNOWN + [(200.0, 20.0)], seed=13)
+    groups = np.arange(len(batch)).reshape(-1, 3)
+    joint = joint_decide(pair, batch, groups)
+    assert joint["scores"] == ("set_distance", "set_distance")
+    expected = 0.0
+    for m in pair:
+        proba, distances, by_object = per_touch(m, batch)
+        set_distance = group_scores(proba, groups, m.calibration_, distances, by_object)["set_distance"]
+        expected = expected + conformal_log_p(m.calibration_["fold_known"]["set_distance"][2], set_distance)
+    np.testing.assert_allclose(joint["score"], expected)
