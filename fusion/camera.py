@@ -153,19 +153,6 @@ def reconstruct_capture(frames, *, virtual: bool, target=None, target_pixel=None
     return reconstruct_frames(frames, target=target, target_pixel=target_pixel, name=name, seed=seed, **settings)
 
 
-def load_models(model_path, also, trust_pickle: bool) -> tuple:
-    """(the classifier or None, the models that join its "unknown" answer)."""
-    if model_path is None:
-        return None, []
-    from fusion.base import load_model
-    from fusion.openset import check_joinable
-
-    clf = load_model(model_path, trust_pickle=trust_pickle)
-    others = [load_model(path, trust_pickle=trust_pickle) for path in also]
-    check_joinable(clf, others)
-    return clf, others
-
-
 def recognize_capture(
     source: str,
     *,
@@ -178,23 +165,18 @@ def recognize_capture(
     out: str | Path | None = None,
     target_pixel: tuple[float, float] | None = None,
     trust_pickle: bool = False,
-    also: tuple = (),
 ) -> dict:
     """The whole camera path; returns the summary (see the module docstring). ``target_pixel``: (column, row)
-    of the object to touch in the first frame; ``also``: more calibrated model files that join the model's
-    "unknown" answer (:func:`fusion.openset.joint_decide`).
+    of the object to touch in the first frame.
 
     Raises:
-        VisuotactileError subclasses: bad source, no device, no object, unreadable model, ``also`` without a
-        model that can take it (:func:`fusion.openset.check_joinable`).
+        VisuotactileError subclasses: bad source, no device, no object, unreadable model.
 
     Examples:
         >>> summary = recognize_capture("virtual:box/1", views=2, contours=2)  # no model: up to the touches
         >>> summary["true_class"], summary["sequences"], summary["prediction"]
         ('box', 2, None)
     """
-    if also and model_path is None:
-        raise InvalidArgumentError("--also models join a --model's 'unknown' answer; give --model too")
     timings = {}
     start = time.perf_counter()
     frames, truth, target, true_class = acquire(source, views, distance_mm, seed)
@@ -238,7 +220,11 @@ def recognize_capture(
     if virtual:
         summary["true_class"] = true_class
         summary["reconstruction"]["error_mm"] = surface_error(rec.model, truth)
-    clf, others = load_models(model_path, also, trust_pickle)
+    clf = None
+    if model_path is not None:
+        from fusion.base import load_model
+
+        clf = load_model(model_path, trust_pickle=trust_pickle)
     sensor = clf.sensor() if clf is not None else None
     probes = clf.probes if clf is not None else 25
     # Touch the object at the size the classifiers were trained at (catalogue and loaders: 150 mm, pose-free).
@@ -256,7 +242,7 @@ def recognize_capture(
         from fusion.openset import answer
 
         start = time.perf_counter()
-        decision = answer(clf, batch, others=others)
+        decision = answer(clf, batch)
         fused = decision["fused"]
         open_set = {} if decision["known_score"] is None else {
             "unknown": decision["unknown"], "closest": class_names[int(np.argmax(fused))],
@@ -281,5 +267,4 @@ def recognize_capture(
     return summary
 
 
-__all__ = ["REAL_RECONSTRUCTION", "VIRTUAL_RECONSTRUCTION", "acquire", "load_models", "recognize_capture",
-           "reconstruct_capture"]
+__all__ = ["REAL_RECONSTRUCTION", "VIRTUAL_RECONSTRUCTION", "acquire", "recognize_capture", "reconstruct_capture"]

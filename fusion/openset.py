@@ -46,21 +46,10 @@ feature space only ``"probability"`` is available. The result is the fitted attr
 data, saved in the model file and checked on loading by :func:`check_calibration`): ``predict_proba`` then gives
 calibrated probabilities, ``predict_proba_touches`` the tempered rule, ``known_score`` the score, and
 ``predict(X, reject=True)`` answers :data:`UNKNOWN` below the threshold.
-
-Several classifiers calibrated on the same training data (same folds) can answer "unknown" together
-(:func:`joint_decide`): their feature spaces miss different unknown classes (on the shared SHREC set the CNN pair's
-passes teddies that the kNN's z-scored contourlet features reject). The leave-classes-out folds' held-out known
-and unknown scores of every score are kept (``fold_known`` and ``fold_unknown``: per score, per K; and a digest of
-which groups they are): each model's score becomes a conformal p-value against its known ones, Fisher's rule sums
-the log p-values, the threshold keeps ``keep`` of the folds' known groups under the same statistic (each of their
-p-values against the other groups), and which score of each model is read is chosen on the folds' unknown groups
-(:func:`joint_scores`).
 """
 
 from __future__ import annotations
 
-import hashlib
-import itertools
 import logging
 
 import numpy as np
@@ -91,10 +80,6 @@ SCORES = ("probability", "distance", "class_distance", "set_distance")
 DISTANCE_SCORES = ("distance", "class_distance", "set_distance")
 #: Distances below this count as this much (mm-free feature units; keeps every log finite).
 DISTANCE_FLOOR = 1e-9
-#: How many units of log a p-value below every known score may fall at most (:func:`conformal_log_p`; keeps it finite).
-TAIL_CAP = 1e6
-#: The largest known score in absolute value (they are log distances or probabilities; keeps their spread finite).
-MAX_SCORE = 1e6
 #: Bounds on a model file's calibration state.
 MAX_TOUCHES = 64
 MAX_REFERENCE = 2_000_000
@@ -411,7 +396,6 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
         _, object_index = np.unique(keys, return_inverse=True)
         known_scores: dict = {}
         unknown_scores: dict = {}
-        fold_groups = hashlib.sha256(np.asarray(keys, dtype=str).tobytes())  # which groups the fold scores are of
         for j, out in enumerate(left_out):
             unknown = np.isin(yi, out)
             held_known = ~unknown & (held_folds == j % holdout)
@@ -434,8 +418,6 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                     g = _groups(keys, np.flatnonzero(which), k, random_state + j)
                     if not len(g):
                         continue
-                    fold_groups.update(np.asarray([k, len(g), store is known_scores], dtype=np.int64).tobytes()
-                                       + g.tobytes())
                     s = group_scores(cal[:, present], position[g], state, dist, by_object)
                     for name in SCORES:
                         if name in s:
@@ -445,11 +427,11 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                       if (n, k) in known_scores and (n, k) in unknown_scores else float("nan")
                       for k in range(1, max_touches + 1)] for n in available}
         chosen = score if score != "auto" else max(available, key=lambda n: np.nanmean(aurocs[n]))
-        kept = {side: {n: _per_k(store, n, max_touches) for n in available}
-                for side, store in (("fold_known", known_scores), ("fold_unknown", unknown_scores))}
-        thresholds = [threshold_keeping(known, keep) for known in kept["fold_known"][chosen]]
-        state |= {"score": chosen, "thresholds": np.asarray(thresholds, dtype=np.float64), **kept,
-                  "fold_groups": fold_groups.hexdigest(),
+        thresholds = []
+        for k in range(1, max_touches + 1):
+            known = known_scores.get((chosen, k))
+            thresholds.append(threshold_keeping(np.concatenate(known), keep) if known else thresholds[-1])
+        state |= {"score": chosen, "thresholds": np.asarray(thresholds, dtype=np.float64),
                   "inner_auroc": {n: [round(float(a), 6) if np.isfinite(a) else None for a in v]
                                   for n, v in aurocs.items()}}
 
@@ -461,15 +443,6 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
                   "reference_objects": owner.astype(np.int64)}
     model.calibration_ = state
     return model
-
-
-def _per_k(store: dict, name: str, max_touches: int) -> list[np.ndarray]:
-    """The folds' scores ``name`` for K = 1..max_touches (a K without groups: the last K's)."""
-    out: list[np.ndarray] = []
-    for k in range(1, max_touches + 1):
-        parts = store.get((name, k))
-        out.append(np.concatenate(parts) if parts else out[-1])
-    return out
 
 
 # ------------------------------------------------------------------------------------------ using it
@@ -512,201 +485,27 @@ def decide(model, X, groups=None) -> dict[str, np.ndarray]:
     Raises:
         NotFittedError: not calibrated. InvalidArgumentError: calibrated without the open-set folds.
     """
-    batch, groups = _batch_and_groups(X, groups, "decide")
-    threshold = threshold_for(model, groups.shape[1])
-    s = _scores_of(model, batch, groups)
-    score = s[_state(model)["score"]]
-    return _decision(model, s, score, threshold)
-
-
-def _batch_and_groups(X, groups, where: str):
     from fusion.base import as_batch
 
     batch = as_batch(X)
     if groups is None:
-        return batch, np.arange(len(batch))[:, None]
-    raw = np.asarray(groups)
-    if (raw.dtype.kind not in "iu" or raw.ndim != 2 or raw.size == 0 or raw.min() < 0
-            or raw.max() >= len(batch)):
-        raise InvalidArgumentError(f"{where}: groups must be a (G, K) integer index array into {len(batch)} "
-                                   f"sequences, got {raw.dtype} of shape {raw.shape}")
-    return batch, raw.astype(np.int64)
-
-
-def _scores_of(model, batch, groups, score: str | None = None) -> dict[str, np.ndarray]:
-    """:func:`group_scores` of a calibrated ``model`` (the distances to each training object only where ``score``,
-    by default its chosen one, reads them)."""
+        groups = np.arange(len(batch))[:, None]
+    else:  # checked before the cast: floats would be truncated, huge integers overflow, strings raise
+        raw = np.asarray(groups)
+        if (raw.dtype.kind not in "iu" or raw.ndim != 2 or raw.size == 0 or raw.min() < 0
+                or raw.max() >= len(batch)):
+            raise InvalidArgumentError(f"decide: groups must be a (G, K) integer index array into {len(batch)} "
+                                       f"sequences, got {raw.dtype} of shape {raw.shape}")
+        groups = raw.astype(np.int64)
     cal = _state(model)
-    proba, distances, by_object = per_touch(model, batch, by_object=(score or cal.get("score")) == "set_distance")
-    return group_scores(proba, groups, cal, distances, by_object)
-
-
-def _decision(model, s: dict, score: np.ndarray, threshold: float) -> dict[str, np.ndarray]:
+    threshold = threshold_for(model, groups.shape[1])
+    # the distances to each training object only where the chosen score reads them
+    proba, distances, by_object = per_touch(model, batch, by_object=cal["score"] == "set_distance")
+    s = group_scores(proba, groups, cal, distances, by_object)
     closest = np.asarray(model.classes_, dtype=object)[s["decision"]]
-    unknown = score < threshold
+    unknown = s[cal["score"]] < threshold
     return {"label": np.where(unknown, UNKNOWN, closest).astype(object), "closest": closest,
-            "probability": s["probability"], "score": score, "threshold": threshold, "fused": s["fused"]}
-
-
-# ------------------------------------------------------------------------------------ several models at once
-def conformal_log_p(known, scores) -> np.ndarray:
-    """Log p-values of ``scores`` against the ``known`` scores (higher = fits a known class better): log of (1 + how
-    many known scores are <= s) / (len(known) + 1), the conformal p-value (a score drawn like the known ones has a
-    uniform p-value). Below every known score it would stop at 1 / (len(known) + 1), so that one model's far misfit
-    could weigh no more than a near one; there it goes on falling by one unit of log per standard deviation of the
-    known scores below the smallest (at most :data:`TAIL_CAP` units)."""
-    known = np.sort(np.asarray(known, dtype=np.float64).ravel())
-    scores = np.asarray(scores, dtype=np.float64)
-    if len(known) == 0 or not (np.isfinite(known).all() and np.isfinite(scores).all()):
-        raise DatasetError("conformal_log_p: need at least one known score, and finite scores")
-    if np.abs(known).max() > MAX_SCORE:
-        raise DatasetError(f"conformal_log_p: known scores beyond +-{MAX_SCORE:g} (a known score is a log distance "
-                           "or a probability)")
-    scores = np.clip(scores, -MAX_SCORE, MAX_SCORE)  # as far beyond as the tail reaches
-    log_p = np.log((1.0 + np.searchsorted(known, scores, side="right")) / (len(known) + 1.0))
-    spread = max(float(known.std()), 1e-12)
-    return log_p - np.clip(known[0] - scores, 0.0, TAIL_CAP * spread) / spread
-
-
-def _leave_one_out_p(known: np.ndarray) -> np.ndarray:
-    """The known scores' own p-values, each against the others (as :func:`conformal_log_p`, without itself)."""
-    return np.searchsorted(np.sort(known), known, side="right") / float(len(known))
-
-
-def _named(model) -> str:
-    """The model's file where it came from one, else its class name (for messages)."""
-    return getattr(model, "_source_file", None) or type(model).__name__
-
-
-def _models(models, where: str) -> list:
-    if isinstance(models, (str, bytes, dict)) or not hasattr(models, "__iter__"):
-        raise InvalidArgumentError(f"{where}: models must be a list of calibrated models, got {type(models).__name__}")
-    return list(models)
-
-
-def _joint_state(models, where: str) -> list[dict]:
-    """The models' calibrations, checked to come from the same leave-classes-out folds and classes."""
-    models = _models(models, where)
-    if len(models) < 2:
-        raise InvalidArgumentError(f"{where}: needs at least two calibrated models, got {len(models)}")
-    if len({id(m) for m in models}) < len(models):
-        raise InvalidArgumentError(f"{where}: a model is given twice (its evidence would count twice)")
-    states = [_state(m) for m in models]
-    for m, cal in zip(models, states):
-        if not isinstance(cal.get("fold_known"), dict) or "thresholds" not in cal:
-            raise InvalidArgumentError(f"{where}: {_named(m)} was calibrated without the open-set folds or before "
-                                       "their scores were kept; calibrate it again")
-
-    def sizes(cal: dict) -> list:
-        return [len(a) for side in ("fold_known", "fold_unknown") for a in next(iter(cal[side].values()))]
-
-    first = states[0]
-    for m, cal in zip(models[1:], states[1:]):
-        if (cal["fold_groups"] != first["fold_groups"] or list(m.classes_) != list(models[0].classes_)
-                or cal["keep"] != first["keep"] or sizes(cal) != sizes(first)):
-            raise InvalidArgumentError(
-                f"{where}: {_named(models[0])} and {_named(m)} were not calibrated on the same data, classes, folds "
-                "(random_state, cv, class_folds, holdout, max_touches) and keep: their scores cannot be combined")
-    return states
-
-
-def _touches(k, where: str) -> int:
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise InvalidArgumentError(f"{where}: k must be a positive integer (touches), got {k!r}")
-    return int(k)
-
-
-def _known_statistic(states, chosen, i: int) -> np.ndarray:
-    """The joint statistic of the folds' held-out known groups (K index ``i``), each p-value among the others."""
-    return sum(np.log(_leave_one_out_p(cal["fold_known"][n][i])) for cal, n in zip(states, chosen))
-
-
-def joint_scores(models) -> tuple[str, ...]:
-    """The score of each model that :func:`joint_decide` reads: of every combination of the scores each model kept,
-    the one whose joint statistic best tells the leave-classes-out folds' unknown groups from their known ones
-    (mean AUROC over K; the unknown groups' p-values against the known ones; a tie goes to the scores with the best
-    mean AUROC alone). Training data only, as each model's own choice; that choice is not always the best partner
-    (on the shared SHREC set the kNN alone often prefers its probability, which adds little to the CNN pair's
-    distance)."""
-    states = _joint_state(models, "joint_scores")
-    names = [[n for n in SCORES if n in cal["fold_known"] and n in cal["fold_unknown"]] for cal in states]
-    n_k = len(states[0]["fold_known"][names[0][0]])
-
-    def alone(cal: dict, n: str) -> float:
-        return float(np.mean([auroc(cal["fold_known"][n][i], cal["fold_unknown"][n][i]) for i in range(n_k)]))
-
-    best, best_value = None, (-np.inf, -np.inf)
-    for chosen in itertools.product(*names):
-        together = np.mean([auroc(_known_statistic(states, chosen, i),
-                                  sum(conformal_log_p(cal["fold_known"][n][i], cal["fold_unknown"][n][i])
-                                      for cal, n in zip(states, chosen))) for i in range(n_k)])
-        # a tie (e.g. folds told apart perfectly) goes to the scores that do best alone
-        value = (round(float(together), 12), np.mean([alone(cal, n) for cal, n in zip(states, chosen)]))
-        if value > best_value:
-            best, best_value = chosen, value
-    return best
-
-
-def joint_threshold(models, k: int, chosen=None) -> float:
-    """The reject threshold of :func:`joint_decide` for ``k`` touches: the joint statistic of the leave-classes-out
-    folds' held-out known groups (each model's score as its p-value among the others), at the models' ``keep``.
-    ``chosen``: :func:`joint_scores` (found when not given)."""
-    states = _joint_state(models, "joint_threshold")
-    chosen = joint_scores(models) if chosen is None else _check_chosen(chosen, states)
-    i = min(_touches(k, "joint_threshold"), len(states[0]["fold_known"][chosen[0]])) - 1
-    return threshold_keeping(_known_statistic(states, chosen, i), states[0]["keep"])
-
-
-def _check_chosen(chosen, states) -> tuple[str, ...]:
-    chosen = tuple(chosen)
-    if len(chosen) != len(states) or any(n not in cal["fold_known"] for n, cal in zip(chosen, states)):
-        raise InvalidArgumentError(f"chosen scores {chosen!r} do not name a kept score of each of the "
-                                   f"{len(states)} models")
-    return chosen
-
-
-def joint_decide(models, X, groups=None) -> dict[str, np.ndarray]:
-    """Open-set decisions of several calibrated models together (e.g. the CNN pair and the kNN: their feature spaces
-    miss different unknown classes). Each model's known score (:func:`joint_scores`) becomes a p-value against the
-    scores its leave-classes-out folds gave held-out known objects (:func:`conformal_log_p`); the joint score is
-    Fisher's sum of their logs (higher = fits a known class better), thresholded at :func:`joint_threshold`, fitted
-    on training data only. The first model names the class ("closest"). The models must be calibrated on the same
-    training data with the same fold settings (their folds then hold out the same groups, checked by digest).
-
-    Returns:
-        as :func:`decide`, "score" being the joint statistic; also "log_p": (G, models) each model's log p-value
-        and "scores": the score read of each model.
-
-    Raises:
-        NotFittedError: a model not calibrated. InvalidArgumentError: fewer than two models, a model calibrated without
-        the open-set folds, or models calibrated on different data, classes or folds.
-    """
-    models = _models(models, "joint_decide")
-    chosen = joint_scores(models)
-    batch, groups = _batch_and_groups(X, groups, "joint_decide")
-    scores = [_scores_of(m, batch, groups, n) for m, n in zip(models, chosen)]
-    log_p = joint_log_p(models, scores, groups.shape[1], chosen)
-    out = _decision(models[0], scores[0], log_p.sum(axis=1), joint_threshold(models, groups.shape[1], chosen))
-    return out | {"log_p": log_p, "scores": chosen}
-
-
-def joint_log_p(models, scores, k: int, chosen=None) -> np.ndarray:
-    """(G, models) each model's log p-value (:func:`conformal_log_p` against its folds' known scores for ``k``
-    touches) of its score ``chosen`` (default :func:`joint_scores`): ``scores`` holds per model {score name: (G,)}
-    (:func:`group_scores` of the same G groups of ``k`` touches). Their sum over models is :func:`joint_decide`'s
-    score."""
-    states = _joint_state(models, "joint_log_p")
-    chosen = joint_scores(models) if chosen is None else _check_chosen(chosen, states)
-    if (isinstance(scores, (str, bytes, dict)) or len(scores) != len(states)
-            or not all(isinstance(s, dict) and n in s for s, n in zip(scores, chosen))):
-        raise InvalidArgumentError(f"joint_log_p: need per model a mapping with its score ({', '.join(chosen)})")
-    picked = [np.asarray(s[n], dtype=np.float64) for s, n in zip(scores, chosen)]
-    if len({a.shape for a in picked}) != 1 or picked[0].ndim != 1:
-        raise InvalidArgumentError(f"joint_log_p: need one (G,) score array per model, got shapes "
-                                   f"{[a.shape for a in picked]}")
-    i = min(_touches(k, "joint_log_p"), len(states[0]["fold_known"][chosen[0]])) - 1
-    return np.stack([conformal_log_p(cal["fold_known"][n][i], a) for a, cal, n in zip(picked, states, chosen)],
-                    axis=1)
+            "probability": s["probability"], "score": s[cal["score"]], "threshold": threshold, "fused": s["fused"]}
 
 
 def _state(model) -> dict:
@@ -719,41 +518,11 @@ def _state(model) -> dict:
     return cal
 
 
-def check_joinable(model, others, rule: str | None = None) -> str:
-    """The rule :func:`answer` will use for ``model`` (default: the tempered log rule for a calibrated model, else
-    the log rule), after checking that ``others`` can join its "unknown" answer.
-
-    Raises:
-        InvalidArgumentError: ``others`` given without a model calibrated with the open-set folds under the tempered
-            rule, or reading another sensor or probe count than ``model``.
-    """
-    from fusion.base import TactileClassifier
-    from perception.errors import NotFittedError
-
-    calibration = getattr(model, "calibration_", None) or {}
-    rule = rule or ("tempered" if calibration else "log")
-    others = _models(others, "others")
-    for other in others:
-        if not isinstance(other, TactileClassifier):
-            raise InvalidArgumentError(f"others: {type(other).__name__} is not a classifier")
-        if not hasattr(other, "classes_"):
-            raise NotFittedError(f"others: {_named(other)} is not fitted")
-    if others and not ("thresholds" in calibration and rule == "tempered"):
-        raise InvalidArgumentError("other models join the 'unknown' answer of a model calibrated with the open-set "
-                                   "folds, under the tempered rule")
-    for other in others:
-        if other.sensor().spec() != model.sensor().spec() or other.probes != model.probes:
-            raise InvalidArgumentError(f"{_named(other)} touches with another sensor or probe count than "
-                                       f"{_named(model)}: they cannot read the same touches")
-    return rule
-
-
-def answer(model, batch, *, rule: str | None = None, others=(), proba=None) -> dict:
+def answer(model, batch, *, rule: str | None = None, proba=None) -> dict:
     """One decision on every sequence of ``batch`` (K touches of one object), as ``recognize`` and ``camera`` give
-    it: the fused posterior by ``rule`` (see :func:`check_joinable`) and, for a model calibrated with the open-set
-    folds under the tempered rule, its known score, threshold and "unknown" answer (:func:`decide`; with ``others``,
-    :func:`joint_decide`, the model still naming the class). ``proba``: the model's ``predict_proba(batch)`` if
-    the caller has it already.
+    it: the fused posterior by ``rule`` (default: the tempered log rule for a calibrated model, else the log rule)
+    and, for a model calibrated with the open-set folds under the tempered rule, its known score, threshold and
+    "unknown" answer (:func:`decide`). ``proba``: the model's ``predict_proba(batch)`` if the caller has it.
 
     Returns:
         {"fused": (C,) posterior, "rule", "known_score" and "threshold" (None without a reject option),
@@ -761,11 +530,10 @@ def answer(model, batch, *, rule: str | None = None, others=(), proba=None) -> d
     """
     from fusion.decide import fuse_touches
 
-    rule = check_joinable(model, others, rule)
     calibration = getattr(model, "calibration_", None) or {}
+    rule = rule or ("tempered" if calibration else "log")
     if "thresholds" in calibration and rule == "tempered":
-        groups = np.arange(len(batch))[None]
-        decision = joint_decide([model, *others], batch, groups) if others else decide(model, batch, groups)
+        decision = decide(model, batch, np.arange(len(batch))[None])
         return {"fused": decision["fused"][0], "rule": rule, "known_score": float(decision["score"][0]),
                 "threshold": float(decision["threshold"]), "unknown": bool(decision["label"][0] == UNKNOWN)}
     proba = model.predict_proba(batch) if proba is None else proba
@@ -786,8 +554,7 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
     if not isinstance(state, dict):
         raise bad("no mapping")
     allowed = {"temperature", "smoothing", "dependence", "keep", "neighbors", "max_touches", "score", "thresholds",
-               "inner_auroc", "reference", "reference_labels", "reference_objects", "map_knots", "map_values",
-               "fold_known", "fold_unknown", "fold_groups"}
+               "inner_auroc", "reference", "reference_labels", "reference_objects", "map_knots", "map_values"}
     if set(state) - allowed:
         raise bad(f"unknown entries {sorted(set(state) - allowed)[:5]}")
     try:
@@ -817,26 +584,6 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
         if (not isinstance(t, np.ndarray) or t.dtype != np.float64 or t.shape != (state["max_touches"],)
                 or not np.isfinite(t).all()):
             raise bad(f"no {state['max_touches']} finite thresholds")
-    if "fold_known" in state or "fold_unknown" in state or "fold_groups" in state:  # since joint decisions
-        digest = state.get("fold_groups")
-        n = state["max_touches"]
-        for side in ("fold_known", "fold_unknown"):
-            kept = state.get(side)
-            if not (isinstance(kept, dict) and 1 <= len(kept) and set(kept) <= set(SCORES)
-                    and all(isinstance(v, list) and len(v) == n for v in kept.values())
-                    and all(isinstance(a, np.ndarray) and a.dtype == np.float64 and a.ndim == 1
-                            and 1 <= len(a) <= MAX_REFERENCE and np.isfinite(a).all()
-                            and np.abs(a).max() <= MAX_SCORE for v in kept.values() for a in v)):
-                raise bad(f"no {side} scores: per score {n} arrays of finite values within +-{MAX_SCORE:g}")
-            lengths = {tuple(len(a) for a in v) for v in kept.values()}
-            if len(lengths) != 1:
-                raise bad(f"{side} scores of different groups")
-        if set(state["fold_known"]) != set(state["fold_unknown"]) or state.get("score") not in state["fold_known"]:
-            raise bad("fold scores that do not match each other or the chosen score")
-        if "thresholds" not in state:
-            raise bad("fold scores without the thresholds they were fitted with")
-        if not (isinstance(digest, str) and len(digest) == 64 and set(digest) <= set("0123456789abcdef")):
-            raise bad("a malformed fold digest")
     # Checked wherever present (per_touch uses them whatever the score), and required by the score that reads them.
     score = state.get("score")
     ref, labels, owners = state.get("reference"), state.get("reference_labels"), state.get("reference_objects")
@@ -854,7 +601,6 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
     return state
 
 
-__all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "answer", "auroc", "calibrate",
-           "calibrated_fusion", "check_calibration", "check_joinable", "class_distances", "conformal_log_p", "decide", "embedding", "group_scores",
-           "joint_decide", "joint_log_p", "joint_scores", "joint_threshold", "object_keys", "objects_per_class", "per_touch", "rejected_share",
-           "threshold_for", "threshold_keeping"]
+__all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "answer", "auroc", "calibrate", "calibrated_fusion",
+           "check_calibration", "class_distances", "decide", "embedding", "group_scores", "object_keys",
+           "objects_per_class", "per_touch", "rejected_share", "threshold_for", "threshold_keeping"]

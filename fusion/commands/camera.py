@@ -62,11 +62,9 @@ def check_camera_args(args: argparse.Namespace) -> None:
     if args.out is not None:
         check_output_folder(args.out, "--out")
     if args.model is not None:
-        from fusion.camera import load_models
+        from fusion.base import load_model
 
-        load_models(args.model, args.also, args.trust_pickle)
-    elif args.also:
-        raise InvalidArgumentError("--also models join a --model's 'unknown' answer; give --model too")
+        load_model(args.model, trust_pickle=args.trust_pickle)
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
@@ -78,7 +76,6 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     summary = recognize_capture(
         args.source, views=args.views, distance_mm=args.distance, model_path=args.model, contours=args.contours,
         strategy=args.strategy, seed=args.seed, out=args.out, target_pixel=pixel, trust_pickle=args.trust_pickle,
-        also=tuple(args.also),
     )
     if args.json:
         print_json(summary)
@@ -126,9 +123,6 @@ def register(sub) -> None:
     camera.add_argument("--views", type=int, default=4, help="views of the virtual OAK around the object (default 4)")
     camera.add_argument("--distance", type=float, default=500.0, help="virtual camera distance, mm (default 500)")
     camera.add_argument("--model", default=None, help="a trained classifier (visuotactile train); without it, no class")
-    camera.add_argument("--also", action="append", default=[], metavar="MODEL",
-                        help="another calibrated model trained on the same data that joins --model's 'unknown' "
-                             "answer; repeatable")
     camera.add_argument("--trust-pickle", action="store_true",
                         help="also load an old pickled --model (runs code from the file: only for files you made)")
     camera.add_argument("--contours", type=int, default=8, help="contours touched (default 8)")

@@ -21,9 +21,8 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
         check_figure(args.figure)
 
     obj, result = recognize_file(args.mesh, args.model, touches=args.touches, strategy=args.strategy, seed=args.seed,
-                                 rule=args.rule, trust_pickle=args.trust_pickle, others=tuple(args.also))
-    out = {"mesh": str(args.mesh), "model": str(Path(args.model)), **({"also": args.also} if args.also else {}),
-           "touches": args.touches, "strategy": args.strategy,
+                                 rule=args.rule, trust_pickle=args.trust_pickle)
+    out = {"mesh": str(args.mesh), "model": str(Path(args.model)), "touches": args.touches, "strategy": args.strategy,
            "seed": args.seed, **result.to_dict()}
     if args.figure:
         out["figure"] = str(plot_recognition(obj, result, args.figure))
@@ -48,9 +47,6 @@ def register(sub) -> None:
     parser.add_argument("mesh", help="the mesh file")
     parser.add_argument("--model", default=DEFAULT_MODEL,
                         help=f"a model from `visuotactile train` or the demo (default: {DEFAULT_MODEL})")
-    parser.add_argument("--also", action="append", default=[], metavar="MODEL",
-                        help="another calibrated model trained on the same data that joins the 'unknown' answer "
-                             "(e.g. the kNN beside the CNN pair: they miss different unknown classes); repeatable")
     parser.add_argument("--trust-pickle", action="store_true",
                         help="also load an old pickled model (runs code from the file: only for files you made)")
     parser.add_argument("--touches", "-k", type=int, default=4, help="contours per decision K (default 4)")

@@ -13,10 +13,7 @@ classes out inside training), and tests the known classes' objects of fold r and
 classes, all in any pose. Per score (max probability, feature distance, class distance, set distance) and K: AUROC
 known vs unknown (interval: bootstrap over objects, known and unknown resampled separately), and for the score the training
 folds chose: the share of known objects kept and of unknown ones answered "unknown" at the threshold fitted on
-training data, plus the share of unknown rejected at the threshold that keeps 95 % of the *test* known decisions. With two or more
-classifiers, the rows named :data:`JOINT` are their decisions together (:func:`fusion.openset.joint_decide`: each
-one's score (:func:`fusion.openset.joint_scores`, chosen on the training folds) as a p-value against its folds' known
-scores, combined by Fisher's rule).
+training data, plus the share of unknown rejected at the threshold that keeps 95 % of the *test* known decisions.
 """
 
 from __future__ import annotations
@@ -52,9 +49,6 @@ from fusion.openset import (
     calibrate,
     calibrated_fusion,
     group_scores,
-    joint_log_p,
-    joint_scores,
-    joint_threshold,
     per_touch,
     rejected_share,
     threshold_for,
@@ -65,8 +59,6 @@ from perception.errors import DatasetError
 log = logging.getLogger(__name__)
 
 BOOTSTRAP = 1000
-#: The key of the rows that combine every calibrated classifier's known score (:func:`fusion.openset.joint_decide`).
-JOINT = "joint"
 
 
 def class_index(model, batch) -> np.ndarray:
@@ -279,9 +271,8 @@ def openset_part(ctx: Context, objects) -> dict:
     rotations = []
     for r, (_, test) in enumerate(splits):
         batch = test_ds.load(test)
-        rotation_models, scored = {}, {}  # this rotation's models, and their scores per (classifier, K)
         for name in factories:
-            model = rotation_models[name] = next(models)
+            model = next(models)
             proba, distances, by_object = per_touch(model, batch)
             label = np.asarray(batch.class_names, dtype=object)[batch.labels]
             is_unknown = np.isin(label, left_out[r])
@@ -295,27 +286,22 @@ def openset_part(ctx: Context, objects) -> dict:
                               "smoothing": round(cal["smoothing"], 4),
                               "dependence": round(cal["dependence"], 4), "inner_auroc": cal["inner_auroc"]})
             for k in ks:
-                groups = touch_groups(ids, k, seed=ctx.seed)  # the same groups for every classifier
-                s = group_scores(proba, groups, cal, distances, by_object)
-                s["chosen"] = s[cal["score"]]
-                scored[name, k] = s
-                _pool(pooled, (name, k), s, threshold_for(model, k), groups, r, is_unknown, label, obj)
-        if len(rotation_models) >= 2:  # every classifier's known score, combined (fusion.openset.joint_decide)
-            together = list(rotation_models.values())
-            chosen = joint_scores(together)
-            rotations.append({"rotation": r + 1, "classifier": JOINT, "left_out": left_out[r],
-                              "score": " + ".join(chosen)})
-            for k in ks:
-                log_p = joint_log_p(together, [scored[name, k] for name in rotation_models], k, chosen)
                 groups = touch_groups(ids, k, seed=ctx.seed)
-                _pool(pooled, (JOINT, k), {"chosen": log_p.sum(axis=1)}, joint_threshold(together, k, chosen), groups,
-                      r, is_unknown, label, obj)
+                s = group_scores(proba, groups, cal, distances, by_object)
+                unknown_g = is_unknown[groups[:, 0]]
+                p = pooled.setdefault((name, k), {"unknown": [], "obj": [], "label": [], "chosen": [], "threshold": [],
+                                                  **{n: [] for n in SCORES}})
+                p["unknown"].append(unknown_g)
+                p["label"].append(label[groups[:, 0]])
+                p["obj"].append(np.array([f"{r}:{o}" for o in obj[groups[:, 0]]], dtype=object))
+                p["chosen"].append(s[cal["score"]])
+                p["threshold"].append(np.full(len(groups), threshold_for(model, k)))
+                for n in SCORES:
+                    p[n].append(s.get(n, np.full(len(groups), np.nan)))
     rows = []
     for (name, k), p in pooled.items():
         unknown = np.concatenate(p["unknown"])
         obj = np.concatenate(p["obj"])
-        display = (" + ".join(DISPLAY.get(f, f) for f in factories) + ", joint" if name == JOINT
-                   else DISPLAY.get(name, name))
         for n in (*SCORES, "chosen"):
             scores = np.concatenate(p[n])
             if not np.isfinite(scores).all():
@@ -323,7 +309,7 @@ def openset_part(ctx: Context, objects) -> dict:
             known_s, unknown_s = scores[~unknown], scores[unknown]
             value = auroc(known_s, unknown_s)
             low, high = _objects_bootstrap(known_s, obj[~unknown], unknown_s, obj[unknown], auroc, ctx.seed)
-            row = {"classifier": display, "name": name, "k": int(k), "score": n,
+            row = {"classifier": DISPLAY.get(name, name), "name": name, "k": int(k), "score": n,
                    "auroc": value, "auroc_low": low, "auroc_high": high,
                    "n_known": int((~unknown).sum()), "n_unknown": int(unknown.sum())}
             oracle = threshold_keeping(known_s, 0.95)
@@ -348,21 +334,6 @@ def openset_part(ctx: Context, objects) -> dict:
                                             for c in sorted(set(unknown_label))}
             rows.append(row)
     return {"rows": rows, "rotations": rotations, "left_out": left_out, "strategy": strategy}
-
-
-def _pool(pooled: dict, key, s: dict, threshold: float, groups, r: int, is_unknown, label, obj) -> None:
-    """Append one rotation's decisions on (G, K) ``groups`` (``s``: the scores, "chosen" or the classifier's chosen
-    one named in ``s``) to ``pooled[key]``."""
-    first = groups[:, 0]
-    p = pooled.setdefault(key, {"unknown": [], "obj": [], "label": [], "chosen": [], "threshold": [],
-                                **{n: [] for n in SCORES}})
-    p["unknown"].append(is_unknown[first])
-    p["label"].append(label[first])
-    p["obj"].append(np.array([f"{r}:{o}" for o in obj[first]], dtype=object))
-    p["chosen"].append(s["chosen"])
-    p["threshold"].append(np.full(len(groups), threshold))
-    for n in SCORES:
-        p[n].append(s.get(n, np.full(len(groups), np.nan)))
 
 
 def rejected_by_class_lines(rows: list[dict]) -> list[str]:

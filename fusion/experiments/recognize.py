@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.base import TactileClassifier
-from fusion.openset import UNKNOWN, answer, check_joinable
+from fusion.openset import UNKNOWN, answer
 from perception.atomic import save_figure
 from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
@@ -86,18 +86,15 @@ class Recognition:
 
 
 def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, strategy: str = "guided",
-              seed: int = 0, rule: str | None = None, others=()) -> Recognition:
+              seed: int = 0, rule: str | None = None) -> Recognition:
     """Touch ``obj`` along ``touches`` contours chosen by ``strategy`` with the model's sensor, classify.
 
     ``rule``: the fusion rule (default: the tempered log rule for a calibrated model, else the log rule). A model
     calibrated with a reject option (:func:`fusion.openset.calibrate`) answers ``"unknown"`` when the touches fit
-    no known class (``label`` is then "unknown" and ``closest`` the best known class). ``others``: more models
-    calibrated on the same training data that join that answer (:func:`fusion.openset.joint_decide`; ``model``
-    still names the class; ``known_score`` and ``threshold`` are then the joint ones).
+    no known class (``label`` is then "unknown" and ``closest`` the best known class).
 
     Raises:
-        InvalidArgumentError: touches < 1; ``others`` without a calibrated ``model`` and the tempered rule, or with
-            another sensor or probe count. ContourError: unknown strategy, or planes that miss the object.
+        InvalidArgumentError: touches < 1. ContourError: unknown strategy, or planes that miss the object.
 
     Examples:
         >>> from fusion.conventional import ConventionalClassifier
@@ -111,9 +108,6 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
     """
     if isinstance(touches, bool) or int(touches) != touches or touches < 1:
         raise InvalidArgumentError(f"touches must be a positive integer, got {touches!r}")
-    if not isinstance(others, (list, tuple)):
-        raise InvalidArgumentError(f"others must be a list of models, got {type(others).__name__}")
-    check_joinable(model, others, rule)  # before touching
     timing = TouchTiming()
     contours: list[Contour] = []
     sequences = touch(obj, strategy, int(touches), model.sensor(), model.probes, seed, seeding="object",
@@ -124,7 +118,7 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
                                          sensor_spec=model.sensor().spec())
     start = time.perf_counter()
     per_touch = model.predict_proba(batch)
-    decision = answer(model, batch, rule=rule, others=others, proba=per_touch)
+    decision = answer(model, batch, rule=rule, proba=per_touch)
     fused = decision["fused"]
     inference = time.perf_counter() - start
     classes = [str(c) for c in model.classes_]
@@ -143,11 +137,9 @@ def recognize(model: TactileClassifier, obj: ObjectModel, *, touches: int = 4, s
 
 
 def recognize_file(mesh: str | Path, model_path: str | Path, *, touches: int = 4, strategy: str = "guided",
-                   seed: int = 0, rule: str | None = None, trust_pickle: bool = False,
-                   others: tuple = ()) -> tuple[ObjectModel, Recognition]:
-    """:func:`recognize` a mesh file with a model file (and ``others``: more model files that join its "unknown"
-    answer): the strategy is checked first, then the models and the mesh are loaded (pose-free frame, no label).
-    Returns the object as touched and the recognition.
+                   seed: int = 0, rule: str | None = None, trust_pickle: bool = False) -> tuple[ObjectModel, Recognition]:
+    """:func:`recognize` a mesh file with a model file: the strategy is checked first, then the model and the mesh
+    are loaded (pose-free frame, no label). Returns the object as touched and the recognition.
 
     Raises:
         InvalidArgumentError: an unknown strategy (before anything loads), touches < 1.
@@ -159,18 +151,12 @@ def recognize_file(mesh: str | Path, model_path: str | Path, *, touches: int = 4
     from tactile.touching import check_strategy
 
     check_strategy(strategy)
-    if isinstance(others, (str, Path)) or not isinstance(others, (list, tuple)):
-        raise InvalidArgumentError(f"others must be a list of model files, got {type(others).__name__}")
-    if len({Path(p).resolve() for p in (model_path, *others)}) < 1 + len(others):
-        raise InvalidArgumentError("a model file is given twice (its evidence would count twice)")
-    for path in (model_path, *others):
-        if not Path(path).is_file():
-            raise DatasetError(f"{path}: no model there; run `visuotactile demo` (writes out/demo/models/cnn.vtm) "
-                               "or `visuotactile train`, or pass --model")
+    if not Path(model_path).is_file():
+        raise DatasetError(f"{model_path}: no model there; run `visuotactile demo` (writes out/demo/models/cnn.vtm) "
+                           "or `visuotactile train`, or pass --model")
     model = load_model(model_path, trust_pickle=trust_pickle)
-    more = [load_model(path, trust_pickle=trust_pickle) for path in others]
     obj = load_object(mesh, label=None)
-    return obj, recognize(model, obj, touches=touches, strategy=strategy, seed=seed, rule=rule, others=more)
+    return obj, recognize(model, obj, touches=touches, strategy=strategy, seed=seed, rule=rule)
 
 
 def plot_recognition(obj: ObjectModel, result: Recognition, path: str | Path, top: int = 8) -> Path:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion.base import TactileClassifier, load_model
+from fusion.base import TactileClassifier
 from fusion.cues import kinesthetic_cues
 from fusion.experiments import Sizes, reproduce
 from fusion.experiments.analysis import (
@@ -878,47 +878,6 @@ def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
         (name,) = picked
         by = {(r["k"], r["score"]): r["auroc"] for r in rows}
         assert all(by[(k, "chosen")] == by[(k, name)] for k in (1, 2))
-
-
-class FramesMean(EmbeddingMean):
-    """EmbeddingMean whose feature space is the frames' statistics alone (another view than its own)."""
-
-    def embed(self, batch):
-        return super().embed(batch)[:, -2:]
-
-
-def test_open_set_part_with_two_classifiers_reports_their_joint_decisions(tmp_path):
-    """With two classifiers the part adds rows of their joint decision (``fusion.openset.joint_decide``): its shares
-    equal those of ``joint_decide`` run afresh on each rotation's saved models and test objects."""
-    from fusion.decide import touch_groups
-    from fusion.experiments import openset as experiment
-    from fusion.experiments.context import Context
-    from fusion.openset import UNKNOWN, joint_decide
-
-    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
-    classifiers = {"em": EmbeddingMean, "fm": FramesMean}
-    sizes = OPEN_SET_SIZES.with_(calibration_classifiers=("em", "fm"))
-    rows = reproduce(data, tmp_path / "report", sizes=sizes, classifiers=classifiers, parts=("openset",), workers=2,
-                     progress=False)["openset"]["rows"]
-    joint = {r["k"]: r for r in rows if r["name"] == experiment.JOINT}
-    assert sorted(joint) == [1, 2] and {r["score"] for r in joint.values()} == {"chosen"}
-    assert {r["classifier"] for r in joint.values()} == {"em + fm, joint"}
-    ctx = Context(out=tmp_path / "report", seed=0, sizes=sizes, classifiers=classifiers, progress=False)
-    objects = [(p, p.parent.name) for p in sorted(data.glob("*/*.off"))]
-    test_ds, left_out, splits, _, _ = experiment._openset_plan(ctx, objects)
-    for k in (1, 2):
-        kept, rejected = [], []
-        for r, (_, test) in enumerate(splits):
-            batch = test_ds.load(test)
-            models = [load_model(tmp_path / "report" / "openset" / f"rotation{r + 1}-{name}.vtm") for name in classifiers]
-            _, ids = np.unique(np.asarray(batch.object_names, dtype=object)[batch.object_ids], return_inverse=True)
-            groups = touch_groups(ids, k, seed=0)
-            answer = joint_decide(models, batch, groups)["label"] == UNKNOWN
-            unknown = np.isin(np.asarray(batch.class_names, dtype=object)[batch.labels[groups[:, 0]]], left_out[r])
-            kept.append(~answer[~unknown])
-            rejected.append(answer[unknown])
-        assert joint[k]["known_kept"] == pytest.approx(np.mean(np.concatenate(kept)), abs=1e-12)
-        assert joint[k]["unknown_rejected"] == pytest.approx(np.mean(np.concatenate(rejected)), abs=1e-12)
 
 
 def test_open_set_part_resumes_from_the_calibrations_it_saved(tmp_path, caplog):
