@@ -719,18 +719,42 @@ def supervise_child(module: str, manifest, start: int, memory_mb: int, *, cwd, e
 
 
 # ------------------------------------------------------------------------------------ reporting
-def summarize(results: list[Result]) -> dict:
-    """Per family and loader: case count, outcome counts, the largest per-case peak RSS (MB) and seconds."""
+def outcome_summary(results, key, outcomes, order) -> dict:
+    """Per ``key(result)``: case count, outcome counts (``outcomes``), the median and largest per-case peak RSS (MB;
+    NaN without any) and the longest case (s); rows sorted by ``order(name)``. Shared with :mod:`benchmarks.fuzz_files`."""
     table = {}
     for r in results:
-        row = table.setdefault(f"{r.case.family}/{r.case.loader}", {"cases": 0, **dict.fromkeys(OUTCOMES, 0),
-                                                                    "max_peak_mb": 0.0, "max_seconds": 0.0})
+        row = table.setdefault(key(r), {"cases": 0, **dict.fromkeys(outcomes, 0), "peaks_mb": [], "max_seconds": 0.0})
         row["cases"] += 1
         row[r.outcome] += 1
         if np.isfinite(r.peak_mb):
-            row["max_peak_mb"] = max(row["max_peak_mb"], r.peak_mb)
+            row["peaks_mb"].append(r.peak_mb)
         row["max_seconds"] = max(row["max_seconds"], r.seconds)
-    return dict(sorted(table.items(), key=lambda kv: (FAMILIES.index(kv[0].split("/")[0]), kv[0])))
+    for row in table.values():
+        peaks = row.pop("peaks_mb")
+        row["median_peak_mb"] = float(np.median(peaks)) if peaks else float("nan")
+        row["max_peak_mb"] = float(np.max(peaks)) if peaks else float("nan")
+    return dict(sorted(table.items(), key=lambda kv: order(kv[0])))
+
+
+def outcome_table(summary: dict, outcomes, label: str) -> str:
+    """:func:`outcome_summary` as a plain-text table with a total row."""
+    width = max(len(label), *(len(name) for name in summary)) + 2 if summary else len(label) + 2
+    rows = [f"{label:<{width}} {'cases':>6} " + " ".join(f"{o:>8}" for o in outcomes)
+            + f"  {'peak MB (median / max)':>22} {'max s':>7}"]
+    total = Counter()
+    for name, row in summary.items():
+        rows.append(f"{name:<{width}} {row['cases']:>6} " + " ".join(f"{row[o]:>8}" for o in outcomes)
+                    + f"  {row['median_peak_mb']:>14.0f} / {row['max_peak_mb']:<5.0f} {row['max_seconds']:>7.2f}")
+        total.update({k: row[k] for k in ("cases", *outcomes)})
+    rows.append(f"{'total':<{width}} {total['cases']:>6} " + " ".join(f"{total[o]:>8}" for o in outcomes))
+    return "\n".join(rows)
+
+
+def summarize(results: list[Result]) -> dict:
+    """Per family and loader (:func:`outcome_summary`)."""
+    return outcome_summary(results, lambda r: f"{r.case.family}/{r.case.loader}", OUTCOMES,
+                           lambda name: (FAMILIES.index(name.split("/")[0]), name))
 
 
 def failures(results: list[Result]) -> list[Result]:
@@ -738,15 +762,7 @@ def failures(results: list[Result]) -> list[Result]:
 
 
 def format_table(summary: dict) -> str:
-    head = f"{'family/loader':<24} {'cases':>6} " + " ".join(f"{o:>8}" for o in OUTCOMES) + f" {'peak MB':>8} {'max s':>6}"
-    rows = [head]
-    total = Counter()
-    for name, row in summary.items():
-        rows.append(f"{name:<24} {row['cases']:>6} " + " ".join(f"{row[o]:>8}" for o in OUTCOMES)
-                    + f" {row['max_peak_mb']:>8.0f} {row['max_seconds']:>6.2f}")
-        total.update({k: row[k] for k in ("cases", *OUTCOMES)})
-    rows.append(f"{'total':<24} {total['cases']:>6} " + " ".join(f"{total[o]:>8}" for o in OUTCOMES))
-    return "\n".join(rows)
+    return outcome_table(summary, OUTCOMES, "family/loader")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -50,13 +50,12 @@ import sys
 import tempfile
 import time
 import zlib
-from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.fuzz import CHILDREN, _reset_peak, _status_kb, supervise_child
+from benchmarks.fuzz import CHILDREN, _reset_peak, _status_kb, outcome_summary, outcome_table, supervise_child
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("store_meta", "store_chunk", "store_record", "model_bytes", "model_header", "model_payload", "recording")
@@ -474,20 +473,9 @@ def _run_child(manifest, cases, start, results, timeout_s, memory_mb, tmp, progr
 
 # ------------------------------------------------------------------------------------------------- reporting
 def summarize(results: list[Result]) -> dict:
-    table = {}
-    for r in results:
-        row = table.setdefault(r.case.family, {"cases": 0, **dict.fromkeys(OUTCOMES, 0), "peaks_mb": [],
-                                               "max_seconds": 0.0})
-        row["cases"] += 1
-        row[r.outcome] += 1
-        if np.isfinite(r.peak_mb):
-            row["peaks_mb"].append(r.peak_mb)
-        row["max_seconds"] = max(row["max_seconds"], r.seconds)
-    for row in table.values():
-        peaks = row.pop("peaks_mb")
-        row["median_peak_mb"] = float(np.median(peaks)) if peaks else float("nan")
-        row["max_peak_mb"] = float(np.max(peaks)) if peaks else float("nan")
-    return dict(sorted(table.items(), key=lambda kv: FAMILIES.index(kv[0]) if kv[0] in FAMILIES else 99))
+    """Per family (:func:`benchmarks.fuzz.outcome_summary`)."""
+    return outcome_summary(results, lambda r: r.case.family, OUTCOMES,
+                           lambda name: FAMILIES.index(name) if name in FAMILIES else 99)
 
 
 def failures(results: list[Result]) -> list[Result]:
@@ -495,14 +483,7 @@ def failures(results: list[Result]) -> list[Result]:
 
 
 def format_table(summary: dict) -> str:
-    head = f"{'family':<14} {'cases':>6} " + " ".join(f"{o:>8}" for o in OUTCOMES) + "  peak MB (median / max)"
-    rows, total = [head], Counter()
-    for name, row in summary.items():
-        rows.append(f"{name:<14} {row['cases']:>6} " + " ".join(f"{row[o]:>8}" for o in OUTCOMES)
-                    + f"  {row['median_peak_mb']:>7.0f} / {row['max_peak_mb']:.0f}")
-        total.update({k: row[k] for k in ("cases", *OUTCOMES)})
-    rows.append(f"{'total':<14} {total['cases']:>6} " + " ".join(f"{total[o]:>8}" for o in OUTCOMES))
-    return "\n".join(rows)
+    return outcome_table(summary, OUTCOMES, "family")
 
 
 def fuzz(n_cases: int, *, seed: int = 0, memory_mb: int = 1024, timeout_s: float = 60.0, folder=None,
