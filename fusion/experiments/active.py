@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -74,19 +76,19 @@ def fold_order(names, specs) -> list[str]:
     return sorted(names, key=lambda n: (rank[n], specs[n].label, n))
 
 
-def camera_models(ctx, spec, true, seed: int, views: int = CAMERA_VIEWS):
+def camera_models(captures: Path, spec, true, seed: int, views: int = CAMERA_VIEWS):
     """(visual, true) for the camera in the loop: ``true`` (the object in its pose) set upright on a table and
     captured by a virtual OAK-D from ``views`` orbit views (:func:`tactile.captures.virtual_capture`, stereo
     noise seeded by ``seed``); the visual model is the reconstruction, the true model the mesh as placed, both
-    in the table's frame (mm, physical size). Cached under ``captures/`` of the report folder (a capture takes
-    about 3 s on 2 cores)."""
+    in the table's frame (mm, physical size). Cached in the folder ``captures`` (``captures/`` of the report
+    folder; a capture takes about 3 s on 2 cores)."""
     import os
     import zlib
 
     from tactile.captures import virtual_capture
 
-    path = ctx.path("captures", f"{spec.name.replace('/', '_')}-{zlib.crc32(spec.name.encode()):08x}"
-                                f"-r{spec.rotation_seed}-s{seed}-v{views}.npz")
+    path = Path(captures) / (f"{spec.name.replace('/', '_')}-{zlib.crc32(spec.name.encode()):08x}"
+                             f"-r{spec.rotation_seed}-s{seed}-v{views}.npz")
     if path.is_file():
         with np.load(path) as saved:
             visual = ObjectModel(saved["visual_vertices"], saved["visual_triangles"], name=f"{true.name}@capture")
@@ -119,7 +121,7 @@ def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, 
             continue
         touched[name] = None
         try:
-            seen, _ = camera_models(ctx, specs[name], specs[name].load(), ctx.seed)
+            seen, _ = camera_models(ctx.path("captures"), specs[name], specs[name].load(), ctx.seed)
         except InvalidMeshError as exc:
             log.warning("active: no capture of training object %s (%s)", name, exc)
             continue
@@ -135,6 +137,66 @@ def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, 
         raise DatasetError(f"active: none of the {len(names)} training objects' captures could be reconstructed; "
                            "train on the meshes alone (without train_on_captures)")
     return SequenceBatch.concatenate(batches)
+
+
+@dataclass(frozen=True)
+class EpisodeJob:
+    """Every policy's episodes on one test object (:func:`active_episodes`), a job for
+    :func:`fusion.experiments.parallel.run_jobs`: the fitted ``model`` (sent to the worker with the job), the object
+    from its ``spec`` (in its pose); its visual model is a noisy copy seeded by ``noise_seed`` or its camera capture (cached
+    in ``captures``). ``run()`` returns the object's record, or None when its capture finds no object."""
+
+    spec: object
+    model: object
+    fold: int
+    noise_seed: int
+    visual: str
+    noise_mm: float
+    captures: str
+    seed: int
+    policies: tuple
+    episodes: int
+    max_touches: int
+    candidates: int
+    variants: int
+
+    def run(self) -> dict | None:
+        model = self.model
+        true = self.spec.load()
+        name = self.spec.name
+        if self.visual == "camera":
+            try:
+                seen, true = camera_models(Path(self.captures), self.spec, true, self.seed)
+            except InvalidMeshError as exc:
+                log.warning("active: %s left out, its capture failed (%s)", name, exc)
+                return None
+        else:
+            seen = noisy_copy(true, self.noise_mm, seed=self.noise_seed)
+        row = {"object": name, "label": true.label, "fold": self.fold, "policies": {}}
+        for pname in self.policies:
+            runs = []
+            for e in range(self.episodes):  # episode e seeds the policy's draws and the sensor noise with seed + e
+                policy = make_policy(pname, self.seed + e, **({"candidates": self.candidates,
+                                                                "variants": self.variants}
+                                                               if pname == "information" else {}))
+                start = time.perf_counter()
+                ep = run_episode(true, seen, model, policy, max_touches=self.max_touches, seed=self.seed + e)
+                if e == 0 and isinstance(policy, InformationPolicy):  # what the camera's view alone would decide
+                    outcomes = policy.simulated(ActiveState(seen, model))[1]
+                    row["visual_decision"] = ep.classes[int(np.argmax(visual_belief([], outcomes)))]
+                runs.append({
+                    "decisions": ep.decisions(), "posteriors": ep.posteriors.round(6).tolist(),
+                    "planning_s": ep.planning_s.tolist(), "touching_s": ep.touching_s.tolist(),
+                    "classifying_s": ep.classifying_s.tolist(), "missed": int(ep.missed.sum()),
+                    "classes": ep.classes, "seconds": time.perf_counter() - start})
+            row["policies"][pname] = {**runs[0], **({"more_runs": runs[1:]} if len(runs) > 1 else {})}
+        return row
+
+    def cost(self) -> float:
+        return 1.0
+
+    def __str__(self) -> str:
+        return f"active episodes on {self.spec.name}"
 
 
 def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("random", "saliency", "information"),
@@ -193,39 +255,17 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
         names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
         if per_fold is not None:
             names = names[:int(per_fold)]
-        # One set of policies per episode: episode e seeds the policies' draws and the sensor noise with seed + e.
-        policy_runs = [{name: make_policy(name, ctx.seed + e, **({"candidates": candidates, "variants": variants}
-                                                                 if name == "information" else {}))
-                        for name in policies} for e in range(episodes)]
-        for n, name in enumerate(names):
-            true = specs[name].load()
-            if visual == "camera":
-                try:
-                    seen, true = camera_models(ctx, specs[name], true, ctx.seed)
-                except InvalidMeshError as exc:
-                    log.warning("active: %s left out, its capture failed (%s)", name, exc)
-                    failures.append(name)
-                    continue
-            else:
-                seen = noisy_copy(true, noise_mm, seed=ctx.seed + n + 1000 * i)
-            row = {"object": name, "label": true.label, "fold": i + 1, "policies": {}}
-            for pname in policies:
-                runs = []
-                for e, run_policies in enumerate(policy_runs):
-                    policy = run_policies[pname]
-                    start = time.perf_counter()
-                    ep = run_episode(true, seen, model, policy, max_touches=max_touches, seed=ctx.seed + e)
-                    if e == 0 and isinstance(policy, InformationPolicy):  # what the camera's view alone would decide
-                        outcomes = policy.simulated(ActiveState(seen, model))[1]
-                        row["visual_decision"] = ep.classes[int(np.argmax(visual_belief([], outcomes)))]
-                    runs.append({
-                        "decisions": ep.decisions(), "posteriors": ep.posteriors.round(6).tolist(),
-                        "planning_s": ep.planning_s.tolist(), "touching_s": ep.touching_s.tolist(),
-                        "classifying_s": ep.classifying_s.tolist(), "missed": int(ep.missed.sum()),
-                        "classes": ep.classes, "seconds": time.perf_counter() - start})
-                row["policies"][pname] = {**runs[0], **({"more_runs": runs[1:]} if len(runs) > 1 else {})}
+        jobs = [EpisodeJob(specs[name], model, i + 1, ctx.seed + n + 1000 * i, visual, noise_mm,
+                           str(ctx.path("captures")), ctx.seed, tuple(policies), int(episodes), int(max_touches),
+                           candidates, variants) for n, name in enumerate(names)]
+        # the objects side by side on the run's workers (each policy's draws are seeded by the object's visual
+        # model and the step, so an object's episodes do not depend on which objects came before it)
+        for name, row in zip(names, ctx.run_jobs(jobs) if jobs else []):
+            if row is None:
+                failures.append(name)
+                continue
             rows.append(row)
-            log.info("active fold %d: %s (%s) %s", i + 1, name, true.label,
+            log.info("active fold %d: %s (%s) %s", i + 1, name, row["label"],
                      {p: r["decisions"][-1] for p, r in row["policies"].items()})
     return {"objects": rows, "classifier": classifier, "noise_mm": noise_mm, "candidates": candidates,
             "variants": variants, "max_touches": max_touches, "visual": visual, "capture_failures": failures,

@@ -111,17 +111,17 @@ def test_capture_batch_touches_what_the_camera_saw(tmp_path, monkeypatch):
     store = SimpleNamespace(class_names=("box", "can", "mug"), sensor_spec=sensor.spec())
     real = active.camera_models
 
-    def camera(ctx, spec, true, seed):
+    def camera(captures, spec, true, seed):
         if spec.name == "can/0":
             raise InvalidMeshError("can/0: no object on the table")
-        return real(ctx, spec, true, seed)
+        return real(captures, spec, true, seed)
 
     monkeypatch.setattr(active, "camera_models", camera)
     batch = active.capture_batch(ctx, ["mug/0", "box/0", "can/0"], specs, store, sensor, 8, 3, 2)
     assert len(batch) == 6 and batch.object_names == ("mug/0", "box/0")  # named as their objects
     assert [batch.class_names[k] for k in batch.labels] == ["mug"] * 3 + ["box"] * 3
     for k, name in enumerate(("mug/0", "box/0")):
-        seen, true = real(ctx, specs[name], specs[name].load(), 0)  # cached: the same capture
+        seen, true = real(ctx.path("captures"), specs[name], specs[name].load(), 0)  # cached: the same capture
         rows = batch.object_ids == k
         points = batch.positions[rows].reshape(-1, 3).astype(np.float64)  # the table's frame, mm
         surface = smoothed(seen, 2)
@@ -199,6 +199,7 @@ def test_active_episodes_seeds_episode_e_with_seed_plus_e(tiny, monkeypatch):
     monkeypatch.setattr(active, "make_policy", make)
     monkeypatch.setattr(active, "run_episode", run)
     ctx = context("seeds")
+    ctx.workers = 1  # the objects in this process, where the spies are
     options = {"policies": ("random", "information"), "max_touches": 2, "candidates": 3, "variants": 1,
                "per_fold": 1}
     three = active.active_episodes(ctx, objects, episodes=3, **options)
@@ -217,6 +218,31 @@ def test_active_episodes_seeds_episode_e_with_seed_plus_e(tiny, monkeypatch):
         assert a["visual_decision"] == b["visual_decision"]
         for p in ("random", "information"):
             assert a["policies"][p]["posteriors"] == b["policies"][p]["posteriors"]
+
+
+def test_active_episodes_give_the_same_records_on_one_worker_or_two(tiny):
+    """The objects run side by side on the run's workers; each policy's draws are seeded by the object's visual
+    model and the step, so the records (all but the timings) are the same as in one process, object by object."""
+    from fusion.experiments import active
+
+    context, objects = tiny
+    timing = {"planning_s", "touching_s", "classifying_s", "seconds"}
+
+    def strip(x):
+        if isinstance(x, dict):
+            return {k: strip(v) for k, v in x.items() if k not in timing}
+        return [strip(v) for v in x] if isinstance(x, list) else x
+
+    options = {"policies": ("random", "saliency", "information"), "max_touches": 3, "candidates": 3, "variants": 1,
+               "episodes": 2}
+    records = []
+    for workers in (1, 2):
+        ctx = context(f"workers{workers}")
+        ctx.workers = workers
+        records.append(active.active_episodes(ctx, objects, **options))
+    assert len(records[0]["objects"]) == len(objects)
+    assert strip(records[0]) == strip(records[1])
+    assert records[0]["objects"][0]["policies"]["random"]["planning_s"]  # the timings are there
 
 
 @pytest.mark.parametrize("bad", [0, -1, 2.5, "2", True, None, np.int64(0), 10**12])
