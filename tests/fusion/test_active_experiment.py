@@ -245,6 +245,30 @@ def test_active_episodes_give_the_same_records_on_one_worker_or_two(tiny):
     assert records[0]["objects"][0]["policies"]["random"]["planning_s"]  # the timings are there
 
 
+def test_a_test_object_whose_capture_fails_is_left_out_and_listed(tiny, monkeypatch):
+    """With the camera in the loop, an object whose capture finds nothing gets no record and is listed in
+    capture_failures; the others are recorded."""
+    from fusion.active import noisy_copy
+    from fusion.experiments import active
+    from perception.errors import InvalidMeshError
+
+    context, objects = tiny
+    failing = min(str(p) for p, _ in objects)
+
+    def camera(captures, spec, true, seed):
+        if spec.path == failing:
+            raise InvalidMeshError(f"{spec.name}: no object on the table")
+        return noisy_copy(true, 1.0, seed=seed), true
+
+    monkeypatch.setattr(active, "camera_models", camera)
+    ctx = context("captures")
+    ctx.workers = 1  # in this process, where the stand-in camera is
+    result = active.active_episodes(ctx, objects, policies=("random",), max_touches=2, visual="camera")
+    names = [r["object"] for r in result["objects"]]
+    assert len(result["capture_failures"]) == 1 and result["capture_failures"][0] not in names
+    assert len(names) == len(objects) - 1
+
+
 @pytest.mark.parametrize("bad", [0, -1, 2.5, "2", True, None, np.int64(0), 10**12])
 def test_active_episodes_refuses_bad_episodes_before_any_work(bad):
     """Refused before the context is touched (ctx=None would fail otherwise); a count beyond the touch limit too."""
