@@ -721,7 +721,8 @@ def supervise_child(module: str, manifest, start: int, memory_mb: int, *, cwd, e
 # ------------------------------------------------------------------------------------ reporting
 def outcome_summary(results, key, outcomes, order) -> dict:
     """Per ``key(result)``: case count, outcome counts (``outcomes``), the median and largest per-case peak RSS (MB;
-    NaN without any) and the longest case (s); rows sorted by ``order(name)``. Shared with :mod:`benchmarks.fuzz_files`."""
+    NaN without any) and the longest case (s); rows sorted by ``order(name)``. Shared with
+    :mod:`benchmarks.fuzz_files`."""
     table = {}
     for r in results:
         row = table.setdefault(key(r), {"cases": 0, **dict.fromkeys(outcomes, 0), "peaks_mb": [], "max_seconds": 0.0})

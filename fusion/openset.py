@@ -601,6 +601,6 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
     return state
 
 
-__all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "answer", "auroc", "calibrate", "calibrated_fusion",
-           "check_calibration", "class_distances", "decide", "embedding", "group_scores", "object_keys",
-           "objects_per_class", "per_touch", "rejected_share", "threshold_for", "threshold_keeping"]
+__all__ = ["DISTANCE_FLOOR", "DISTANCE_SCORES", "SCORES", "UNKNOWN", "answer", "auroc", "calibrate",
+           "calibrated_fusion", "check_calibration", "class_distances", "decide", "embedding", "group_scores",
+           "object_keys", "objects_per_class", "per_touch", "rejected_share", "threshold_for", "threshold_keeping"]

@@ -142,9 +142,10 @@ def capture_batch(ctx, names, specs, store, sensor, probes: int, contours: int, 
 @dataclass(frozen=True)
 class EpisodeJob:
     """Every policy's episodes on one test object (:func:`active_episodes`), a job for
-    :func:`fusion.experiments.parallel.run_jobs`: the fitted ``model`` (sent to the worker with the job), the object
-    from its ``spec`` (in its pose); its visual model is a noisy copy seeded by ``noise_seed`` or its camera capture (cached
-    in ``captures``). ``run()`` returns the object's record, or None when its capture finds no object."""
+    :func:`fusion.experiments.parallel.run_jobs`: the fitted ``model`` (sent to the worker with the job), the
+    object from its ``spec`` (in its pose); its visual model is a noisy copy seeded by ``noise_seed`` or its camera
+    capture (cached in ``captures``). ``run()`` returns the object's record, or None when its capture finds no
+    object."""
 
     spec: object
     model: object
@@ -161,8 +162,7 @@ class EpisodeJob:
     variants: int
 
     def run(self) -> dict | None:
-        model = self.model
-        true = self.spec.load()
+        model, true = self.model, self.spec.load()
         name = self.spec.name
         if self.visual == "camera":
             try:
