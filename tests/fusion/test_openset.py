@@ -14,6 +14,7 @@ from fusion.base import TactileClassifier, load_model
 from fusion.openset import (
     DISTANCE_SCORES,
     UNKNOWN,
+    answer,
     auroc,
     calibrate,
     class_distances,
@@ -267,6 +268,44 @@ class TestModelFile:
             calibrated.calibration_ = saved
         with pytest.raises(ModelFileError, match="calibration"):
             load_model(path)
+
+
+class TestAnswer:
+    """The decision on K touches that recognize and camera share (fusion.openset.answer)."""
+
+    def test_unknown_for_far_objects_and_known_for_most_known_ones(self, calibrated):
+        """Each object's 6 touches are one decision: every far object is answered unknown, at most a few known
+        ones (the threshold keeps 95 % of known objects)."""
+        far = toy_batch([200.0], objects_per_class=3, seed=8, class_names=["c0"])
+        known = toy_batch(KNOWN, seed=7)
+        shares = []
+        for batch in (far, known):
+            answers = [answer(calibrated, batch.subset(np.flatnonzero(batch.object_ids == o)))
+                       for o in np.unique(batch.object_ids)]
+            assert all(a["rule"] == "tempered" and a["unknown"] == (a["known_score"] < a["threshold"])
+                       for a in answers)
+            shares.append(np.mean([a["unknown"] for a in answers]))
+        assert shares[0] == 1.0 and shares[1] <= 0.2
+
+    def test_the_asked_rule_is_used(self, calibrated):
+        """rule="sum": the mean of the calibrated per-touch probabilities, and no reject option."""
+        batch = toy_batch([30.0], objects_per_class=1, seed=8, class_names=["c0"])
+        out = answer(calibrated, batch, rule="sum")
+        assert out["rule"] == "sum" and out["known_score"] is None and out["unknown"] is False
+        np.testing.assert_allclose(out["fused"], calibrated.predict_proba(batch).mean(axis=0), atol=1e-12)
+
+    def test_calibrated_without_open_set_folds_fuses_by_the_tempered_rule(self):
+        """softmax(sum of log p / (1 + rho (K - 1))) over the calibrated per-touch probabilities, no reject option."""
+        close = [10.0, 11.0, 12.0, 13.0]  # classes that overlap: mixed posteriors, touches that depend (rho > 0)
+        model = calibrate(MeanClassifier(), toy_batch(close, seed=1), open_set=False)
+        batch = toy_batch([11.2], objects_per_class=1, seed=8, class_names=["c0"])
+        out = answer(model, batch)
+        p, rho = model.predict_proba(batch), model.calibration_["dependence"]
+        assert rho > 0.1 and 0.05 < p.max(axis=1).min() < 0.95  # touches between two classes: a posterior with something to fuse
+        z = np.log(np.maximum(p, 1e-12)).sum(axis=0) / (1 + rho * (len(p) - 1))
+        expected = np.exp(z - z.max()) / np.exp(z - z.max()).sum()
+        assert out["rule"] == "tempered" and out["known_score"] is None
+        np.testing.assert_allclose(out["fused"], expected, rtol=1e-9)
 
 
 class TestRecognize:
