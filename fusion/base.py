@@ -34,6 +34,7 @@ from perception.errors import (
     NotFittedError,
     VisuotactileError,
 )
+from perception.limits import limit
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 
@@ -49,10 +50,18 @@ FILE_ATTRIBUTES = ("_source_file",)
 #: on demand: a model file can name only classes defined in the running process or listed here).
 KNOWN_CLASSES = {"fusion.cnn.CNNClassifier": "fusion.cnn",
                  "fusion.conventional.ConventionalClassifier": "fusion.conventional"}
-#: Bounds on a model file's header fields (checked before anything is built from them).
+#: Bounds on a model file's header fields (checked before anything is built from them; probes and taxels per frame
+#: are also bounded by :mod:`perception.limits`).
 MAX_CLASSES = 100_000
 MAX_PROBES = 100_000
 MAX_TAXELS = 4096
+#: Longest class name (characters): names are printed on one line by ``recognize`` and in error messages.
+MAX_CLASS_NAME = 200
+#: The answer of a model that rejects an object (:func:`fusion.openset.decide`); no class may bear this name.
+UNKNOWN = "unknown"
+#: Largest coordinate (mm) a sequence may carry: a kilometre from the object centre is no touch of an object, and
+#: cues computed from larger numbers overflow float32.
+MAX_COORDINATE_MM = 1e6
 _ATTRIBUTE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*_$|^_[A-Za-z][A-Za-z0-9_]*$")
 _REGISTRY: dict[str, type] = {}
 
@@ -79,10 +88,40 @@ def as_batch(X) -> SequenceBatch:
         raise DatasetError("no sequences given")
     if not np.isfinite(batch.frames).all():
         raise DatasetError("tactile frames contain NaN or Inf")
-    for name in ("normals", "positions", "tangents", "pad_sides_mm"):
-        if not np.isfinite(getattr(batch, name)).all():
-            raise DatasetError(f"sequence {name} contain NaN or Inf")
+    for name in ("normals", "positions", "tangents", "pad_sides_mm", "plane_points", "plane_normals"):
+        values = getattr(batch, name)
+        if not np.isfinite(values).all():
+            raise DatasetError(f"sequence {name} contain NaN or Inf{_first_object(batch, ~np.isfinite(values))}")
+        if name in ("positions", "plane_points", "pad_sides_mm") and (np.abs(values) > MAX_COORDINATE_MM).any():
+            raise DatasetError(f"sequence {name} lie beyond {MAX_COORDINATE_MM:g} mm of the object centre"
+                               f"{_first_object(batch, np.abs(values) > MAX_COORDINATE_MM)}")
     return batch
+
+
+def _first_object(batch: SequenceBatch, bad: np.ndarray) -> str:
+    """" (first in object NAME)": the object of the first sequence ``bad`` (per element) flags, for messages."""
+    rows = np.flatnonzero(bad.reshape(len(bad), -1).any(axis=1))
+    names = getattr(batch, "object_names", None)
+    if not len(rows) or names is None or not len(names):
+        return ""
+    return f" (first in object {str(names[batch.object_ids[rows[0]]])[:80]!r})"
+
+
+def check_class_names(names, where: str, error=DatasetError) -> list[str]:
+    """``names`` (the classes of a model, sorted) checked: printable strings of 1 to :data:`MAX_CLASS_NAME`
+    characters, none of them :data:`UNKNOWN` (any case: a model answering "unknown" must mean it rejects).
+
+    Raises:
+        ``error`` naming ``where``: anything else.
+    """
+    for name in names:
+        if not isinstance(name, str) or not 1 <= len(name) <= MAX_CLASS_NAME or not name.isprintable():
+            shown = repr(name)[:60]
+            raise error(f"{where}: class name {shown} is not a printable name of 1 to {MAX_CLASS_NAME} characters")
+        if name.strip().lower() == UNKNOWN:
+            raise error(f"{where}: a class may not be named {name!r}: it is the answer of a model that rejects an "
+                        "object (rename the class)")
+    return list(names)
 
 
 #: Parameters renamed since model files were first written: old name -> new name (applied when loading).
@@ -161,7 +200,7 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         batch = as_batch(X)
         names = self._label_names(batch, y)
         self.__dict__.pop("calibration_", None)  # fitted for the old model: fusion.openset.calibrate again
-        self.classes_ = np.array(sorted(set(names.tolist())), dtype=object)
+        self.classes_ = np.array(check_class_names(sorted(set(names.tolist())), "training data"), dtype=object)
         if len(self.classes_) < 2:
             raise DatasetError(f"training data has only one class ({self.classes_[0]!r}); need at least two")
         self.sensor_spec_ = dict(batch.sensor_spec)
@@ -403,6 +442,9 @@ def _check_header(description: dict, path: Path) -> tuple[list[str], dict, int, 
     if not 2 <= len(classes) <= MAX_CLASSES or not all(isinstance(c, str) for c in classes) or (
             len(set(classes)) != len(classes)):
         raise ModelFileError(f"{path}: the model's classes must be 2 to {MAX_CLASSES} distinct names")
+    check_class_names(classes, f"{path}: the model", ModelFileError)
+    if classes != sorted(classes):  # class_indices and every column of the model's probabilities assume the order
+        raise ModelFileError(f"{path}: the model's classes are not in sorted order (damaged or hand-edited)")
     spec = decode(description.get("sensor_spec"), {}, str(path))
     if not isinstance(spec, dict):
         raise ModelFileError(f"{path}: the model description lacks a sensor specification")
@@ -412,11 +454,15 @@ def _check_header(description: dict, path: Path) -> tuple[list[str], dict, int, 
         raise ModelFileError(f"{path}: the model's sensor specification is invalid ({exc})") from None
     probes = _field(description, "probes", int, path)
     grid = _field(description, "grid", list, path)
-    if not 1 <= probes <= MAX_PROBES:
-        raise ModelFileError(f"{path}: {probes} probes in the model, outside 1..{MAX_PROBES}")
+    most_probes = min(MAX_PROBES, limit("probes"))
+    if not 1 <= probes <= most_probes:
+        raise ModelFileError(f"{path}: {probes} probes in the model, outside 1..{most_probes} (VISUOTACTILE_MAX_PROBES)")
     if len(grid) != 2 or not all(isinstance(g, int) and not isinstance(g, bool) and 1 <= g <= MAX_TAXELS
                                  for g in grid):
         raise ModelFileError(f"{path}: bad taxel grid {str(grid)[:40]} in the model (two integers 1..{MAX_TAXELS})")
+    if grid[0] * grid[1] > limit("taxels"):
+        raise ModelFileError(f"{path}: a {grid[0]} x {grid[1]} taxel grid in the model is above the limit of "
+                             f"{limit('taxels')} taxels per frame (set VISUOTACTILE_MAX_TAXELS to raise it)")
     if "rows" in spec and (spec.get("rows"), spec.get("cols")) != tuple(grid):
         raise ModelFileError(f"{path}: the model's taxel grid {grid} differs from its sensor's")
     return classes, spec, probes, (grid[0], grid[1])
@@ -463,9 +509,10 @@ def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int |
         model._restore_state(_field(description, "state", dict, path), arrays, str(path))
         model._source_file = str(path)  # names the file when its numbers misbehave (not saved, not a parameter)
         if hasattr(model, "calibration_"):
-            from fusion.openset import check_calibration
+            from fusion.openset import check_calibration, embedding_width
 
-            model.calibration_ = check_calibration(model.calibration_, len(classes), str(path))
+            model.calibration_ = check_calibration(model.calibration_, len(classes), str(path),
+                                                   embedding_width(model))
     except ModelFileError:
         raise
     except VisuotactileError as exc:  # e.g. a parameter the classifier's own checks refuse

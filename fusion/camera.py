@@ -263,7 +263,7 @@ def recognize_capture(
         out = Path(out)
         figure_contours = [make_contour(obj, s.plane, probes) for s in sequences]
         summary["figure"] = str(_figure(frames, rec, obj, figure_contours, out / "camera.png"))
-        write_text(out / "summary.json", json.dumps(summary, indent=2, default=str))
+        write_text(out / "summary.json", json.dumps(summary, indent=2, default=str, allow_nan=False))
     return summary
 
 

@@ -22,8 +22,16 @@ log = logging.getLogger(__name__)
 COMMANDS = ("demo", "generate", "verify", "train", "evaluate", "reproduce", "recognize", "camera", "bench")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the toolkit's one-line errors: a bad option prints one line on stderr (not the whole usage,
+    which runs to many lines for some subcommands) and exits 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="visuotactile", description="Visually guided tactile object recognition toolkit."
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress at INFO level")

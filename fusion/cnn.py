@@ -100,7 +100,7 @@ from torch.nn import functional as F
 from fusion.base import TactileClassifier, renamed_seed
 from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
 from fusion.decide import PROBA_FLOOR
-from perception.errors import DatasetError, InvalidArgumentError
+from perception.errors import InvalidArgumentError
 from perception.runtime import progress_bar, usable_cores
 from tactile.explore import SequenceBatch
 
@@ -368,7 +368,8 @@ class CNNClassifier(TactileClassifier):
         if self.device not in ("auto", "cpu", "cuda"):
             raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
-            raise DatasetError("CNNClassifier: device='cuda' but PyTorch sees no CUDA device")
+            raise InvalidArgumentError("CNNClassifier: device='cuda' but PyTorch sees no CUDA device ('auto' uses one "
+                                       "when present)")
 
     def _check_test_views(self, n_probes: int | None = None) -> None:
         """``test_views`` is 1 or even, and (given the probe count) at most two per probe: every start both
@@ -749,6 +750,10 @@ class CNNClassifier(TactileClassifier):
                 # A hidden layer of zeros (every ReLU off) has no direction: it stays at the origin.
                 parts.append(torch.where(length > 0, f / length.clamp_min(1e-300), f))
         return (torch.cat(parts, dim=1) / np.sqrt(len(parts))).numpy()
+
+    def embedding_width(self) -> int:
+        """D, the columns :meth:`embed` gives: the hidden units of each trained net."""
+        return sum(net.fc1.out_features for net in (self.cutaneous_net_, self.kinesthetic_net_) if net is not None)
 
     # ------------------------------------------------------------------------------- persistence
     _NETS = ("cutaneous", "kinesthetic")

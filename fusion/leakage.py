@@ -17,6 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from perception.errors import DataLeakError
+from perception.limits import limit
 from perception.runtime import usable_cores
 
 #: The key of the fingerprints in ``model.training_``.
@@ -26,6 +27,8 @@ KEY = "fingerprints"
 #: Fields of a training record (:class:`fusion.training.TrainingRecord` plus the fingerprints) and their types.
 RECORD_FIELDS = {"store": (str,), "store_id": (str,), "split": (str,), "strategy": (str, type(None)),
                  "test_fraction": (int, float), "seed": (int,), "train_sequences": (int,)}
+#: How a training record may split a store (:data:`fusion.training.SPLITS`).
+SPLITS = ("sequence", "object", "none")
 
 
 def check_training_record(training, where: str) -> dict | None:
@@ -43,6 +46,16 @@ def check_training_record(training, where: str) -> dict | None:
     for key, kinds in RECORD_FIELDS.items():
         if key in training and (not isinstance(training[key], kinds) or isinstance(training[key], bool)):
             raise ModelFileError(f"{where}: the model's training record has a bad {key!r}: {training[key]!r}"[:300])
+    # values too: `evaluate` re-splits the store by them, and a bad one would read as a bad command-line option
+    from tactile.sampling import STRATEGIES
+
+    valid = {"split": lambda v: v in SPLITS, "strategy": lambda v: v is None or v in STRATEGIES,
+             "test_fraction": lambda v: 0 < v < 1, "seed": lambda v: 0 <= v < 2**63,
+             "train_sequences": lambda v: 0 <= v <= limit("sequences")}
+    for key, ok in valid.items():
+        if key in training and not ok(training[key]):
+            raise ModelFileError(f"{where}: the model's training record has an impossible {key!r}: "
+                                 f"{training[key]!r}"[:300])
     prints = training.get(KEY)
     if prints is not None and not (isinstance(prints, np.ndarray) and prints.ndim == 1
                                    and prints.dtype.kind in "iu"):

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from perception.atomic import atomic_path
-from perception.errors import ModelFileError
+from perception.errors import InvalidArgumentError, ModelFileError
 
 #: Marks a safetensors file as a visuotactile model: the key of its one ``__metadata__`` entry.
 FORMAT_NAME = "visuotactile-model"
@@ -184,8 +184,13 @@ def write_model_file(path: str | Path, description: dict, arrays: dict[str, np.n
     arrays = {k: np.array(v, dtype=np.asarray(v).dtype.newbyteorder("<"), order="C", copy=True)
               for k, v in arrays.items()}
     data = save(arrays, metadata={FORMAT_NAME: f"{content_digest(text, arrays)} {text}"})
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
+    if Path(path).is_dir():
+        raise ModelFileError(f"{path}: is a folder; give the model file's name (e.g. {Path(path) / ('model' + SUFFIX)})")
+    try:
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)
+    except OSError as exc:
+        raise ModelFileError(f"{path}: cannot write the model file ({exc.strerror or exc})") from None
     return Path(path)
 
 
@@ -197,6 +202,8 @@ def read_model_file(path: str | Path, max_bytes: int = MAX_MODEL_BYTES) -> tuple
             damaged or truncated, or of a newer format version.
     """
     path = Path(path)
+    if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 1:
+        raise InvalidArgumentError(f"max_bytes must be a positive number of bytes, got {max_bytes!r}")
     if not path.is_file():
         raise ModelFileError(f"{path}: no such model file")
     size = path.stat().st_size

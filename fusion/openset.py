@@ -55,7 +55,9 @@ import logging
 import numpy as np
 from sklearn.base import clone
 
+from fusion.base import UNKNOWN
 from fusion.calibration import (
+    TEMPERATURE_BOUNDS,
     apply_calibration,
     apply_confidence_map,
     check_dependence,
@@ -73,8 +75,6 @@ from perception.metrics import auroc
 
 log = logging.getLogger(__name__)
 
-#: The answer of a rejected decision.
-UNKNOWN = "unknown"
 SCORES = ("probability", "distance", "class_distance", "set_distance")
 #: The scores that need a feature space (:func:`embedding`).
 DISTANCE_SCORES = ("distance", "class_distance", "set_distance")
@@ -83,6 +83,9 @@ DISTANCE_FLOOR = 1e-9
 #: Bounds on a model file's calibration state.
 MAX_TOUCHES = 64
 MAX_REFERENCE = 2_000_000
+#: Largest magnitude of a reference feature in a model file (the CNN pair's are unit vectors, the conventional
+#: pipelines' standardised features a few tens at most).
+MAX_FEATURE = 1e6
 
 
 # ------------------------------------------------------------------------------------------------ scores
@@ -153,6 +156,8 @@ def class_distances(embedding: np.ndarray, reference: np.ndarray, reference_labe
     missing = np.isnan(out)
     if missing.all():
         raise DatasetError("class_distances: no class has reference points")
+    # features near the float range overflow a distance to inf: the largest float keeps every score finite
+    np.minimum(out, np.finfo(np.float64).max, out=out)
     out[missing] = np.nanmax(out) + 1.0
     return out
 
@@ -207,6 +212,18 @@ def embedding(model, batch, features: np.ndarray | None = None) -> np.ndarray | 
         return np.asarray(model.pipeline_[1:-1].transform(f), dtype=np.float64)
     if callable(getattr(model, "embed", None)):
         return np.asarray(model.embed(batch), dtype=np.float64)
+    return None
+
+
+def embedding_width(model) -> int | None:
+    """D, the width of :func:`embedding`'s feature space for a fitted ``model`` (None when it has none), found
+    without data: a zero row through the conventional pipeline's feature steps, the CNN pair's hidden layers."""
+    if hasattr(model, "pipeline_"):
+        steps = model.pipeline_[1:-1]
+        width = getattr(steps[0], "n_features_in_", None) if len(steps) else None
+        return None if width is None else int(steps.transform(np.zeros((1, int(width)))).shape[1])
+    if callable(getattr(model, "embed", None)) and hasattr(model, "embedding_width"):
+        return model.embedding_width()
     return None
 
 
@@ -541,9 +558,11 @@ def answer(model, batch, *, rule: str | None = None, proba=None) -> dict:
     return {"fused": fused, "rule": rule, "known_score": None, "threshold": None, "unknown": False}
 
 
-def check_calibration(state, n_classes: int, where: str) -> dict:
-    """``state`` (a model file's ``calibration_``) checked: finite temperature > 0, rho in [0, 1], keep in (0, 1],
-    a known score, finite thresholds, reference features consistent with the classes.
+def check_calibration(state, n_classes: int, where: str, width: int | None = None) -> dict:
+    """``state`` (a model file's ``calibration_``) checked: a temperature within the bounds a fit can give, rho in
+    [0, 1], keep in (0, 1], a known score, finite thresholds, reference features consistent with the classes and
+    (``width``: the model's :func:`embedding_width`) with the model's feature space, no larger than
+    :data:`MAX_FEATURE` in magnitude.
 
     Raises:
         ModelFileError: anything else, naming ``where``.
@@ -564,6 +583,9 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
         _check_keep(state.get("keep"))
     except InvalidArgumentError as exc:
         raise bad(f"a bad value ({exc})") from None
+    low, high = TEMPERATURE_BOUNDS
+    if not low <= state["temperature"] <= high:  # what fit_temperature can give; 5e-324 would overflow every logit
+        raise bad(f"a temperature {state['temperature']:g} outside the fitted range {low:g}..{high:g}")
     for name, top in (("neighbors", 10_000), ("max_touches", MAX_TOUCHES)):
         v = state.get(name)
         if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= top:
@@ -590,9 +612,11 @@ def check_calibration(state, n_classes: int, where: str) -> dict:
     if (score in DISTANCE_SCORES or ref is not None or labels is not None) and not (
             isinstance(ref, np.ndarray) and ref.dtype == np.float64 and ref.ndim == 2
             and 1 <= len(ref) <= MAX_REFERENCE and 1 <= ref.shape[1] <= 4096 and np.isfinite(ref).all()
+            and np.abs(ref).max() <= MAX_FEATURE and (width is None or ref.shape[1] == width)
             and isinstance(labels, np.ndarray) and labels.dtype.kind == "i" and labels.shape == (len(ref),)
             and labels.min() >= 0 and labels.max() < n_classes):
-        raise bad("inconsistent reference features or labels")
+        raise bad(f"inconsistent reference features or labels (finite, at most {MAX_FEATURE:g} in magnitude, "
+                  f"{'any' if width is None else width} columns: the model's feature space)")
     if (score == "set_distance" or owners is not None) and not (
             isinstance(owners, np.ndarray) and owners.dtype.kind == "i" and isinstance(ref, np.ndarray)
             and owners.shape == (len(ref),) and owners.min() >= 0 and owners.max() < min(len(ref), limit("objects"))):

@@ -13,11 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.leakage import check_held_out
+from fusion.leakage import SPLITS, check_held_out
 from perception.errors import DatasetError, InvalidArgumentError
 
 #: How training holds out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none.
-SPLITS = ("sequence", "object", "none")
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ that a number or a file always says which code and which machine made it.
 Progress bars: every long loop of the library draws its bar with :func:`progress_bar`. A bar shows when its
 caller asks for one (``progress=True``, the default of the long functions) *and* the process-wide switch is on:
 :func:`set_progress` (the command line's ``--no-progress`` and ``--json`` turn it off) or the environment
-variable ``VISUOTACTILE_PROGRESS=0``.
+variable ``VISUOTACTILE_PROGRESS=0``. Written to a file or a pipe instead of a terminal, a bar updates every 30 s.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import os
 import platform
 import select
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -282,6 +283,10 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     :func:`progress_enabled` (``enabled``)."""
     from tqdm import tqdm
 
+    stream = options.get("file") or sys.stderr
+    if not getattr(stream, "isatty", lambda: False)():
+        # a log file, not a terminal: a line every half minute, not ten a second (tens of kB per bar otherwise)
+        options.setdefault("mininterval", 30.0)
     return tqdm(iterable, disable=not progress_enabled(enabled), **options)
 
 

@@ -8,6 +8,6 @@ import sys
 
 def print_json(result) -> None:
     """A ``--json`` result: one JSON document on stdout (logs and progress go to stderr)."""
-    json.dump(result, sys.stdout, indent=2, default=str)
-    sys.stdout.write("\n")
+    # strict JSON (no NaN or Infinity), made whole before writing: a refusal prints nothing, not half a document
+    sys.stdout.write(json.dumps(result, indent=2, default=str, allow_nan=False) + "\n")
 

@@ -44,12 +44,17 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     if not names:
         print(f"visuotactile bench: error: {NOT_PRESENT}", file=sys.stderr)
         return 2
+    usage = (f"usage: visuotactile bench NAME [options]; NAME is one of: {', '.join(names)}; "
+             "`visuotactile bench NAME --help` lists its options")
+    if args.name is None and {"-h", "--help"} & set(rest):
+        print(usage)
+        return 0
     if args.name is None:
-        print(f"usage: visuotactile bench NAME [options]; NAME is one of: {', '.join(names)}; "
-              "`visuotactile bench NAME --help` lists its options")
-        return 0 if {"-h", "--help"} & set(rest) else 2
+        print(f"visuotactile bench: error: name a benchmark: one of {', '.join(names)}", file=sys.stderr)
+        return 2
     if args.name not in names:
-        print(f"unknown benchmark {args.name!r}; available: {', '.join(names)}", file=sys.stderr)
+        print(f"visuotactile bench: error: unknown benchmark {args.name!r}; available: {', '.join(names)}",
+              file=sys.stderr)
         return 2
     module = importlib.import_module(f"benchmarks.{args.name}")
     return int(module.main(rest) or 0)

@@ -11,12 +11,35 @@ from fusion.commands.bench import available_benchmarks
 def test_benchmarks_are_listed_and_unknown_ones_refused(capsys):
     assert {"geometry", "tactile", "saliency"} <= set(available_benchmarks())
     assert main(["bench", "no-such-bench"]) == 2
-    assert "available: " in capsys.readouterr().err
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.startswith("visuotactile bench: error: unknown benchmark 'no-such-bench'")
+    assert "available: " in out.err and len(out.err.strip().splitlines()) == 1
+
+
+def test_bench_without_a_name_is_an_error_line_and_its_help_the_list(capsys):
+    assert main(["bench"]) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.startswith("visuotactile bench: error: name a benchmark: one of ")
+    assert main(["bench", "--help"]) == 0
+    assert "geometry" in capsys.readouterr().out
 
 
 def test_unknown_arguments_are_refused_outside_bench():
     with pytest.raises(SystemExit):
         main(["demo", "--no-such-flag"])
+
+
+@pytest.mark.parametrize("argv, names", [(["train", "--seed", "abc"], "--seed"),
+                                         (["reproduce", "--parts", "bogus"], "--parts"),
+                                         (["demo", "--no-such-flag"], "--no-such-flag"),
+                                         ([], "command")])
+def test_a_bad_option_is_one_line_naming_it(argv, names, capsys):
+    # argparse prints the whole usage (6-9 lines for some subcommands) before its error line by default
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and names in err[0] and "error:" in err[0] and err[0].endswith("--help)"), err
 
 
 @pytest.mark.parametrize("name", available_benchmarks())
@@ -32,7 +55,6 @@ def test_bench_help_reaches_the_benchmark(capsys):
         main(["bench", "geometry", "--help"])
     assert info.value.code == 0
     assert "--quick" in capsys.readouterr().out
-    assert main(["bench"]) == 2
 
 
 class TestBenchmarksPackaging:

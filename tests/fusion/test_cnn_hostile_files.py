@@ -3,7 +3,6 @@ hostile constructor parameter or numbers that make prediction non-finite: refuse
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -12,15 +11,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from safetensors import safe_open
-from safetensors.numpy import save
 
 from fusion.base import load_model
 from fusion.cli import main
 from fusion.cnn import MAX_THREADS, CNNClassifier
-from fusion.modelfile import FORMAT_NAME, content_digest
 from perception.errors import InvalidArgumentError, ModelFileError
 from tactile.dataset import open_dataset
+from tests._model_files import rewrite
 from tests._small_store import small_store
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,16 +35,6 @@ def cnn_file(store, tmp_path_factory) -> Path:
     return path
 
 
-def rewrite(src: Path, dst: Path, edit) -> Path:
-    """``src`` with ``edit(description, arrays)`` applied, written to ``dst`` with a valid checksum."""
-    with safe_open(str(src), framework="numpy") as f:
-        description = json.loads(f.metadata()[FORMAT_NAME].partition(" ")[2])
-        arrays = {k: f.get_tensor(k) for k in list(f.keys())}
-    edit(description, arrays)
-    arrays = {k: np.array(v, order="C", copy=True) for k, v in arrays.items()}
-    text = json.dumps(description)
-    dst.write_bytes(save(arrays, metadata={FORMAT_NAME: f"{content_digest(text, arrays)} {text}"}))
-    return dst
 
 
 def _param(name, value):

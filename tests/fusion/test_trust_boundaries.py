@@ -22,6 +22,7 @@ from fusion.cli import main
 from perception.limits import LIMITS
 from tactile.dataset import generate
 from tactile.sensor import FSRSensor
+from tests._model_files import rewrite
 from tests._small_store import small_knn_model, small_store
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -110,17 +111,8 @@ def test_deleted_frames_shard_never_evaluates(store, model, tmp_path, capsys):
 
 # ------------------------------------------------------------------------------------------------ model files
 def _rewrite_model(src: Path, dst: Path, description) -> Path:
-    from safetensors import safe_open
-    from safetensors.numpy import save
-
-    from fusion.modelfile import FORMAT_NAME, content_digest
-
-    with safe_open(str(src), framework="numpy") as f:
-        arrays = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 -- a safe_open, not a dict
-        original = json.loads(f.metadata()[FORMAT_NAME].partition(" ")[2])
-    text = json.dumps(description(original))
-    dst.write_bytes(save(arrays, metadata={FORMAT_NAME: f"{content_digest(text, arrays)} {text}"}))
-    return dst
+    """``src`` with its description replaced by ``description(original)``, resealed."""
+    return rewrite(src, dst, replace=description)
 
 
 MODEL_EDITS = {
@@ -287,7 +279,7 @@ def test_generate_killed_while_creating_leaves_nothing_that_blocks_a_rerun(tmp_p
     assert not [p for p in tmp_path.iterdir() if ".creating-" in p.name]
 
 
-@pytest.mark.parametrize("argv", [["bench"], pytest.param(["verify", "STORE"], marks=pytest.mark.slow)])
+@pytest.mark.parametrize("argv", [["bench", "--help"], pytest.param(["verify", "STORE"], marks=pytest.mark.slow)])
 def test_closed_output_pipe_is_one_line_and_exit_2(store, argv):
     argv = [str(store) if a == "STORE" else a for a in argv]
     child = subprocess.Popen([sys.executable, "-m", "fusion.cli", *argv], cwd=ROOT,
