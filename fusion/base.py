@@ -259,9 +259,15 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         return decide(self, X, groups)["score"]
 
     def score(self, X, y=None, sample_weight=None) -> float:
-        """Accuracy on ``X`` (labels from the batch unless ``y`` is given)."""
+        """Accuracy on ``X`` (labels from the batch unless ``y`` is given).
+
+        Raises:
+            DatasetError: labels of classes the model does not know (its accuracy on them would be 0 by
+                construction, not a measurement).
+        """
         batch = as_batch(X)
         names = self._label_names(batch, y)
+        class_indices(self.classes_, names)
         return float(np.average(self.predict(batch).astype(str) == names.astype(str), weights=sample_weight))
 
     def predict_proba_touches(self, X, groups: np.ndarray, rule: str | None = None) -> np.ndarray:

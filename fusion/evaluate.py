@@ -82,7 +82,7 @@ def confusion(y_true, y_pred, classes) -> np.ndarray:
     index = {c: i for i, c in enumerate(classes)}
     unknown = (set(y_true.astype(str)) | set(y_pred.astype(str))) - set(index)
     if unknown:
-        raise DatasetError(f"labels {sorted(unknown)} are not among the classes {classes}")
+        raise DatasetError(f"labels {sorted(str(u) for u in unknown)[:5]} are not among the classes {classes}")
     rows = np.array([index[c] for c in y_true.astype(str)])
     cols = np.array([index[c] for c in y_pred.astype(str)])
     matrix = np.zeros((len(classes), len(classes)), dtype=np.int64)

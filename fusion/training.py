@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.leakage import SPLITS, check_held_out
+from fusion.leakage import SPLITS, check_held_out, overlap
 from perception.errors import DatasetError, InvalidArgumentError
 
 #: How training holds out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none.
@@ -146,9 +146,17 @@ def evaluate_on_store(model, store: str | Path, *, touches: int = 1, rule: str =
     batch = dataset.load(index)
     if subset.startswith("held-out"):  # checked against what the model was fitted on (fusion.leakage)
         check_held_out(model, batch, f"{store}: {subset}", by_object="object" in subset)
-    proba = model.predict_proba(batch)
+    else:  # not a held-out part: say how much of it the model was fitted on, so the score is read for what it is
+        trained_on = int(overlap(model, batch).sum())
+        if trained_on:
+            subset += f"; the model was fitted on {trained_on} of these {len(batch)} sequences: not a held-out score"
     classes = model.classes_.astype(str)
     truth = np.asarray(batch.class_names, dtype=object)[batch.labels].astype(str)
+    foreign = sorted(set(truth.tolist()) - set(classes.tolist()))
+    if foreign:
+        raise DatasetError(f"{store}: classes {foreign[:5]} are not among the model's classes {classes.tolist()[:20]}"
+                           " (a model can only be scored on classes it was trained on)")
+    proba = model.predict_proba(batch)
     if touches > 1:
         groups = touch_groups(batch.object_ids, touches, seed=seed)
         proba = fuse_touches(proba[groups], rule=rule)

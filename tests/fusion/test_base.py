@@ -43,6 +43,31 @@ def test_fit_predict_score_with_class_names(batch):
     assert proba.shape == (2, 2) and np.allclose(proba.sum(axis=1), 1.0)
 
 
+def test_score_on_a_class_the_model_never_saw_is_refused(batch):
+    # it returned 0.0: an accuracy of nothing the model could have answered, read as a measurement
+    model = MeanFrame().fit(batch)
+    with pytest.raises(DatasetError, match=r"\['mug'\] are not among the classes \['c0', 'c1'\]"):
+        model.score(batch, y=np.array(["c0"] * 4 + ["mug"] * 4))
+    assert model.score(batch, y=np.array(["c0"] * 4 + ["c0"] * 4)) == 0.5
+
+
+@pytest.mark.parametrize("name, field", [("positions", "positions"), ("plane_points", "plane_points"),
+                                         ("plane_normals", "plane_normals")])
+def test_non_finite_or_far_sequence_arrays_are_refused_naming_the_object(batch, name, field):
+    import dataclasses
+
+    values = getattr(batch, name).copy()
+    values[3] = np.nan
+    bad = dataclasses.replace(batch, **{name: values})
+    with pytest.raises(DatasetError, match=f"sequence {field} contain NaN or Inf \\(first in object"):
+        MeanFrame().fit(bad)
+    if name != "plane_normals":
+        values = getattr(batch, name).copy()
+        values[5] = 3e38  # finite, but cues made from it overflow float32
+        with pytest.raises(DatasetError, match=f"sequence {field} lie beyond 1e\\+06 mm"):
+            MeanFrame().fit(dataclasses.replace(batch, **{name: values}))
+
+
 def test_explicit_labels_by_name(batch):
     model = MeanFrame().fit(batch, y=["small"] * 4 + ["large"] * 4)
     assert list(model.classes_) == ["large", "small"]

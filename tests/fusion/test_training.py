@@ -7,7 +7,7 @@ import pytest
 
 from fusion.base import load_model
 from fusion.training import SPLITS, evaluate_on_store, evaluation_indices, split_indices, train_on_store
-from perception.errors import InvalidArgumentError
+from perception.errors import DatasetError, InvalidArgumentError
 from tactile.dataset import generate, open_dataset
 from tactile.sensor import FSRSensor
 
@@ -57,3 +57,22 @@ class TestTrainAndEvaluate:
         model.training_ = {**model.training_, "store_id": "another"}
         index, subset = evaluation_indices(model, open_dataset(store), store)
         assert subset == "all sequences" and len(index) == 40
+
+    def test_an_evaluation_on_what_the_model_was_fitted_on_says_so(self, store, tmp_path):
+        # trained on every sequence and evaluated on the same store: 100 % that must not read as a held-out score
+        train_on_store(store, "knn", tmp_path / "m.vtm", split="none")
+        found = evaluate_on_store(load_model(tmp_path / "m.vtm"), store)
+        assert found["subset"].endswith("fitted on 40 of these 40 sequences: not a held-out score")
+        half = open_dataset(store).indices()[::2]  # trained on half: 20 of the 40 evaluated were seen
+        from fusion.conventional import ConventionalClassifier
+
+        model = ConventionalClassifier("knn").fit(open_dataset(store).load(half))
+        assert "fitted on 20 of these 40 sequences" in evaluate_on_store(model, store)["subset"]
+
+    def test_a_store_of_classes_the_model_never_saw_is_refused_naming_them(self, store, tmp_path):
+        other = tmp_path / "other.zarr"
+        generate([("mug", 0), ("box", 5)], other, strategies=("blind",), contours_per_object=2,
+                 sensor=FSRSensor(rows=8, cols=8), probes=10, seed=0, workers=1, progress=False)
+        train_on_store(store, "knn", tmp_path / "m.vtm", split="none")
+        with pytest.raises(DatasetError, match=r"other.zarr: classes \['mug'\] are not among the model's classes"):
+            evaluate_on_store(load_model(tmp_path / "m.vtm"), other)
