@@ -74,9 +74,12 @@ def check_common(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args, rest = parser.parse_known_args(argv)
-    if rest and not getattr(args, "passes_extra_args", False):
-        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    try:  # a bad option (one line on stderr) or --help returns its exit code, as every other outcome does
+        args, rest = parser.parse_known_args(argv)
+        if rest and not getattr(args, "passes_extra_args", False):
+            parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else 2
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",

@@ -66,7 +66,9 @@ def touch_groups(object_ids: np.ndarray, k: int, seed: int = 0, *, repeats: int 
             usable = len(members) - len(members) % k
             groups.extend(members[:usable].reshape(-1, k))
     if not groups:
-        raise DatasetError(f"touch_groups: no object has {k} sequences to group")
+        most = int(np.bincount(np.unique(object_ids, return_inverse=True)[1]).max()) if len(object_ids) else 0
+        raise DatasetError(f"touch_groups: no object has {k} sequences to group into one decision of {k} touches "
+                           f"(the most any object has: {most})")
     return np.asarray(groups, dtype=np.int64)
 
 

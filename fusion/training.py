@@ -158,7 +158,10 @@ def evaluate_on_store(model, store: str | Path, *, touches: int = 1, rule: str =
                            " (a model can only be scored on classes it was trained on)")
     proba = model.predict_proba(batch)
     if touches > 1:
-        groups = touch_groups(batch.object_ids, touches, seed=seed)
+        try:
+            groups = touch_groups(batch.object_ids, touches, seed=seed)
+        except DatasetError as exc:
+            raise DatasetError(f"{store}: touches={touches}: {exc}") from None
         proba = fuse_touches(proba[groups], rule=rule)
         truth = truth[groups[:, 0]]
         decision_groups = batch.object_ids[groups[:, 0]]

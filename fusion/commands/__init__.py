@@ -11,3 +11,16 @@ def print_json(result) -> None:
     # strict JSON (no NaN or Infinity), made whole before writing: a refusal prints nothing, not half a document
     sys.stdout.write(json.dumps(result, indent=2, default=str, allow_nan=False) + "\n")
 
+
+def positive_int(text: str) -> int:
+    """An argparse ``type`` for counts: a positive integer, else argparse's one-line error naming the option."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return value
+

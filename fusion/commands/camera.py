@@ -7,6 +7,7 @@ import argparse
 
 import numpy as np
 
+from fusion.commands import positive_int
 from perception.errors import InvalidArgumentError
 
 #: Largest --seed (checked with the others in :func:`fusion.cli.check_common`): the seed reaches
@@ -120,12 +121,12 @@ def register(sub) -> None:
         "--source", required=True,
         help="virtual:<class>[/<instance seed>] (simulated OAK-D), oak (live camera), or a recording folder",
     )
-    camera.add_argument("--views", type=int, default=4, help="views of the virtual OAK around the object (default 4)")
+    camera.add_argument("--views", type=positive_int, default=4, help="views of the virtual OAK around the object (default 4)")
     camera.add_argument("--distance", type=float, default=500.0, help="virtual camera distance, mm (default 500)")
     camera.add_argument("--model", default=None, help="a trained classifier (visuotactile train); without it, no class")
     camera.add_argument("--trust-pickle", action="store_true",
                         help="also load an old pickled --model (runs code from the file: only for files you made)")
-    camera.add_argument("--contours", type=int, default=8, help="contours touched (default 8)")
+    camera.add_argument("--contours", type=positive_int, default=8, help="contours touched (default 8)")
     camera.add_argument("--strategy", default="blind", help="contour strategy: blind | guided | mesh | iss")
     camera.add_argument("--target", default=None, metavar="U,V",
                         help="touch the object this pixel (column,row) of the first frame shows (default: the one in front)")

@@ -7,6 +7,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from fusion.commands import positive_int
+
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.commands import print_json
@@ -29,9 +31,9 @@ def register(sub) -> None:
     demo = sub.add_parser("demo", help="recognize built-in objects by touch, end to end (report, figures, models)")
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     demo.add_argument("--seed", type=int, default=0, help="seed of objects, data, splits and models (default 0)")
-    demo.add_argument("--objects-per-class", type=int, help="built-in instances per class (default 3)")
-    demo.add_argument("--contours", type=int, help="contours per object and strategy (default 30)")
-    demo.add_argument("--epochs", type=int, help="CNN epochs at most (default 12)")
+    demo.add_argument("--objects-per-class", type=positive_int, help="built-in instances per class (default 3)")
+    demo.add_argument("--contours", type=positive_int, help="contours per object and strategy (default 30)")
+    demo.add_argument("--epochs", type=positive_int, help="CNN epochs at most (default 12)")
     demo.add_argument("--no-recognition", action="store_true", help="only the catalogue, saliency and touch figures")
     demo.add_argument("--json", action="store_true", help="print summary.json on stdout (tables go to stderr)")
     demo.set_defaults(func=run)

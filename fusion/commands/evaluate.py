@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fusion.commands import print_json
+from fusion.commands import positive_int, print_json
 
 #: Figure formats --figure takes (by suffix).
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
@@ -78,7 +78,7 @@ def register(sub) -> None:
     p.add_argument("--store", required=True, help="dataset store")
     p.add_argument("--trust-pickle", action="store_true",
                    help="also load an old pickled model (runs code from the file: only for files you made)")
-    p.add_argument("--touches", type=int, default=1, help="sequences of the same object per decision (default: 1)")
+    p.add_argument("--touches", type=positive_int, default=1, help="sequences of the same object per decision (default: 1)")
     p.add_argument("--rule", choices=RULES, default="log", help="multi-touch fusion rule (default: log)")
     p.add_argument("--strategy", default=None, help="only this strategy's sequences (other stores)")
     p.add_argument("--figure", default=None, help="write a confusion-matrix PNG here")

@@ -15,7 +15,7 @@ import argparse
 import shlex
 from pathlib import Path
 
-from fusion.commands import print_json
+from fusion.commands import positive_int, print_json
 
 
 def _objects(args: argparse.Namespace) -> list:
@@ -103,16 +103,16 @@ def register(sub) -> None:
     )
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--data", type=Path, help="class-per-folder mesh collection (<root>/<Class>/<file>)")
-    source.add_argument("--catalogue", type=int, metavar="N", help="N built-in objects per class (seeds 0..N-1)")
+    source.add_argument("--catalogue", type=positive_int, metavar="N", help="N built-in objects per class (seeds 0..N-1)")
     p.add_argument("--classes", nargs="+", help="only these classes (default: all)")
-    p.add_argument("--objects-per-class", type=int, metavar="N", help="with --data: the first N files of each class")
+    p.add_argument("--objects-per-class", type=positive_int, metavar="N", help="with --data: the first N files of each class")
     # A string, checked in run(): Path("") would already read as the current folder.
     p.add_argument("--out", required=True, help="the store folder (created, or resumed)")
     p.add_argument("--strategies", nargs="+", default=["guided", "blind"],
                    help="sampling strategies: blind, guided, mesh, iss (default: guided blind)")
-    p.add_argument("--contours", type=int, default=950, help="contours per object and strategy (default: 950, the paper's)")
-    p.add_argument("--probes", type=int, default=25, help="probes per contour (default: 25)")
-    p.add_argument("--workers", type=int, default=None, help="parallel workers (default: the usable cores)")
+    p.add_argument("--contours", type=positive_int, default=950, help="contours per object and strategy (default: 950, the paper's)")
+    p.add_argument("--probes", type=positive_int, default=25, help="probes per contour (default: 25)")
+    p.add_argument("--workers", type=positive_int, default=None, help="parallel workers (default: the usable cores)")
     p.add_argument("--executor", default="local",
                    help="local processes or a Ray cluster (RAY_ADDRESS, else a local Ray instance)")
     p.add_argument("--seed", type=int, default=0)

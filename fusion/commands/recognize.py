@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from fusion.commands import positive_int
 from fusion.commands.evaluate import check_figure
 
 DEFAULT_MODEL = "out/demo/models/cnn.vtm"
@@ -49,7 +50,7 @@ def register(sub) -> None:
                         help=f"a model from `visuotactile train` or the demo (default: {DEFAULT_MODEL})")
     parser.add_argument("--trust-pickle", action="store_true",
                         help="also load an old pickled model (runs code from the file: only for files you made)")
-    parser.add_argument("--touches", "-k", type=int, default=4, help="contours per decision K (default 4)")
+    parser.add_argument("--touches", "-k", type=positive_int, default=4, help="contours per decision K (default 4)")
     parser.add_argument("--strategy", default="guided",
                         help="where to touch: a key of tactile.sampling.STRATEGIES, e.g. blind, guided (multiview "
                              "saliency), mesh, iss, pcl_harris, pcl_iss (PCL keypoints: `make peers` first) "

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fusion.commands import positive_int
+
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from fusion.commands import print_json
@@ -65,13 +67,13 @@ def register(sub) -> None:
     parser.add_argument("--data", required=True, help="class-per-folder mesh set (<root>/<Class>/<mesh>)")
     parser.add_argument("--classes", nargs="+", help="classes to use (default: the first 8 for the paper "
                                                       "protocol, all for unseen objects)")
-    parser.add_argument("--objects-per-class", type=int, default=None,
+    parser.add_argument("--objects-per-class", type=positive_int, default=None,
                         help="instances per class of the paper protocol (default 3)")
     parser.add_argument("--quick", action="store_true", help="small sizes (a smoke run: about 5 minutes on 2 cores)")
     parser.add_argument("--out", help="report folder (default out/reproduce, or out/reproduce-quick)")
     parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(DEFAULT_PARTS),
                         help=f"parts to run (default: {', '.join(DEFAULT_PARTS)})")
-    parser.add_argument("--workers", type=int, default=None,
+    parser.add_argument("--workers", type=positive_int, default=None,
                         help="worker processes of data generation and of model fits (default: the cores; any count "
                              "gives the same stores and CNN models: each CNN trains on one thread)")
     parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")

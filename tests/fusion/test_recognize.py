@@ -76,7 +76,7 @@ def test_recognize_errors_are_one_line_and_exit_2(model_and_meshes, tmp_path, ca
     assert main(["recognize", str(tmp_path / "missing.off"), "--model", str(path)]) == 2
     assert "missing.off" in capsys.readouterr().err
     assert main(["recognize", str(meshes["box"]), "--model", str(path), "--touches", "0"]) == 2
-    assert "touches must be a positive integer" in capsys.readouterr().err
+    assert "argument --touches/-k: must be a positive integer" in capsys.readouterr().err
 
 
 def test_recognize_refuses_an_unknown_strategy_before_loading_anything(tmp_path, capsys):
