@@ -4,6 +4,7 @@ the pipeline is :func:`fusion.camera.recognize_capture`."""
 from __future__ import annotations
 
 import argparse
+import os
 
 import numpy as np
 
@@ -69,6 +70,8 @@ def check_camera_args(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
+    if args.json:  # depthai's logger writes to stdout (e.g. "USB protocol not available" on import): JSON only there
+        os.environ.setdefault("DEPTHAI_LEVEL", "error")
     from fusion.camera import recognize_capture
     from fusion.commands import print_json
 

@@ -25,6 +25,15 @@ def test_oak_without_a_device_exits_non_zero_within_5_s_and_says_what_to_do(no_o
     assert len(lines) == 1  # one line (+ depthai's own USB warning)
 
 
+def test_oak_json_keeps_stdout_for_json(no_oak):
+    # depthai logs "USB protocol not available" to stdout when it is imported: with --json, stdout is JSON or nothing
+    done = subprocess.run([sys.executable, "-m", "fusion.cli", "camera", "--source", "oak", "--json"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 2 and done.stdout == "", done.stdout
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "no OAK device found" in lines[0], lines
+
+
 def test_reconstructed_object_is_recognized_by_a_model_trained_on_cad_meshes(tmp_path, capsys):
     from fusion.conventional import ConventionalClassifier
     from tactile.dataset import generate, open_dataset
