@@ -38,7 +38,10 @@ def folder_objects(folder: str | Path, classes=None, per_class: int | None = Non
     if per_class is not None and (isinstance(per_class, bool) or int(per_class) != per_class or per_class < 1):
         raise InvalidArgumentError(f"objects per class must be an integer >= 1, got {per_class!r}")
 
-    items = unique_meshes(list_collection(folder))
+    listed = list_collection(folder)
+    # copies are found across every class (a file in two class folders is one object), warned about in the asked ones
+    asked = set(classes) if classes else set(sorted({label for _, label in listed})[:max_classes or None])
+    items = unique_meshes(listed, warn_labels=asked)
     available = sorted({label for _, label in items})
     if classes:
         unknown = [c for c in classes if c not in available]
@@ -65,16 +68,16 @@ def mesh_digest(path: str | Path) -> str:
 _WARNED: set[tuple[str, str]] = set()
 
 
-def unique_meshes(items: list[tuple[Path, str]]) -> list[tuple[Path, str]]:
+def unique_meshes(items: list[tuple[Path, str]], warn_labels=None) -> list[tuple[Path, str]]:
     """``items`` without the files whose bytes (SHA-256) equal an earlier one's (logged as a warning, once per
-    process and pair)."""
+    process and pair, when the copy's class is in ``warn_labels``; None: any)."""
     seen: dict[str, Path] = {}
     out = []
     for path, label in items:
         key = mesh_digest(path)
         if key in seen:
             pair = (str(path), str(seen[key]))
-            if pair not in _WARNED:
+            if pair not in _WARNED and (warn_labels is None or label in warn_labels):
                 _WARNED.add(pair)
                 log.warning("%s is byte-identical to %s: counted as one object", *pair)
             continue

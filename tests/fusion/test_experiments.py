@@ -398,6 +398,21 @@ def test_folder_objects_leave_out_a_copy_and_warn_once(tmp_path, caplog):
     assert len(warnings) == 1 and "1.off is byte-identical to" in warnings[0] and warnings[0].count("0.off") == 1
 
 
+def test_a_copy_in_a_class_not_asked_for_is_left_out_without_a_warning(tmp_path, caplog):
+    # SHREC's Fish/227 = Fish/226 was announced even when only Cup was asked for; a copy across classes still counts
+    for c, files in (("cup", {"0.off": "OFF\n# cup\n"}), ("fish", {"0.off": "OFF\n# f\n", "1.off": "OFF\n# f\n"}),
+                     ("mug", {"0.off": "OFF\n# cup\n", "1.off": "OFF\n# mug\n"})):
+        (tmp_path / c).mkdir()
+        for name, text in files.items():
+            (tmp_path / c / name).write_text(text)
+    with caplog.at_level("WARNING", logger="fusion.experiments.data"):
+        assert [p.name for p, _ in folder_objects(tmp_path, ["cup"])] == ["0.off"]
+        assert not [r for r in caplog.records if "byte-identical" in r.getMessage()]
+        assert [str(p.relative_to(tmp_path)) for p, _ in folder_objects(tmp_path, ["mug"])] == ["mug/1.off"]
+    warnings = [r.getMessage() for r in caplog.records if "byte-identical" in r.getMessage()]
+    assert len(warnings) == 1 and "mug/0.off is byte-identical to" in warnings[0] and "cup/0.off" in warnings[0]
+
+
 def test_reproduce_refuses_bad_parts(tmp_path):
     with pytest.raises(InvalidArgumentError, match="unknown parts"):
         reproduce(tmp_path, tmp_path / "r", parts=("paper", "tea"), classifiers=STANDINS)
