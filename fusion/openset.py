@@ -508,7 +508,10 @@ def decide(model, X, groups=None) -> dict[str, np.ndarray]:
     if groups is None:
         groups = np.arange(len(batch))[:, None]
     else:  # checked before the cast: floats would be truncated, huge integers overflow, strings raise
-        raw = np.asarray(groups)
+        try:
+            raw = np.asarray(groups)
+        except ValueError:  # ragged lists: numpy cannot make one array of them
+            raw = np.asarray([], dtype=object)
         if (raw.dtype.kind not in "iu" or raw.ndim != 2 or raw.size == 0 or raw.min() < 0
                 or raw.max() >= len(batch)):
             raise InvalidArgumentError(f"decide: groups must be a (G, K) integer index array into {len(batch)} "

@@ -159,7 +159,7 @@ class TestCalibrate:
         # the posterior alone cannot tell: the far cluster is "c3" with certainty
         assert (result["probability"] > 0.99).all()
 
-    @pytest.mark.parametrize("groups", [[["a"]], [[np.nan]], [[2**70]], [[0.5, 1.2]], [[True]], [[-1]], [0, 1]])
+    @pytest.mark.parametrize("groups", [[["a"]], [[np.nan]], [[2**70]], [[0.5, 1.2]], [[True]], [[-1]], [0, 1], [[0, 1], [2]]])
     def test_decide_refuses_groups_that_are_not_integer_indices(self, calibrated, groups):
         """Floats were truncated to indices and True read as sequence 1; strings, NaN and 2**70 raised raw errors."""
         with pytest.raises(InvalidArgumentError, match="integer index array"):
