@@ -20,6 +20,7 @@ Old pickled models are refused unless ``trust_pickle=True`` (for files you made 
 from __future__ import annotations
 
 import logging
+import os
 import re
 from pathlib import Path
 from typing import ClassVar
@@ -29,6 +30,7 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 
 from perception.errors import (
     DatasetError,
+    InvalidArgumentError,
     ModelFileError,
     ModelMismatchError,
     NotFittedError,
@@ -484,10 +486,12 @@ def load_model(path: str | Path, *, trust_pickle: bool = False, max_bytes: int |
 
     Raises:
         ModelFileError: missing file, a pickle (without ``trust_pickle``), not a visuotactile model, damaged,
-            truncated or inconsistent, or a newer format.
+            truncated or inconsistent, or a newer format. InvalidArgumentError: ``path`` is not a path.
     """
     from fusion.modelfile import MAX_MODEL_BYTES, decode, looks_like_pickle, read_model_file
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise InvalidArgumentError(f"load_model: expected a model file path, got {type(path).__name__}")
     path = Path(path)
     if trust_pickle and path.is_file():
         with open(path, "rb") as f:

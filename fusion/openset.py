@@ -337,8 +337,11 @@ def calibrate(model, X, y=None, *, cv: int = 3, class_folds: int = 4, holdout: i
         DatasetError: bad data, a class with fewer objects than ``cv``, too few classes for ``class_folds``.
         InvalidArgumentError: bad settings, or a distance score for a model without a feature space.
     """
-    from fusion.base import as_batch, class_indices
+    from fusion.base import TactileClassifier, as_batch, class_indices
 
+    if not isinstance(model, TactileClassifier):
+        raise InvalidArgumentError(f"calibrate: expected an (unfitted or fitted) visuotactile classifier, got "
+                                   f"{type(model).__name__}")
     for name, value, low in (("cv", cv, 2), ("class_folds", class_folds, 2), ("holdout", holdout, 2),
                              ("max_touches", max_touches, 1), ("neighbors", neighbors, 1)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:

@@ -161,3 +161,10 @@ def test_json_output_refuses_nan_rather_than_print_it(capsys):
     assert capsys.readouterr().out == ""
     print_json({"label": "box", "known_score": -1.5})
     assert json.loads(capsys.readouterr().out) == {"label": "box", "known_score": -1.5}
+
+
+@pytest.mark.parametrize("call", [lambda: load_model(None), lambda: load_model(b"m.vtm"),
+                                  lambda: calibrate(None, None), lambda: calibrate("knn", None)])
+def test_a_wrong_kind_of_argument_is_an_argument_error(call):
+    with pytest.raises(InvalidArgumentError, match="expected a"):
+        call()
