@@ -1,9 +1,12 @@
 """Checking a store for damage: every complete object's chunks (present, not empty, checksums) and digests.
 
 A complete object is intact when every chunk file holding its rows exists and is not empty, every chunk passes
-its CRC-32C checksum, the SHA-256 of each array's rows equals the digest in its completion record, and the record's
-row checksums and settings digest (where it holds them) are those of its rows and of the store's settings (see
-:mod:`tactile.dataset.store`). :func:`verify_store` checks all of them (``visuotactile verify``);
+its CRC-32C checksum, the SHA-256 of each array's rows equals the digest in its completion record, the record's
+row checksums and settings digest (where it holds them) are those of its rows and of the store's settings, and its
+rows and interest points lie within their physical bounds (finite, positions within 1 km, unit normals: what a
+forger who recomputed the digests could still get wrong; :func:`~tactile.dataset.store.value_problem`) (see
+:mod:`tactile.dataset.store`). Every array must be a zarr v3 one (a v2 ``.zarray`` is refused, naming it).
+:func:`verify_store` checks all of them (``visuotactile verify``);
 :func:`damaged_objects` is what ``generate`` runs before resuming, to re-explore exactly the damaged ones.
 Checking reads the whole store once (decompression and hashing: about the speed of loading it).
 """
@@ -27,6 +30,7 @@ from tactile.dataset.store import (
     array_digest,
     check_arrays,
     decode_row_checksums,
+    interest_points_of,
     layout_of,
     read_attrs,
     read_json,
@@ -36,6 +40,7 @@ from tactile.dataset.store import (
     rows_per_file,
     settings_digest,
     update_digest,
+    value_problem,
     written_with_other_settings,
 )
 
@@ -80,11 +85,14 @@ def _arrays(path: Path, settings: dict) -> dict:
     sizes are bounded by, :func:`~tactile.dataset.store.max_chunk_file_bytes`)."""
     import zarr
 
-    try:
-        arrays = {name: zarr.open_array(f"{path}/{name}", mode="r") for name in ARRAYS}
-    except Exception as exc:  # noqa: BLE001 -- zarr raises several types for missing or corrupt metadata
-        raise DatasetError(f"{path}: cannot open the store's arrays ({type(exc).__name__}: {exc})") from None
-    check_arrays(path, arrays, settings)
+    arrays = {}
+    for name in ARRAYS:
+        try:
+            arrays[name] = zarr.open_array(f"{path}/{name}", mode="r")  # zarr v2 too: check_arrays refuses it
+        except Exception as exc:  # noqa: BLE001 -- zarr raises several types for missing or corrupt metadata
+            raise DatasetError(f"{path}: cannot open the store's {name!r} array ({type(exc).__name__}: "
+                               f"{str(exc)[:160]})") from None
+    check_arrays(path, arrays, settings)  # shapes, dtypes, and zarr v3 (a v2 array has no checksums)
     return arrays
 
 
@@ -100,8 +108,16 @@ def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: 
     problems = []
     if written_with_other_settings(record, settings_digest(settings)):
         problems.append("it was written with other settings than the store's zarr.json now holds")
+    try:
+        interest_points_of(record, settings["strategies"])
+    except (TypeError, ValueError) as exc:
+        problems.append(f"its record {RECORDS}/{index:05d}.json: {exc}")
     kept = "row_checksums" in record  # absent in records written before they were kept (null is damage)
     sums = record.get("row_checksums")
+    # What the rows of the identity arrays must hold (as a reader checks when it opens the store): a forged label
+    # with a matching digest is damage here too, so that generate re-explores the object instead of a reader refusing.
+    identities = {"labels": settings["class_names"].index(settings["objects"][index]["label"]), "object_ids": index,
+                  "strategies": np.arange(layout.block) // layout.contours}
     with zarr.config.set(ZARR_READ):
         for array_name in ARRAYS:
             array = arrays[array_name]
@@ -109,6 +125,7 @@ def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: 
             digest = array_digest()
             per = rows_per_file(array)
             found = []
+            forged = None  # the first row out of its physical bounds (value_problem) or contradicting the settings
             try:
                 for lo in range(rows.start, rows.stop, per):  # one chunk file at a time: bounded memory
                     hi = min(lo + per, rows.stop)
@@ -116,12 +133,22 @@ def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: 
                     update_digest(digest, values, array.dtype)
                     if kept and array_name in ROW_CHECKED_ARRAYS:
                         found.append(row_checksums(values, array.dtype))
+                    bad = value_problem(array_name, values) if forged is None else None
+                    if bad is not None:
+                        forged = f"its {array_name} row {lo - rows.start + bad[0]} {bad[1]}"
+                    if array_name in identities and forged is None:
+                        want = np.broadcast_to(identities[array_name], (layout.block,))[lo - rows.start:hi - rows.start]
+                        differ = np.flatnonzero(values != want)
+                        if len(differ):
+                            forged = (f"its stored {array_name} ({int(values[differ[0]])}) contradict the store's "
+                                      f"settings ({int(want[differ[0]])})")
             except DatasetError as exc:
                 problems.append(str(exc).split(" is damaged: ", 1)[-1].split("; `visuotactile verify", 1)[0])
                 continue
             if digest.hexdigest() != digests.get(array_name):
                 problems.append(f"its {array_name} rows differ from the digest in its record")
-            elif found:  # the rows are intact: the record's row checksums must be theirs
+                continue
+            if found:  # the rows are intact: the record's row checksums must be theirs
                 try:
                     text = sums.get(array_name) if isinstance(sums, dict) else None
                     expected = decode_row_checksums(text, layout.block, "its record")
@@ -129,6 +156,8 @@ def object_damage(path: Path, arrays: dict, settings: dict, index: int, record: 
                     expected = None
                 if expected is None or not np.array_equal(expected, np.concatenate(found)):
                     problems.append(f"its record's row checksums of {array_name} are not those of its rows")
+            if forged is not None:  # rows as their record says, but no generate() wrote them (forged)
+                problems.append(forged)
     return "; ".join(problems) or None
 
 

@@ -3,7 +3,9 @@
 Only objects with a complete record are part of the dataset: sequence indices 0..len-1 run over their
 rows in store order, ``object_names`` lists them, and failed or unfinished objects are listed in
 ``failed`` / ``incomplete``. Every read checks the chunks it touches (present, not empty, checksum): a damaged
-object raises :class:`DatasetError` naming it, never reads as zeros (see :mod:`tactile.dataset.store`).
+object raises :class:`DatasetError` naming it, never reads as zeros (see :mod:`tactile.dataset.store`); and the rows
+it reads are held to physical bounds (no NaN or Inf, positions within 1 km, unit normals: a store forged around its
+digests is refused too, :func:`~tactile.dataset.store.value_problem`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 
 from perception.errors import DataLeakError, DatasetError, InvalidArgumentError
 from tactile.dataset.store import (
+    RECORDS,
     ROW_CHECKED_ARRAYS,
     ZARR_READ,
     array_digest,
@@ -22,6 +25,7 @@ from tactile.dataset.store import (
     damage_message,
     decode_frames,
     decode_row_checksums,
+    interest_points_of,
     layout_of,
     read_attrs,
     read_records,
@@ -30,6 +34,7 @@ from tactile.dataset.store import (
     rows_per_file,
     settings_digest,
     update_digest,
+    value_problem,
     written_with_other_settings,
 )
 from tactile.explore import SequenceBatch, sequence_nbytes
@@ -260,7 +265,24 @@ class TactileDataset:
         values = _read_rows(self.path, name, array, rows, self._owner)
         self._check_rows(name, rows, values)
         self._check_digests(name, array.dtype, rows, values)
+        self._check_values(name, rows, values)
         return values
+
+    def _check_values(self, name: str, rows: np.ndarray, values: np.ndarray) -> None:
+        """Hold the rows read of array ``name`` to its physical bounds (:func:`~tactile.dataset.store.value_problem`:
+        finite, positions within 1 km, unit normals and tangents, pad sides a sensor can have): rows whose digests were
+        forged around NaN or 3e38 are refused here, naming the object, not by a classifier blaming its weights.
+
+        Raises:
+            DatasetError: naming the object and the first (lowest) row out of bounds.
+        """
+        if value_problem(name, values) is None:
+            return
+        order = np.argsort(rows, kind="stable")  # the lowest row out of bounds, whatever order they were read in
+        k, problem = value_problem(name, values[order])
+        row = int(rows[order[k]])
+        raise DatasetError(damage_message(self.path, self._owner(row),
+                                          f"its {name} row {row % self._layout.block} {problem}"))
 
     def _check_digests(self, name: str, dtype, rows: np.ndarray, values: np.ndarray) -> None:
         """Compare the rows of every object read whole with its record's digest of array ``name``.
@@ -349,13 +371,25 @@ class TactileDataset:
         return np.flatnonzero(self.sequence_strategies == strategy).astype(np.int64)
 
     def interest_points(self, object_name: str) -> dict[str, np.ndarray]:
-        """{strategy: (K, 3) interest points, mm} that the guided strategies of one object drew from."""
+        """{strategy: (K, 3) float64 interest points, mm} that the guided strategies of one object drew from (read
+        from its completion record, which no digest covers, so checked:
+        :func:`~tactile.dataset.store.interest_points_of`).
+
+        Raises:
+            DatasetError: no such complete object, or a record whose interest points are not a mapping of the store's
+                strategies to at most ``MAX_INTEREST_POINTS`` finite points within 1 km (naming the store, the object
+                and the record file).
+        """
         try:
             k = self.object_names.index(object_name)
         except ValueError:
             raise DatasetError(f"{self.path}: no complete object {object_name!r}") from None
-        stored = self._records[int(self._store_objects[k])].get("interest_points", {})
-        return {s: np.asarray(p, dtype=np.float64).reshape(-1, 3) for s, p in stored.items()}
+        index = int(self._store_objects[k])
+        try:
+            return interest_points_of(self._records[index], self.strategies)
+        except (TypeError, ValueError) as exc:
+            raise DatasetError(damage_message(self.path, object_name,
+                                              f"its record {RECORDS}/{index:05d}.json: {exc}")) from None
 
     # ------------------------------------------------------------------------------------- reading
     def frames(self, index=None) -> np.ndarray:

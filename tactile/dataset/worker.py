@@ -33,12 +33,14 @@ from tactile.dataset.store import (
     contour_seed,
     encode_frames,
     encode_row_checksums,
+    interest_points_of,
     layout_of,
     open_for_writing,
     pair_order_seed,
     row_checksums,
     settings_digest,
     update_digest,
+    value_problem,
     write_record,
     write_rows,
 )
@@ -118,6 +120,10 @@ def explore_into_store(
                 cache.put(model, method, 0, toucher.points)
             saliencies[method] = toucher.saliency
             interest[strategy] = toucher.points.tolist()
+            try:  # what a reader refuses, never written
+                interest_points_of({"interest_points": interest}, layout.strategies)
+            except (TypeError, ValueError) as exc:
+                raise ContourError(f"{spec.name} ({strategy}): {exc}; nothing was written") from None
         order_seed = pair_order_seed(seed, spec.name, strategy) if toucher.guided else None
         rows = layout.rows(index, s)
         n = layout.contours
@@ -157,6 +163,9 @@ def explore_into_store(
                 np.isfinite(values).all()
             ):
                 raise ContourError(f"{spec.name} ({strategy}): {name} contain NaN or Inf; nothing was written")
+            bad = value_problem(name, values)  # what a reader refuses, never written (an object 2 km off its origin)
+            if bad is not None:
+                raise ContourError(f"{spec.name} ({strategy}): its {name} row {bad[0]} {bad[1]}; nothing was written")
         for name, values in out.items():
             started = time.perf_counter()
             write_rows(store, name, arrays[name], rows, values)
