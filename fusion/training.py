@@ -37,7 +37,9 @@ class TrainingRecord:
 
 def split_indices(dataset, split: str, strategy: str | None, test_fraction: float, seed: int):
     """(train, test) sequence indices of ``dataset`` for ``split`` (test empty for ``"none"``), restricted to
-    ``strategy``'s sequences when given. The same arguments give the same indices.
+    ``strategy``'s sequences when given. The same arguments give the same indices. ``"sequence"`` keeps the
+    sequences of one contour together (a guided plane repeats: the paper's protocol lets copies cross; see
+    :func:`_copies_together`).
 
     Raises:
         InvalidArgumentError: an unknown split.
@@ -48,8 +50,30 @@ def split_indices(dataset, split: str, strategy: str | None, test_fraction: floa
     if split == "none":
         return index, index[:0]
     if split == "sequence":
-        return dataset.split_by_sequence(test_fraction=test_fraction, seed=seed, index=index)
+        train, test = dataset.split_by_sequence(test_fraction=test_fraction, seed=seed, index=index)
+        return _copies_together(dataset, train, test)
     return dataset.split_by_object(test_fraction=test_fraction, seed=seed, index=index)
+
+
+def _copies_together(dataset, train: np.ndarray, test: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(train, test) with every sequence of one contour (:meth:`~tactile.dataset.TactileDataset.contour_ids`: a guided
+    plane touched again) on the side of its first: a test sequence whose copy was trained on is not held out. A store
+    without repeated contours splits as before.
+
+    Raises:
+        DatasetError: a side left empty.
+    """
+    both = np.concatenate([train, test])
+    order = np.argsort(both, kind="stable")
+    both, in_test = both[order], np.concatenate([np.zeros(len(train), bool), np.ones(len(test), bool)])[order]
+    ids = dataset.contour_ids(both)
+    first = np.full(ids.max() + 1, -1, dtype=np.int64)
+    first[ids[::-1]] = np.arange(len(ids))[::-1]  # the position of each contour's first sequence
+    in_test = in_test[first[ids]]
+    if in_test.all() or not in_test.any():
+        raise DatasetError(f"{dataset.path}: split by sequence: every sequence repeats one contour on one side; "
+                           "split by object instead (--split object)")
+    return both[~in_test], both[in_test]
 
 
 def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = "invariant", split: str = "sequence",
@@ -97,6 +121,9 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
     fit_s = time.perf_counter() - start
     model.training_ = {**(getattr(model, "training_", None) or {}), **TrainingRecord(  # keeps fit's fingerprints
         str(store), dataset.attrs.get("store_id", ""), split, strategy, test_fraction, random_state, len(train)).to_dict()}
+    batch = dataset.load(test) if len(test) else None
+    if batch is not None:  # before saving: a model that is not scored on held-out data is not written either
+        check_held_out(model, batch, f"{store}: held-out {split} split", by_object=split == "object")
     model.save(out)
     result = {"model": kind, "cue": cue, "out": str(out), "train_sequences": len(train),
               "fit_seconds": round(fit_s, 2)}
@@ -104,9 +131,7 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
         state = model.calibration_
         result["calibration"] = {"temperature": round(float(state["temperature"]), 4),
                                  "dependence": round(float(state["dependence"]), 4), "score": state.get("score")}
-    if len(test):
-        batch = dataset.load(test)
-        check_held_out(model, batch, f"{store}: held-out {split} split", by_object=split == "object")
+    if batch is not None:
         truth = np.asarray(batch.class_names, dtype=object)[batch.labels]
         acc = accuracy(truth, model.predict(batch), seed=random_state)
         result.update(test_sequences=len(test), test_accuracy=acc.to_dict(), accuracy=acc)

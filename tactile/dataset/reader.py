@@ -392,6 +392,24 @@ class TactileDataset:
                                               f"its record {RECORDS}/{index:05d}.json: {exc}")) from None
 
     # ------------------------------------------------------------------------------------- reading
+    def contour_ids(self, index=None) -> np.ndarray:
+        """(n,) int64 for the sequences at ``index`` (None: all): equal for sequences that touch the same contour of the
+        same object (the same plane, whichever way its normal points), e.g. the repeats of a guided plane (ten
+        interest points make at most 45 planes), so that a split can keep copies on one side. Ids count from 0 in
+        order of first appearance."""
+        idx = self._index(index)
+        rows = self._rows[idx]
+        normals = self._read("plane_normals", rows).astype(np.float64)
+        points = self._read("plane_points", rows).astype(np.float64)
+        # one sign per plane: the first clearly non-zero component positive
+        lead = np.argmax(np.abs(normals) > 1e-6, axis=1)
+        sign = np.where(normals[np.arange(len(idx)), lead] < 0, -1.0, 1.0)
+        keys = np.column_stack([self.object_ids[idx].astype(np.float64), np.round(normals * sign[:, None], 5),
+                                np.round(points, 3)])
+        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        order = np.argsort(np.argsort(first, kind="stable"), kind="stable")  # ids by first appearance
+        return order[inverse.reshape(-1)].astype(np.int64)
+
     def frames(self, index=None) -> np.ndarray:
         """(n, P, R, C) float32 decoded frames of the sequences at ``index`` (None: all)."""
         idx = self._index(index)

@@ -37,6 +37,53 @@ class TestSplits:
             split_indices(open_dataset(store), "by-colour", None, 0.2, 0)
 
 
+@pytest.fixture(scope="module")
+def guided(tmp_path_factory):
+    """Guided contours, 60 per object: more than the 45 planes ten interest points make, so some repeat."""
+    out = tmp_path_factory.mktemp("guided") / "g.zarr"
+    generate([("box", 0), ("mug", 0)], out, strategies=("guided",), contours_per_object=60,
+             sensor=FSRSensor(rows=8, cols=8), probes=6, seed=0, workers=1, progress=False)
+    return out
+
+
+class TestSequenceSplitKeepsContoursTogether:
+    """Ten interest points make at most 45 guided planes: a store with more guided contours repeats them, and the
+    default `train --split sequence` failed its own held-out check on every such store (copies on both sides)."""
+
+    def test_no_contour_is_on_both_sides_and_the_model_passes_its_held_out_check(self, guided, tmp_path):
+        ds = open_dataset(guided)
+        train, test = split_indices(ds, "sequence", None, 0.2, 0)
+        ids = ds.contour_ids()
+        assert len(np.unique(ids)) < len(ids)  # the store does repeat contours
+        assert not set(ids[train].tolist()) & set(ids[test].tolist())
+        assert sorted(np.concatenate([train, test]).tolist()) == list(range(len(ds)))
+        assert 0.1 <= len(test) / len(ds) <= 0.3
+        result = train_on_store(guided, "knn", tmp_path / "m.vtm")  # the default split: it raised DataLeakError
+        assert result["test_sequences"] == len(test) and (tmp_path / "m.vtm").is_file()
+
+    def test_a_store_without_repeats_splits_as_before(self, store):
+        ds = open_dataset(store)
+        assert len(np.unique(ds.contour_ids())) == len(ds)  # blind planes never repeat
+        for seed in (0, 1):
+            expected = ds.split_by_sequence(0.25, seed=seed)
+            found = split_indices(ds, "sequence", None, 0.25, seed)
+            assert all(np.array_equal(a, b) for a, b in zip(expected, found, strict=True))
+
+    def test_copies_are_found_whichever_way_a_plane_normal_points(self, guided):
+        ds = open_dataset(guided)
+        batch = ds.load()
+        ids = ds.contour_ids()
+        # sequences with one id share their object and plane (up to the normal's sign), those with two ids do not
+        def key(i):  # the normal turned to face a generic direction: n and -n are one plane
+            n = batch.plane_normals[i].astype(np.float64)
+            return int(batch.object_ids[i]), tuple(np.round(n if n @ [1.0, 1e-3, 1e-6] > 0 else -n, 4))
+
+        for a in range(0, len(ds), 7):
+            for b in range(a + 1, len(ds), 11):
+                assert (ids[a] == ids[b]) == (key(a) == key(b) and np.allclose(batch.plane_points[a],
+                                                                                  batch.plane_points[b]))
+
+
 class TestTrainAndEvaluate:
     def test_the_model_remembers_its_store_and_evaluation_uses_the_held_out_part(self, store, tmp_path):
         result = train_on_store(store, "knn", tmp_path / "m.vtm", split="object", test_fraction=0.5, random_state=1)
