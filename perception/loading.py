@@ -9,15 +9,19 @@ The door through which an object enters the house from a file; every later stage
 
 from __future__ import annotations
 
+import os
+import reprlib
+from numbers import Real
 from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 
 from perception import meshio
-from perception.errors import DatasetError, InvalidMeshError
+from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
 from perception.geometry import (
     DEFAULT_SIZE_MM,
+    MAX_COORDINATE_MM,
     ObjectModel,
     _check_rotation,
     check_centering,
@@ -61,7 +65,11 @@ def load_object(
     Raises:
         MeshLoadError: missing, unreadable, unknown type, or unparseable file.
         InvalidMeshError: empty, non-finite, out-of-range indices, or nothing left after repair.
-        InvalidArgumentError: an unknown ``centering`` or a ``rotation`` that is not a proper rotation matrix.
+        InvalidArgumentError: a ``source`` that is neither a path (``str`` or ``pathlib.Path``; decode a ``bytes``
+            path with ``os.fsdecode``) nor an Open3D ``TriangleMesh`` (arrays: build an ``ObjectModel``), a
+            ``name`` or ``label`` that is not text, a ``size_mm`` that is not a positive finite number of
+            millimetres up to ``MAX_COORDINATE_MM`` (or None), an unknown ``centering``, or a ``rotation`` that
+            is not a finite 3 x 3 proper rotation matrix. All are checked before the file is read.
 
     Examples:
         >>> import pathlib, tempfile
@@ -72,26 +80,33 @@ def load_object(
         >>> cube.n_vertices, cube.n_triangles, cube.label, round(cube.size)
         (8, 12, 'box', 150)
     """
-    check_centering(centering, str(name or source))
-    if isinstance(source, o3d.geometry.TriangleMesh):
-        name = name or "open3d-mesh"
+    mesh = isinstance(source, o3d.geometry.TriangleMesh)
+    path = None if mesh else _source_path(source)
+    for key, value in (("name", name), ("label", label)):
+        if value is not None and not isinstance(value, str):
+            raise InvalidArgumentError(f"load_object: {key} must be text (a str), got {type(value).__name__} "
+                                       f"{reprlib.repr(value)}")
+    name = name or ("open3d-mesh" if mesh else text_name(path.stem))
+    where = name if mesh else str(path)  # errors name the file when there is one
+    # The arguments are checked before the file is read: a typo costs nothing.
+    check_centering(centering, where)
+    _check_size(size_mm, where)
+    matrix = None if rotation is None else _rotation_matrix(rotation, where)
+    if mesh:
         vertices = np.asarray(source.vertices, dtype=np.float64)
         triangles = np.asarray(source.triangles, dtype=np.int64)
         colors = np.asarray(source.vertex_colors, dtype=np.float64) if source.has_vertex_colors() else None
         src = None
     else:
-        path = Path(source)
-        name = name or text_name(path.stem)
         raw = meshio.read_mesh(path)
         vertices, triangles, colors = raw.vertices, raw.triangles, raw.vertex_colors
         src = str(path)
-    where = src or name  # errors name the file when there is one
     vertices, triangles = meshio.validate_arrays(vertices, triangles, where)
     if repair:
         vertices, triangles, colors = meshio.repair(vertices, triangles, colors, where)
     transform = np.eye(4)
-    if rotation is not None:
-        transform[:3, :3] = _check_rotation(rotation, where)
+    if matrix is not None:
+        transform[:3, :3] = matrix
         vertices = vertices @ transform[:3, :3].T
         if not np.isfinite(vertices).all():
             raise InvalidMeshError(f"{where}: coordinates overflow when rotated; load it with size_mm first")
@@ -107,6 +122,73 @@ def load_object(
         vertices, triangles, name=name, label=label, vertex_colors=colors, transform=transform, source=src,
         centering=centering,
     )
+
+
+def _source_path(source) -> Path:
+    """``source`` as a Path if it is a text path (``str`` or ``os.PathLike`` giving ``str``).
+
+    Raises:
+        InvalidArgumentError: anything else, naming its type and value and what to pass instead.
+    """
+    if isinstance(source, (str, os.PathLike)):
+        try:
+            text = os.fspath(source)
+        except TypeError:
+            text = None
+        if isinstance(text, str):
+            return Path(text)
+    if isinstance(source, (bytes, os.PathLike)):
+        raise InvalidArgumentError(f"load_object: a path must be text (str or pathlib.Path), got "
+                                   f"{type(source).__name__} {reprlib.repr(source)}; decode it with os.fsdecode(...)")
+    if isinstance(source, np.ndarray):
+        raise InvalidArgumentError(
+            f"load_object: expected a mesh file path or an open3d.geometry.TriangleMesh, got a numpy array of shape "
+            f"{source.shape}; for vertex and triangle arrays build perception.ObjectModel(vertices, triangles)"
+        )
+    raise InvalidArgumentError(
+        f"load_object: expected a mesh file path (str or pathlib.Path) or an open3d.geometry.TriangleMesh, got "
+        f"{type(source).__name__} {reprlib.repr(source)}"
+    )
+
+
+def _check_size(size_mm, where: str) -> None:
+    """Refuse a ``size_mm`` that is not None or a positive finite number up to ``MAX_COORDINATE_MM``."""
+    if size_mm is None:
+        return
+    ok = isinstance(size_mm, Real) and not isinstance(size_mm, bool)
+    try:
+        ok = ok and bool(np.isfinite(float(size_mm))) and 0 < size_mm <= MAX_COORDINATE_MM
+    except (OverflowError, TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise InvalidArgumentError(
+            f"{where}: size_mm must be a positive finite number of millimetres up to {MAX_COORDINATE_MM:g}, or None "
+            f"to keep the source scale; got {reprlib.repr(size_mm)}"
+        )
+
+
+def _rotation_matrix(rotation, where: str) -> np.ndarray:
+    """``rotation`` as a float64 proper rotation matrix.
+
+    Raises:
+        InvalidArgumentError: not numbers, not 3 x 3, not finite, or not a proper rotation (each named).
+    """
+    try:
+        r = np.asarray(rotation)
+        numeric = r.dtype.kind in "iuf"
+    except (TypeError, ValueError):
+        numeric = False
+    if not numeric:
+        raise InvalidArgumentError(
+            f"{where}: rotation must be a 3 x 3 matrix of numbers, got {type(rotation).__name__} "
+            f"{reprlib.repr(rotation)}"
+        )
+    if r.shape != (3, 3):
+        raise InvalidArgumentError(f"{where}: rotation must be a 3 x 3 matrix, got shape {r.shape}")
+    r = r.astype(np.float64)
+    if not np.isfinite(r).all():
+        raise InvalidArgumentError(f"{where}: rotation is not finite (it holds NaN or Inf): {r.tolist()}")
+    return _check_rotation(r, where)
 
 
 def list_collection(folder: str | Path) -> list[tuple[Path, str]]:

@@ -29,9 +29,12 @@ from __future__ import annotations
 
 import logging
 import os
+import reprlib
 import subprocess
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from numbers import Real
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +47,7 @@ from perception.atomic import save_figure
 from perception.channels import ALL_CHANNELS, COLOR_CHANNELS, GEOMETRY_CHANNELS, compute_channels
 from perception.errors import InvalidArgumentError, SaliencyError
 from perception.geometry import ObjectModel
+from perception.limits import check_count as check_limit
 from perception.metrics import auroc
 from perception.render import (
     DEFAULT_N_VIEWS,
@@ -121,18 +125,23 @@ class Saliency:
         candidates are the vertices and fixations, or the keypoints when there are at least n of them.
 
         Raises:
-            SaliencyError: n < 1, n larger than the number of candidate points, or a negative distance.
+            InvalidArgumentError: n not an integer >= 1 (a fraction or a bool included), n larger than the number
+                of candidate points, or a ``min_distance_mm`` that is not a finite number >= 0.
         """
-        points, scores = self._candidates(n)
-        if n < 1 or n > len(points):
+        n = check_count(n, "n (interest points)", self.model.name)
+        if min_distance_mm is not None and (not _finite_number(min_distance_mm) or min_distance_mm < 0):
             raise InvalidArgumentError(
-                f"{self.model.name}: cannot pick {n} interest points from {len(points)} candidates"
+                f"{self.model.name}: min_distance_mm must be a finite number >= 0 (mm), got {min_distance_mm!r}"
+            )
+        points, scores = self._candidates(n)
+        if n > len(points):
+            raise InvalidArgumentError(
+                f"{self.model.name}: cannot pick {n} interest points from {len(points)} candidates "
+                f"(the {self.model.n_vertices} vertices and {len(self.fixations)} fixations)"
             )
         distance = (
-            DEFAULT_SEPARATION_FRACTION * self.model.size if min_distance_mm is None else min_distance_mm
+            DEFAULT_SEPARATION_FRACTION * self.model.size if min_distance_mm is None else float(min_distance_mm)
         )
-        if not np.isfinite(distance) or distance < 0:
-            raise InvalidArgumentError(f"{self.model.name}: min_distance_mm must be >= 0, got {min_distance_mm!r}")
         order = np.argsort(-scores, kind="stable")
         chosen: list[int] = []
         while len(chosen) < n:
@@ -164,20 +173,50 @@ class ViewMaps:
         return self.stack.views
 
 
+def _finite_number(value) -> bool:
+    """Whether ``value`` is a real number (not a bool) with a finite float64 value."""
+    if isinstance(value, bool) or not isinstance(value, Real):
+        return False
+    try:
+        return bool(np.isfinite(float(value)))
+    except (OverflowError, ValueError, TypeError):
+        return False
+
+
 def _check_weights(
     weights: dict[str, float] | None, channels: tuple[str, ...], name: str
 ) -> dict[str, float]:
+    """The weight of each computed channel (uniform when None; a missing channel weighs 0).
+
+    Raises:
+        InvalidArgumentError: not a mapping, an unknown channel, a weight that is not a finite number >= 0, or
+            weights of the computed channels that are all zero.
+    """
     if weights is None:
         return {c: 1.0 for c in channels}
-    unknown = sorted(set(weights) - set(ALL_CHANNELS))
+    if not isinstance(weights, Mapping):
+        raise InvalidArgumentError(f"{name}: weights must be a dict of channel -> weight, got {type(weights).__name__}")
+    unknown = sorted(map(str, set(weights) - set(ALL_CHANNELS)))
     if unknown:
         raise InvalidArgumentError(f"{name}: unknown channel weight(s) {unknown}; known: {', '.join(ALL_CHANNELS)}")
+    bad = {c: v for c, v in weights.items() if not _finite_number(v) or v < 0}
+    if bad:
+        shown = ", ".join(f"{c!r}: {reprlib.repr(v)}" for c, v in bad.items())
+        raise InvalidArgumentError(f"{name}: channel weights must be finite numbers >= 0, got {{{shown}}}")
     values = {c: float(weights.get(c, 0.0)) for c in channels}
-    if any(not np.isfinite(v) or v < 0 for v in values.values()):
-        raise InvalidArgumentError(f"{name}: channel weights must be finite and >= 0, got {weights}")
     if sum(values.values()) <= 0:
         raise InvalidArgumentError(f"{name}: the weights of the computed channels {channels} sum to zero")
     return values
+
+
+def _check_model(model, what: str) -> ObjectModel:
+    """``model`` if it is an :class:`ObjectModel`; else InvalidArgumentError naming what was given (an Open3D
+    mesh or a path is told to go through ``perception.load_object``)."""
+    if isinstance(model, ObjectModel):
+        return model
+    kind = f"{type(model).__module__}.{type(model).__qualname__}".removeprefix("builtins.")
+    hint = "" if model is None else "; load it with perception.load_object(...) first (a mesh file or an Open3D mesh)"
+    raise InvalidArgumentError(f"{what}: expected a perception.ObjectModel, got {kind}{hint}")
 
 
 def _channels_for(model: ObjectModel) -> tuple[tuple[str, ...], dict[str, str]]:
@@ -201,10 +240,14 @@ def multiview_maps(
     the object turns the views with it, so its saliency does not depend on its pose.
 
     Raises:
-        InvalidArgumentError: bad weights or view settings.
+        InvalidArgumentError: ``model`` not an ObjectModel, bad weights or view settings (n_views above the views
+            limit of :mod:`perception.limits`).
     """
+    _check_model(model, "multiview_maps")
     seed = check_seed(seed, model.name, allow_none=False)
-    n_views = DEFAULT_N_VIEWS if n_views is None else check_count(n_views, "n_views", model.name)
+    if n_views is not None:
+        n_views = check_limit("views", check_count(n_views, "n_views", model.name), f"{model.name}: n_views")
+    n_views = DEFAULT_N_VIEWS if n_views is None else n_views
     size_px = DEFAULT_SIZE_PX if size_px is None else check_count(size_px, "size_px", model.name, minimum=8)
     if n_views * size_px * size_px > MAX_PIXELS:
         raise InvalidArgumentError(
@@ -212,6 +255,10 @@ def multiview_maps(
         )
     channels, _ = _channels_for(model)
     w = _check_weights(weights, channels, model.name)
+    # Eq. 1 divides by the sum of the weights: scaled to a largest weight of 1 first, the sum cannot overflow
+    # (weights of 1e308 would make it inf and every score 0) and the weighted mean is the same.
+    top = max(w.values())
+    w = {c: v / top for c, v in w.items()}
     rotation = Rotation.random(random_state=np.random.default_rng(seed)).as_matrix()
     frame = model.principal_frame
     stack = render_stack(
@@ -281,8 +328,11 @@ def saliency(
         seed: turns the multiview view sphere; the 3D methods do not use it.
 
     Raises:
-        InvalidArgumentError: unknown method, bad weights or view settings, a seed that is not a non-negative
-            integer. SaliencyError: for a PCL method, the peer program absent, failing or past its time limit.
+        InvalidArgumentError: ``model`` not an ObjectModel (an Open3D mesh or a path: load it with
+            ``perception.load_object`` first), unknown method, bad weights (not finite numbers >= 0, or all zero)
+            or view settings, a seed that is not a non-negative integer; for ``"mesh"``, a mesh so dense that one
+            vertex's neighbourhood does not fit the memory limit (:func:`perception.mesh_saliency.mesh_saliency`).
+        SaliencyError: for a PCL method, the peer program absent, failing or past its time limit.
 
     Examples:
         >>> from perception.shapes import make_object
@@ -292,6 +342,7 @@ def saliency(
         >>> attention.interest_points(3).shape  # surface points (mm) to draw contour planes through
         (3, 3)
     """
+    _check_model(model, "saliency")
     seed = check_seed(seed, model.name, allow_none=False)
     if method not in METHODS + PCL_METHODS:
         raise InvalidArgumentError(

@@ -29,6 +29,7 @@ import time
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from numbers import Real
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from perception import saliency as attention
 from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
 from perception.limits import check_bytes
+from perception.limits import check_count as check_limit
 from perception.runtime import progress_bar
 from perception.validate import check_count, check_seed
 from tactile import sampling
@@ -77,6 +79,41 @@ def check_strategy(strategy: str) -> None:
     sampling.check_strategy(strategy)
 
 
+def check_model(model, what: str = "touch") -> ObjectModel:
+    """``model`` if it is an :class:`~perception.geometry.ObjectModel`.
+
+    Raises:
+        InvalidArgumentError: anything else, naming what was given; an Open3D mesh or a file path is told to go
+            through ``perception.load_object`` first.
+    """
+    if isinstance(model, ObjectModel):
+        return model
+    kind = f"{type(model).__module__}.{type(model).__qualname__}".removeprefix("builtins.")
+    hint = "" if model is None else "; load it with perception.load_object(...) first (a mesh file or an Open3D mesh)"
+    raise InvalidArgumentError(f"{what}: expected a perception.ObjectModel, got {kind}{hint}")
+
+
+def _check_jitter(jitter_mm, name: str | None = None) -> float:
+    """``jitter_mm`` as a float if it is a finite real number >= 0 (mm)."""
+    ok = isinstance(jitter_mm, Real) and not isinstance(jitter_mm, bool)
+    if not ok or not np.isfinite(jitter_mm) or jitter_mm < 0:
+        where = f"{name}: " if name else ""
+        raise InvalidArgumentError(f"{where}pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
+    return float(jitter_mm)
+
+
+def _check_probes(probes, name: str) -> int:
+    """``probes`` as an int: an integer >= 2 and within the probes-per-contour limit (:mod:`perception.limits`)."""
+    probes = check_count(probes, "probes", name, minimum=2)
+    return check_limit("probes", probes, f"{name}: probes")
+
+
+def _check_contours(n, name: str) -> int:
+    """``n`` as an int: an integer >= 1 and within the contours-per-object limit (:mod:`perception.limits`)."""
+    n = check_count(n, "n_contours", name)
+    return check_limit("contours", n, f"{name}: n_contours")
+
+
 def object_seed(seed: int, name: str, strategy: str) -> np.random.SeedSequence:
     """The seed sequence of one object's contours in the "object" scheme: (seed, object name, strategy) only."""
     return np.random.SeedSequence([int(seed), zlib.crc32(name.encode()), zlib.crc32(strategy.encode())])
@@ -90,8 +127,7 @@ def jitter_contour(contour: Contour, position_mm: float, rng: np.random.Generato
     Raises:
         InvalidArgumentError: position_mm negative or not finite.
     """
-    if position_mm < 0 or not np.isfinite(position_mm):
-        raise InvalidArgumentError(f"pose jitter must be a finite number >= 0 mm, got {position_mm!r}")
+    position_mm = _check_jitter(position_mm)
     if position_mm == 0:
         return contour
     n = contour.n_probes
@@ -132,7 +168,8 @@ class Toucher:
             else computed here with ``saliency_seed`` (and timed into ``timing``).
 
     Raises:
-        InvalidArgumentError: unknown strategy, probes not an integer >= 2. ContourError: a flat object.
+        InvalidArgumentError: ``model`` not an ObjectModel, unknown strategy, probes not an integer >= 2 or above
+            the probe limit (:mod:`perception.limits`). ContourError: a flat object.
         SaliencyError: ``saliency`` is of another method or object.
     """
 
@@ -146,9 +183,10 @@ class Toucher:
         saliency_seed: int = 0,
         timing: TouchTiming | None = None,
     ) -> None:
+        check_model(model, "Toucher")
         sampling.check_strategy(strategy)
         self.model, self.strategy = model, strategy
-        self.probes = check_count(probes, "probes", model.name, minimum=2)
+        self.probes = _check_probes(probes, model.name)
         sampling.check_not_flat(model)
         method = sampling.STRATEGIES[strategy]
         if method is not None and saliency is None:
@@ -234,6 +272,7 @@ class Toucher:
         """
         if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
             raise InvalidArgumentError(f"{self.model.name}: stream start must be an integer >= 0, got {start!r}")
+        n = _check_contours(n, self.model.name)
         rng = np.random.default_rng(seed)
         if self.guided:
             order = self.pair_order(int(rng.integers(2**63)) if order_seed is None else order_seed)
@@ -250,6 +289,7 @@ class Toucher:
         The iterator raises ContourError when fewer than ``n`` of the ``n + SPARE_PLANES`` blind planes cut the
         object (a guided pair order holds only planes that cut: its first ``n`` positions are taken).
         """
+        n = _check_contours(n, self.model.name)
         plane_seed, noise_seed, jitter_seed = object_seed(seed, self.model.name, self.strategy).spawn(3)
         plane_rng = np.random.default_rng(plane_seed)
         if self.guided:
@@ -318,9 +358,11 @@ def touch(
             drawn from ``seed`` as in the "stream" scheme, and a plane that misses the object raises.
 
     Raises:
-        InvalidArgumentError: unknown strategy or seeding, n_contours not an integer >= 1, probes not an
-            integer >= 2, a bad seed, a negative or non-finite jitter, or sequences that would not fit the memory
-            limit (:mod:`perception.limits`).
+        InvalidArgumentError: ``model`` not an ObjectModel (an Open3D mesh or a path: load it with
+            ``perception.load_object`` first), unknown strategy or seeding, n_contours not an integer >= 1 or
+            above the contour limit, probes not an integer >= 2 or above the probe limit, a bad seed, a negative
+            or non-finite jitter, or sequences that would not fit the memory limit (limits and their environment
+            variables: :mod:`perception.limits`).
         ContourError: a flat object, too many planes that miss the object, or a given plane that misses it.
         SaliencyError: ``saliency`` is of another method or object.
 
@@ -334,17 +376,19 @@ def touch(
         >>> all((a.frames == b.frames).all() for a, b in zip(sequences, again))  # same seed, same frames
         True
     """
+    check_model(model, "touch")
     sampling.check_strategy(strategy)
     if seeding not in SEEDINGS:
         raise InvalidArgumentError(f"unknown seeding {seeding!r}; choose one of {', '.join(SEEDINGS)}")
-    n_contours = check_count(n_contours, "n_contours", model.name)
+    n_contours = _check_contours(n_contours, model.name)
     seed = check_seed(seed, model.name)
     if seeding == "object" and not isinstance(seed, int):
         raise InvalidArgumentError(f"{model.name}: seeding 'object' needs an integer seed, got {seed!r}")
-    if jitter_mm < 0 or not np.isfinite(jitter_mm):
-        raise InvalidArgumentError(f"pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
+    jitter_mm = _check_jitter(jitter_mm, model.name)
+    if sensor is not None and not isinstance(sensor, FSRSensor):
+        raise InvalidArgumentError(f"{model.name}: sensor must be a tactile.FSRSensor, got {type(sensor).__name__}")
     sensor = sensor or FSRSensor()
-    probes = check_count(probes, "probes", model.name, minimum=2)
+    probes = _check_probes(probes, model.name)
     # The sequences are returned together: refuse, before any saliency or touch, what memory cannot hold.
     check_bytes(n_contours * sequence_nbytes(probes, sensor.rows, sensor.cols),
                 f"{model.name}: touching {n_contours} contours ({probes} probes, {sensor.rows} x {sensor.cols} taxels)")
@@ -394,5 +438,5 @@ def touch(
 explore_object = touch
 
 
-__all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher", "check_strategy",
-           "explore_object", "jitter_contour", "object_seed", "touch"]
+__all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher", "check_model",
+           "check_strategy", "explore_object", "jitter_contour", "object_seed", "touch"]

@@ -12,7 +12,7 @@ from perception import channels, primitives
 from perception.channels import COLOR_CHANNELS, GEOMETRY_CHANNELS, itti_normalize
 from perception.errors import InvalidArgumentError, SaliencyError
 from perception.geometry import ObjectModel, load_object
-from perception.mesh_saliency import _gaussian_means, iss_keypoints
+from perception.mesh_saliency import iss_keypoints, neighbourhood_sums
 from perception.saliency import METHODS, fit_channel_weights, load_marked_points, saliency
 
 SIDE_MM, ROUND_MM = 80.0, 8.0
@@ -182,9 +182,9 @@ def test_itti_normalisation_promotes_a_single_peak():
 
 def test_gaussian_means_of_a_constant_are_that_constant():
     values = np.full(4, 2.5)
-    pairs = np.array([[0, 1], [1, 2], [2, 3]])
-    out = _gaussian_means(values, pairs, np.array([0.5, 1.0, 3.0]), sigma=1.0)
-    np.testing.assert_allclose(out, 2.5)
+    vertices = np.array([[0.0, 0, 0], [0.5, 0, 0], [1.5, 0, 0], [4.5, 0, 0]])
+    num, den = neighbourhood_sums(values, vertices, [1.0])
+    np.testing.assert_allclose(num / den, 2.5)
 
 
 def test_iss_keypoints_are_vertex_indices(cube):
