@@ -42,7 +42,8 @@ def register(sub) -> None:
     p.add_argument("--model", choices=CLASSIFIERS, default="cnn", help="classifier (default: cnn)")
     p.add_argument("--out", required=True, help="model file to write (e.g. models/cnn.vtm)")
     p.add_argument("--split", choices=SPLITS, default="sequence",
-                   help="hold out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none")
+                   help="hold out test sequences: by sequence (80/20, a repeated contour's copies on one side), by "
+                        "object (unseen objects), or none")
     p.add_argument("--test-fraction", type=float, default=0.2, help="held-out share (default: 0.2)")
     p.add_argument("--strategy", default=None, help="train on this strategy's sequences only (default: all)")
     p.add_argument("--cue", choices=CUES, default="invariant",
