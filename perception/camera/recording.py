@@ -123,8 +123,15 @@ def _depth_scale(meta: dict, where: Path) -> float:
     return scale
 
 
+#: Largest distance of a camera from the world origin a pose may give, mm (1 km): a camera looking at a table
+#: is metres from any sensible origin; a farther pose is a unit mix-up or a corrupt file, and puts the points
+#: where float arithmetic loses the object (Open3D's Poisson segfaulted on a capture 1e10 mm from the origin).
+MAX_POSE_TRANSLATION_MM = 1e6
+
+
 def _pose(meta: dict, where: Path) -> np.ndarray:
-    """``meta["pose"]`` (identity when absent) as a finite 4 x 4 float64 matrix. Raises DatasetError."""
+    """``meta["pose"]`` (identity when absent) as a finite 4 x 4 float64 matrix whose translation (mm) is at most
+    :data:`MAX_POSE_TRANSLATION_MM` long. Raises DatasetError naming ``where``."""
     value = meta.get("pose")
     if value is None:
         return np.eye(4)
@@ -134,6 +141,10 @@ def _pose(meta: dict, where: Path) -> np.ndarray:
         raise DatasetError(f"{where}: pose must be a 4 x 4 matrix of numbers") from None
     if pose.shape != (4, 4) or not np.isfinite(pose).all():
         raise DatasetError(f"{where}: pose must be a finite 4 x 4 matrix, got shape {pose.shape}")
+    distance = float(np.linalg.norm(pose[:3, 3]))
+    if not distance <= MAX_POSE_TRANSLATION_MM:  # also catches an overflow to inf in the norm
+        raise DatasetError(f"{where}: pose translation is {distance:.3g} mm from the origin, beyond "
+                           f"{MAX_POSE_TRANSLATION_MM:g} mm (1 km); poses are in millimetres: check the units")
     return pose
 
 
@@ -165,6 +176,9 @@ def _intrinsics(data: dict, where: Path, width: int, height: int) -> Intrinsics:
     if max(intrinsics.fx, intrinsics.fy) > 100 * side:
         raise DatasetError(f"{where}: focal lengths ({intrinsics.fx:g}, {intrinsics.fy:g}) px are beyond 100 x the "
                            "image size (a field of view under 0.6 degrees)")
+    if min(intrinsics.fx, intrinsics.fy) < side / 100:
+        raise DatasetError(f"{where}: focal lengths ({intrinsics.fx:g}, {intrinsics.fy:g}) px are below 1/100 of the "
+                           f"image size ({side / 100:g} px: a field of view over 178 degrees, which no pinhole has)")
     return intrinsics
 
 

@@ -24,6 +24,7 @@ from perception.reconstruct.tabletop import (
     Cluster,
     TableScene,
     _check_pixel,
+    check_voxel,
     frames_to_points,
     merge_stacked,
     pick_cluster,
@@ -147,9 +148,12 @@ def reconstruct_frames(
     (:func:`~perception.reconstruct.tabletop.flying_pixels`; for real depth cameras).
 
     Raises:
-        InvalidMeshError: no depth, no table, no object, or no surface.
-        InvalidArgumentError: a ``target_pixel`` outside the first frame or on neither depth nor table.
+        InvalidMeshError: no depth, too few points for a table (e.g. a wrong depth scale), no table, no object,
+            or no surface.
+        InvalidArgumentError: a ``target_pixel`` outside the first frame or on neither depth nor table, or
+            ``voxel_mm`` outside :data:`~perception.reconstruct.tabletop.VOXEL_MM_RANGE` (0: no down-sampling).
     """
+    voxel_mm = check_voxel(voxel_mm, name)  # a bad setting fails before any work
     frames = list(frames)
     if not frames:
         raise InvalidMeshError(f"{name}: no frames to reconstruct from")
@@ -164,7 +168,8 @@ def reconstruct_frames(
             if near.sum() >= 3 * MIN_POINTS:
                 pts, cols, views = pts[near], cols[near], views[near]
         scene = segment_table(
-            pts, cols, views, voxel_mm=voxel_mm, cluster_eps_mm=cluster_eps_mm, method=method, seed=seed + i
+            pts, cols, views, voxel_mm=voxel_mm, cluster_eps_mm=cluster_eps_mm, method=method, seed=seed + i,
+            name=f"{name} ({frame.name})",
         )
         if i == 0 and target_pixel is not None:
             index, warnings = pick_pixel(scene, frame, target_pixel)
@@ -185,9 +190,12 @@ def reconstruct_frames(
     points = np.concatenate([p @ t[:3, :3].T + t[:3, 3] for p, t in zip(clouds, corrections)])
     # Normals per view, then fused: one view sees one side of a thin wall, the fused cloud both sides
     # within a few millimetres, where a shared neighbourhood would mix them.
-    normals = np.concatenate(
-        [estimate_normals(c.points, viewpoints=c.viewpoints) @ t[:3, :3].T for c, t in zip(picked, corrections)]
-    )
+    # Each view centred on its centroid: Open3D's covariances come from raw moments, which lose their precision
+    # on points far from the origin (normals do not depend on the translation).
+    normals = np.concatenate([
+        estimate_normals(c.points - c.centroid, viewpoints=c.viewpoints - c.centroid) @ t[:3, :3].T
+        for c, t in zip(picked, corrections)
+    ])
     support, outward = np.zeros((0, 3)), np.zeros((0, 3))
     build = lambda pts, nrm: points_to_model(
         pts, nrm, name=name, label=label, size_mm=None, poisson_depth=poisson_depth, density_trim=density_trim,

@@ -8,6 +8,7 @@ the true one.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +17,9 @@ import open3d as o3d
 from perception import meshio
 from perception.errors import InvalidArgumentError, InvalidMeshError
 from perception.geometry import DEFAULT_SIZE_MM, ObjectModel, normalize
+from perception.isolate import IsolatedCallFailed, run_isolated
 from perception.reconstruct.pointfiles import read_points
-from perception.reconstruct.points import _clean, estimate_normals, mean_spacing, validate_points
+from perception.reconstruct.points import _as_points, _clean, estimate_normals, mean_spacing, validate_points
 
 #: Surface methods of :func:`surface_from_points`.
 METHODS = ("poisson", "ball_pivoting", "alpha")
@@ -25,6 +27,42 @@ METHODS = ("poisson", "ball_pivoting", "alpha")
 MIN_PIECE = 0.05
 #: Default alpha of alpha shapes, as a fraction of the cloud's bounding-box diagonal.
 ALPHA_FRACTION = 0.2
+
+
+#: Time limit of an isolated surface reconstruction (:func:`surface_from_points`): this many seconds, plus the
+#: next per point, plus (Poisson) the last times 4 per octree level above depth 8 (each level quadruples the
+#: surface). Far above the normal run time (about 1 s for 6,000 points at depth 8 on one core), so only a hang
+#: reaches it, even on a loaded machine.
+CHILD_TIMEOUT_S = 120.0
+CHILD_TIMEOUT_PER_POINT_S = 1e-3
+CHILD_TIMEOUT_POISSON_S = 30.0
+
+
+def _centre(points: np.ndarray, name: str) -> np.ndarray:
+    """The midpoint of the bounding box of ``points`` (mm), about which they are reconstructed: Open3D's surface
+    methods work in float (Poisson) or with absolute tolerances (Qhull) and fail on a cloud whose extent is tiny
+    next to its distance from the origin (Poisson segfaults at 1e-8, Qhull reports cospherical input). The
+    midpoint of a translated cloud is the translated midpoint (exactly, where the translated coordinates are
+    exact), so the surface does not depend on where the cloud sits.
+
+    Raises:
+        InvalidMeshError: all points coincide, or the cloud spans more than the float range.
+    """
+    low, high = points.min(axis=0), points.max(axis=0)
+    centre = low + 0.5 * (high - low) if np.isfinite(high - low).all() else 0.5 * low + 0.5 * high
+    largest = float(np.abs(points - centre).max())
+    if not (np.isfinite(largest) and largest > 0) or largest > 2.0**1000:
+        raise InvalidMeshError(f"{name}: the points span no extent (all coincide) or exceed the float range")
+    return centre
+
+
+def _check_alpha(alpha_mm, name: str) -> None:
+    """Raises InvalidArgumentError unless ``alpha_mm`` is None or a finite positive number."""
+    if alpha_mm is not None and not (
+        isinstance(alpha_mm, (int, float, np.number)) and not isinstance(alpha_mm, bool)
+        and np.isfinite(alpha_mm) and alpha_mm > 0
+    ):
+        raise InvalidArgumentError(f"{name}: alpha_mm must be a finite positive length in mm or None, got {alpha_mm!r}")
 
 
 def surface_from_points(
@@ -51,9 +89,18 @@ def surface_from_points(
     Pieces under ``MIN_PIECE`` of the largest one are dropped and, above ``max_triangles``, the surface is
     simplified by quadric decimation.
 
+    The surface is built on the points centred on their bounding box's midpoint and scaled into the unit cube by
+    a power of two (the clean-up after it in millimetres), and its vertices mapped back: the result does not
+    depend on where the cloud sits (a cloud translated by 1e6 mm, its coordinates exact, gives the same triangles
+    and the vertices translated, to the rounding of the translated coordinates), and a cloud far from the origin
+    (1e8 times its size away, where Open3D's Poisson segfaults on raw coordinates) is an ordinary one. The Open3D
+    calls run in a forked child with a time limit (:func:`perception.isolate.run_isolated`; about 30 ms more per
+    call): a native crash or hang there is this function's error, never the caller's death.
+
     Raises:
         InvalidArgumentError: unknown method or bad parameter.
-        InvalidMeshError: no surface could be built.
+        InvalidMeshError: points or normals not finite or badly shaped, or no surface could be built (Open3D
+            refused the points, crashed, or ran out of time).
     """
     if method not in METHODS:
         raise InvalidArgumentError(f"{name}: unknown surface method {method!r}; choose one of {', '.join(METHODS)}")
@@ -61,9 +108,60 @@ def surface_from_points(
         raise InvalidArgumentError(f"{name}: poisson_depth must be an integer in 4..12, got {poisson_depth!r}")
     if density_trim is not None and not (np.isfinite(density_trim) and density_trim > 0):
         raise InvalidArgumentError(f"{name}: density_trim must be a positive number of octree levels or None")
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    _check_alpha(alpha_mm, name)
+    points = _as_points(points, name)
+    normals = np.asarray(normals, dtype=np.float64)
+    if normals.shape != points.shape or not np.isfinite(normals).all():
+        raise InvalidMeshError(f"{name}: normals must be finite and shaped like the points {points.shape}, "
+                               f"got shape {normals.shape}")
+    if len(points) < 4:
+        raise InvalidMeshError(f"{name}: only {len(points)} points; a surface needs at least 4")
+    centre = _centre(points, name)
+    vertices, triangles = _surface_isolated(
+        points - centre, normals, method, int(poisson_depth), density_trim, max_triangles,
+        None if alpha_mm is None else float(alpha_mm), name,
+    )
+    return vertices + centre, triangles
+
+
+def _surface_isolated(points, normals, method, poisson_depth, density_trim, max_triangles, alpha_mm, name):
+    """:func:`_surface` run in a forked child; Open3D's failures as InvalidMeshError."""
+    timeout = CHILD_TIMEOUT_S + CHILD_TIMEOUT_PER_POINT_S * len(points)
+    if method == "poisson":
+        timeout += CHILD_TIMEOUT_POISSON_S * 4.0 ** max(poisson_depth - 8, 0)
+    what = f"{name}: Open3D {method} surface from {len(points)} points"
+    try:
+        return run_isolated(_surface, points, normals, method, poisson_depth, density_trim, max_triangles, alpha_mm,
+                            name, timeout_s=timeout, what=what)
+    except IsolatedCallFailed as exc:
+        raise InvalidMeshError(f"{what}: Open3D {exc.reason}; no surface was built (check the cloud: duplicated, "
+                               "degenerate or extreme points)") from None
+    except RuntimeError as exc:  # Open3D's and Qhull's own errors: precision, degenerate input
+        first = next((line.strip() for line in str(exc).splitlines() if line.strip()), type(exc).__name__)
+        first = re.sub(r"\x1b\[[0-9;]*m", "", first)  # Open3D colours its messages for a terminal
+        raise InvalidMeshError(f"{what}: Open3D refused the points ({first[:300]}); no surface was built") from None
+
+
+def _surface(
+    points: np.ndarray,
+    normals: np.ndarray,
+    method: str,
+    poisson_depth: int,
+    density_trim: float | None,
+    max_triangles: int | None,
+    alpha_mm: float | None,
+    name: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The surface of :func:`surface_from_points` through ``points`` centred about the origin (mm): the raw Open3D
+    calls, which may crash (run it isolated).
+
+    The reconstruction itself sees the points scaled into the unit cube by a power of two (exact both ways); the
+    clean-up after it runs in the given millimetres again: Open3D's quadric decimation tests its quadrics against
+    absolute thresholds, so it simplifies a mesh in millimetres and the same mesh in other units differently."""
+    scale = float(np.ldexp(1.0, int(np.frexp(np.abs(points).max())[1])))  # max |unit| in [0.5, 1)
+    unit = points / scale
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(unit))
     cloud.normals = o3d.utility.Vector3dVector(normals)
-    spacing = mean_spacing(points)
     if method == "poisson":
         mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
             cloud, depth=int(poisson_depth), n_threads=1
@@ -78,12 +176,14 @@ def surface_from_points(
             _, inverse, counts = np.unique(faces, axis=0, return_inverse=True, return_counts=True)
             mesh.remove_triangles_by_mask(counts[inverse.ravel()] > 1)
     elif method == "ball_pivoting":
+        spacing = mean_spacing(unit)
         radii = o3d.utility.DoubleVector([spacing, 2 * spacing, 4 * spacing])
         mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(cloud, radii)
     else:
-        diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-        alpha = ALPHA_FRACTION * diagonal if alpha_mm is None else float(alpha_mm)
+        diagonal = float(np.linalg.norm(unit.max(axis=0) - unit.min(axis=0)))
+        alpha = ALPHA_FRACTION * diagonal if alpha_mm is None else float(alpha_mm) / scale
         mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_alpha_shape(cloud, alpha)
+    mesh.vertices = o3d.utility.Vector3dVector(np.asarray(mesh.vertices) * scale)  # back to millimetres
     mesh.remove_degenerate_triangles()
     mesh.remove_unreferenced_vertices()
     if len(mesh.triangles) == 0:
@@ -176,12 +276,15 @@ def points_to_model(
 
     Given normals are kept (re-oriented towards ``viewpoints`` if those are given); otherwise they are
     estimated (:func:`~perception.reconstruct.points.estimate_normals`). ``size_mm=None`` keeps the cloud's own scale and position.
+    All steps run on the cloud centred on its bounding box's midpoint (the surface mapped back; see
+    :func:`surface_from_points`): the result does not depend on where the cloud sits, however far from the origin.
 
     Raises:
         InvalidMeshError: a bad cloud (:func:`~perception.reconstruct.points.validate_points`), bad normals, or no surface.
         InvalidArgumentError: unknown surface method or bad parameter.
     """
     where = source or name  # messages name the file when there is one
+    _check_alpha(alpha_mm, where)
     points = validate_points(points, where)
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64)
@@ -189,6 +292,17 @@ def points_to_model(
         if norm is None or not np.isfinite(normals).all() or (norm == 0).any():
             raise InvalidMeshError(f"{where}: normals must be finite, non-zero and shaped like the points {points.shape}")
         normals = normals / norm
+    # Everything from here runs on the cloud centred (see surface_from_points): Open3D's neighbourhood
+    # statistics and normal estimation (covariances from raw moments) lose their precision on a cloud far
+    # from the origin, and the result must not depend on where the cloud sits.
+    centre = _centre(points, where)
+    points = points - centre
+    if viewpoints is not None:
+        viewpoints = np.asarray(viewpoints, dtype=np.float64)
+        if viewpoints.shape not in ((3,), points.shape) or not np.isfinite(viewpoints).all():
+            raise InvalidArgumentError(f"{where}: viewpoints must be a finite (3,) point or (N, 3) array shaped like "
+                                       f"the points {points.shape}, got shape {viewpoints.shape}")
+        viewpoints = viewpoints - centre
     if viewpoints is not None and np.ndim(viewpoints) == 2:
         points, normals, viewpoints = _clean(points, normals, viewpoints, outlier_neighbors, outlier_std)
     else:
@@ -203,6 +317,7 @@ def points_to_model(
         points, normals, method=method, poisson_depth=poisson_depth, density_trim=density_trim,
         max_triangles=max_triangles, alpha_mm=alpha_mm, name=where,
     )
+    vertices = vertices + centre
     return _to_model(vertices, triangles, name=name, label=label, size_mm=size_mm, source=source)
 
 

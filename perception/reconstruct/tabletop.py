@@ -43,6 +43,31 @@ FLOATING_MM = 15.0
 #: A cluster larger than this (bounding-box diagonal) is no hand-held object: several objects, or an object
 #: and a fixture, that the view could not separate, mm.
 MAX_OBJECT_MM = 300.0
+#: ``voxel_mm`` accepted by :func:`segment_table` and :func:`~perception.reconstruct.multiview.reconstruct_frames`
+#: (besides 0: no down-sampling), mm. 0.1 mm is ten times finer than a depth camera resolves at table distance
+#: (about 1 mm at 0.5 m), and keeps Open3D's voxel grid far from its integer limit on any scene a camera can see
+#: (1e-9 mm overflowed it). At 20 mm the largest object a scene holds (:data:`MAX_OBJECT_MM`) keeps a few hundred
+#: voxels of its visible side, a 150 mm can some 50, under the 100 a cluster needs: coarser grids find no object
+#: (1e9 mm left RANSAC fewer than 3 points). 2 to 3 mm is the usual choice.
+VOXEL_MM_RANGE = (0.1, 20.0)
+#: Open3D's voxel grid indexes voxels with ``int``: a cloud may span at most this many voxels along an axis.
+_MAX_VOXELS_PER_AXIS = 2**31 - 2
+
+
+def check_voxel(voxel_mm, where: str = "scene") -> float:
+    """``voxel_mm`` as a float: 0 (no down-sampling) or a length in :data:`VOXEL_MM_RANGE`, mm.
+
+    Raises:
+        InvalidArgumentError: not a real number, NaN, infinite, negative or outside the range; naming ``where``.
+    """
+    low, high = VOXEL_MM_RANGE
+    number = isinstance(voxel_mm, (int, float, np.integer, np.floating)) and not isinstance(voxel_mm, bool)
+    if not (number and (voxel_mm == 0 or low <= voxel_mm <= high)):  # NaN fails every comparison
+        raise InvalidArgumentError(
+            f"{where}: voxel_mm must be 0 (no down-sampling) or a length in [{low:g}, {high:g}] mm, got {voxel_mm!r}; "
+            "2 to 3 mm suits a depth camera at table distance"
+        )
+    return float(voxel_mm)
 
 
 @dataclass
@@ -192,11 +217,12 @@ def segment_table(
     smooth_deg: float = 30.0,
     color_tolerance: float = 0.1,
     seed: int = 0,
+    name: str = "scene",
 ) -> TableScene:
     """Find the table plane (RANSAC) and cluster what stands on it (DBSCAN), all in mm.
 
-    The cloud is down-sampled on a ``voxel_mm`` grid; the plane with the most inliers within
-    ``plane_tolerance_mm`` is the table, refined by least squares on its inliers; its normal points
+    The cloud is down-sampled on a ``voxel_mm`` grid (:data:`VOXEL_MM_RANGE`; 0: not down-sampled); the plane
+    with the most inliers within ``plane_tolerance_mm`` is the table, refined by least squares on its inliers; its normal points
     towards ``up_hint`` (default: the mean viewpoint, or -y in camera coordinates, i.e. image up). Points
     more than ``plane_tolerance_mm`` and at most ``max_height_mm`` above it are clustered with DBSCAN
     (``cluster_eps_mm``); clusters under ``min_cluster_points`` are dropped. Each cluster then grows down
@@ -213,18 +239,25 @@ def segment_table(
     the ``smooth`` pieces are joined again where their border is neither concave (:data:`CONCAVE_DEG`) nor
     a step (:data:`STEP_DEG`); on the real GraspNet frame it leaves each of the 9 annotated objects in its
     own cluster (``benchmarks/reconstruction.py``). Clusters larger than :data:`MAX_OBJECT_MM` carry a warning.
+    ``name`` (the capture or frame) heads the error messages.
 
     Raises:
-        InvalidMeshError: too few points, or no plane found.
-        InvalidArgumentError: an unknown method.
+        InvalidMeshError: too few points (before or after down-sampling), points spread too far for the grid,
+            or no plane found.
+        InvalidArgumentError: an unknown method, or ``voxel_mm`` outside :data:`VOXEL_MM_RANGE`.
     """
     if method not in SEGMENTATION_METHODS:
         raise InvalidArgumentError(
-            f"scene: unknown segmentation method {method!r}; choose one of {', '.join(SEGMENTATION_METHODS)}"
+            f"{name}: unknown segmentation method {method!r}; choose one of {', '.join(SEGMENTATION_METHODS)}"
         )
-    points = _as_points(points, "scene")
+    voxel_mm = check_voxel(voxel_mm, name)
+    points = _as_points(points, name)
     if len(points) < 3 * MIN_POINTS:
-        raise InvalidMeshError(f"scene: only {len(points)} points with depth; cannot find a table")
+        raise InvalidMeshError(f"{name}: only {len(points)} points with depth; cannot find a table")
+    extent = float((points.max(axis=0) - points.min(axis=0)).max())
+    if voxel_mm > 0 and not extent / voxel_mm <= _MAX_VOXELS_PER_AXIS:
+        raise InvalidMeshError(f"{name}: the points span {extent:.3g} mm, more than {_MAX_VOXELS_PER_AXIS} voxels of "
+                               f"{voxel_mm:g} mm; no table scene is that large: check the depth scale and the pose")
     colors = np.zeros_like(points) if colors is None else np.asarray(colors, dtype=np.float64)
     viewpoints = np.zeros_like(points) if viewpoints is None else np.asarray(viewpoints, dtype=np.float64)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
@@ -236,12 +269,18 @@ def segment_table(
     pts = np.asarray(cloud.points).copy()
     cols = np.asarray(cloud.colors).copy()
     views = np.asarray(cloud.normals).copy()
+    if len(pts) < 3 * MIN_POINTS:  # RANSAC needs 3 points, and a table with objects on it far more
+        raise InvalidMeshError(
+            f"{name}: too few points in the capture: {len(pts)} left of {len(points)} after down-sampling on a "
+            f"{voxel_mm:g} mm grid (they span {extent:.3g} mm), a table needs at least {3 * MIN_POINTS}; check the "
+            "depth scale (depth units per metre) or use a finer voxel_mm"
+        )
     o3d.utility.random.seed(int(seed))
     cloud.normals = o3d.utility.Vector3dVector()
     _, inliers = cloud.segment_plane(plane_tolerance_mm, 3, 1000)
     inliers = np.asarray(inliers, dtype=np.int64)
     if len(inliers) < 3:
-        raise InvalidMeshError("scene: no table plane found")
+        raise InvalidMeshError(f"{name}: no table plane found")
     # Least-squares refinement on the inliers, twice, re-selecting them: Open3D's RANSAC runs on several
     # threads and may return another of equally good candidates under load; the refit plane does not.
     for _ in range(2):
@@ -555,8 +594,10 @@ def describe_objects(scene: TableScene, frame) -> list[dict]:
 
 __all__ = [
     "SEGMENTATION_METHODS",
+    "VOXEL_MM_RANGE",
     "Cluster",
     "TableScene",
+    "check_voxel",
     "describe_objects",
     "flying_pixels",
     "frames_to_points",

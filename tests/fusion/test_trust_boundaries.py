@@ -151,8 +151,8 @@ def test_bad_options_are_one_line_and_exit_2(store, model, tmp_path, capsys):
     ev = ["evaluate", "--model", str(model), "--store", str(store)]
     tr = ["train", "--store", str(store), "--model", "knn", "--split", "none"]
     cases = [
-        (ev + ["--touches", "-2"], "--touches must be at least 1"),
-        (ev + ["--touches", "0"], "--touches must be at least 1"),
+        (ev + ["--touches", "-2"], "argument --touches: must be a positive integer"),
+        (ev + ["--touches", "0"], "argument --touches: must be a positive integer"),
         (ev + ["--touches", "100000000"], "VISUOTACTILE_MAX_TOUCHES"),
         (ev + ["--seed", "-1"], "--seed must be a non-negative integer"),
         (ev + ["--figure", str(tmp_path / "out.txt")], "give a file ending in .png"),
@@ -176,7 +176,7 @@ def test_bad_options_are_one_line_and_exit_2(store, model, tmp_path, capsys):
           "--out", str(tmp_path / "c.zarr")], "VISUOTACTILE_MAX_CONTOURS"),
         (["camera", "--source", "virtual:box", "--out", str(a_file / "sub")], "is a file, not a folder"),
         (["camera", "--source", "virtual:box", "--model", str(tmp_path / "missing.vtm")], "no such model file"),
-        (["camera", "--source", "virtual:box", "--contours", "0"], "--contours must be at least 1"),
+        (["camera", "--source", "virtual:box", "--contours", "0"], "argument --contours: must be a positive integer"),
         (["camera", "--source", "virtual:box", "--strategy", "nowhere"], "unknown --strategy"),
         (["reproduce", "--data", str(tmp_path), "--out", str(a_file)], "is a file, not a folder"),
         (["reproduce", "--data", str(folder / "meshes"), "--out", str(tmp_path / "r"), "--classes", "Cup"],
