@@ -25,10 +25,11 @@ frames = read_recording(folder)  # ... replays without a device
 # Table removed, mug segmented, views fused, Poisson; closed where no camera saw it (the bottom on the table,
 # the inside below the sight lines) from the space the frames left uncarved.
 rec = reconstruct_frames(frames, target=camera.target)
-error = surface_error(rec.model, camera.truth)
+error = surface_error(rec.model, camera.truth, seen=rec.points)
 print(f"reconstructed {rec.model.n_triangles} triangles from {len(rec.points)} points "
       f"(+{len(rec.support)} unseen, closed: {rec.model.is_watertight}): "
-      f"mean error {error['mean_mm']:.2f} mm, p95 {error['p95_mm']:.2f} mm")
+      f"mean error {error['mean_mm']:.2f} mm, p95 {error['p95_mm']:.2f} mm "
+      f"(where a camera looked: {error['seen_mean_mm']:.2f} / {error['seen_p95_mm']:.2f} mm)")
 
 obj = rescale(rec.model, name="captured mug")  # the 150 mm size the classifiers are trained at
 model = None

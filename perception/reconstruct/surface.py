@@ -379,27 +379,48 @@ def _sample_surface(model: ObjectModel, n: int, rng: np.random.Generator) -> np.
     return a + u[:, None] * (b - a) + v[:, None] * (c - a)
 
 
-def surface_error(model: ObjectModel, truth: ObjectModel, *, n_samples: int = 20000, seed: int = 0) -> dict:
+#: With captured points given, :func:`surface_error` also measures the samples within this of one (mm): the surface
+#: a camera saw, apart from what closing the rest added.
+SEEN_MM = 2.0
+
+
+def surface_error(model: ObjectModel, truth: ObjectModel, *, n_samples: int = 20000, seed: int = 0,
+                  seen=None) -> dict:
     """How far a reconstruction lies from the true surface, mm.
 
     Accuracy: ``n_samples`` points drawn uniformly (area-weighted, seeded) on ``model``, each one's
     distance to ``truth``: ``mean_mm``, ``p95_mm``, ``max_mm``. Completeness: the same from points on
     ``truth`` to ``model`` (``coverage_mean_mm``, ``coverage_p95_mm``); parts no camera saw (the bottom
-    on the table) count here.
+    on the table) count here. ``seen``: the (N, 3) captured points; adds the accuracy of the samples within
+    :data:`SEEN_MM` of one (``seen_mean_mm``, ``seen_p95_mm``, and ``seen_fraction`` of the samples), leaving out
+    what a closed reconstruction adds where no camera looked (a mug's filled hollow).
 
     Raises:
-        InvalidMeshError: a mesh with zero area.
+        InvalidMeshError: a mesh with zero area, or ``seen`` not finite (N, 3) points near none of the samples.
     """
     rng = np.random.default_rng(seed)
-    _, dist = truth.closest_points(_sample_surface(model, n_samples, rng))
+    samples = _sample_surface(model, n_samples, rng)
+    _, dist = truth.closest_points(samples)
     _, back = model.closest_points(_sample_surface(truth, n_samples, rng))
-    return {
+    out = {
         "mean_mm": float(dist.mean()),
         "p95_mm": float(np.quantile(dist, 0.95)),
         "max_mm": float(dist.max()),
         "coverage_mean_mm": float(back.mean()),
         "coverage_p95_mm": float(np.quantile(back, 0.95)),
     }
+    if seen is not None:
+        from scipy.spatial import cKDTree
+
+        seen = np.asarray(seen, dtype=np.float64)
+        if seen.ndim != 2 or seen.shape[1] != 3 or not len(seen) or not np.isfinite(seen).all():
+            raise InvalidMeshError(f"{model.name}: seen must be finite (N, 3) captured points, got {seen.shape}")
+        near = cKDTree(seen).query(samples, distance_upper_bound=SEEN_MM)[0] <= SEEN_MM
+        if not near.any():
+            raise InvalidMeshError(f"{model.name}: no part of the surface lies within {SEEN_MM:g} mm of a seen point")
+        out |= {"seen_mean_mm": float(dist[near].mean()), "seen_p95_mm": float(np.quantile(dist[near], 0.95)),
+                "seen_fraction": float(near.mean())}
+    return out
 
 
-__all__ = ["METHODS", "load_points", "points_to_model", "surface_error", "surface_from_points"]
+__all__ = ["METHODS", "SEEN_MM", "load_points", "points_to_model", "surface_error", "surface_from_points"]

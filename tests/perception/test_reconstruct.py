@@ -122,6 +122,29 @@ def test_catalogue_object_through_a_pcd_file_stays_within_a_millimetre(tmp_path)
     assert model.source == str(path) and model.name == "mug"
 
 
+def test_surface_error_where_seen_leaves_out_what_no_camera_saw():
+    """A reconstruction exact above z = 0 and pushed 10 mm out (radius 50 -> 60 mm) below it, seen only above: the
+    seen error is that of the exact half (0); the upper half is 1 / (1 + 1.2^2) = 41 % of the model's area, less the
+    samples more than 2 mm from a seen vertex (2.6 mm apart); the whole error is about 10 mm on the other 59 %."""
+    from perception.geometry import ObjectModel
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(radius=50.0, resolution=60)
+    truth = ObjectModel(np.asarray(sphere.vertices), np.asarray(sphere.triangles), name="sphere")
+    vertices = truth.vertices.copy()
+    below = vertices[:, 2] < 0
+    vertices[below] *= 60.0 / 50.0
+    model = ObjectModel(vertices, truth.triangles, name="half pushed out")
+    seen = truth.vertices[truth.vertices[:, 2] > 3.0]
+    err = surface_error(model, truth, seen=seen)
+    assert err["seen_mean_mm"] < 0.3 and 0.3 < err["seen_fraction"] < 0.41
+    assert 5.0 < err["mean_mm"] < 6.5
+    assert "seen_mean_mm" not in surface_error(model, truth)
+    with pytest.raises(InvalidMeshError, match="within 2 mm of a seen point"):
+        surface_error(model, truth, seen=seen + 1000.0)
+    with pytest.raises(InvalidMeshError, match="finite"):
+        surface_error(model, truth, seen=np.full((3, 3), np.nan))
+
+
 def test_open3d_point_cloud_is_accepted():
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(fibonacci_sphere(1500)))
     model = load_points(cloud, size_mm=None, poisson_depth=6)
