@@ -189,7 +189,8 @@ def write_model_file(path: str | Path, description: dict, arrays: dict[str, np.n
     try:
         with atomic_path(path) as tmp:
             tmp.write_bytes(data)
-    except OSError as exc:
+    except (FileExistsError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as exc:
+        # a bad path, named; a full disk or an I/O error stays an OSError (the old file is kept either way)
         raise ModelFileError(f"{path}: cannot write the model file ({exc.strerror or exc})") from None
     return Path(path)
 

@@ -69,6 +69,37 @@ class TestSequenceSplitKeepsContoursTogether:
             found = split_indices(ds, "sequence", None, 0.25, seed)
             assert all(np.array_equal(a, b) for a, b in zip(expected, found, strict=True))
 
+    def test_a_plane_stored_with_its_normal_flipped_is_the_same_contour(self, guided, monkeypatch):
+        # the generator writes repeats with one sign; a pair touched the other way round would flip it
+        ds = open_dataset(guided)
+        expected = ds.contour_ids()
+        read = ds._read
+
+        def flipped(name, rows):
+            values = read(name, rows)
+            if name == "plane_normals":
+                values = values.copy()
+                values[::2] *= -1
+            return values
+
+        monkeypatch.setattr(ds, "_read", flipped)
+        np.testing.assert_array_equal(ds.contour_ids(), expected)
+
+    def test_a_model_that_fails_its_held_out_check_is_not_written(self, store, tmp_path, monkeypatch):
+        from fusion import training
+        from perception.errors import DataLeakError
+
+        honest = training.split_indices
+
+        def leaky(*args):
+            train, test = honest(*args)
+            return train, np.concatenate([test, train[:3]])
+
+        monkeypatch.setattr(training, "split_indices", leaky)
+        with pytest.raises(DataLeakError, match="not held out"):
+            train_on_store(store, "knn", tmp_path / "m.vtm")
+        assert not (tmp_path / "m.vtm").exists()
+
     def test_copies_are_found_whichever_way_a_plane_normal_points(self, guided):
         ds = open_dataset(guided)
         batch = ds.load()
