@@ -59,7 +59,7 @@ from perception.render import (
     surface_points,
     view_directions,
 )
-from perception.validate import check_count, check_seed
+from perception.validate import check_count, check_object_model, check_seed
 
 log = logging.getLogger(__name__)
 
@@ -209,16 +209,6 @@ def _check_weights(
     return values
 
 
-def _check_model(model, what: str) -> ObjectModel:
-    """``model`` if it is an :class:`ObjectModel`; else InvalidArgumentError naming what was given (an Open3D
-    mesh or a path is told to go through ``perception.load_object``)."""
-    if isinstance(model, ObjectModel):
-        return model
-    kind = f"{type(model).__module__}.{type(model).__qualname__}".removeprefix("builtins.")
-    hint = "" if model is None else "; load it with perception.load_object(...) first (a mesh file or an Open3D mesh)"
-    raise InvalidArgumentError(f"{what}: expected a perception.ObjectModel, got {kind}{hint}")
-
-
 def _channels_for(model: ObjectModel) -> tuple[tuple[str, ...], dict[str, str]]:
     if model.has_colors:
         return ALL_CHANNELS, {}
@@ -243,7 +233,7 @@ def multiview_maps(
         InvalidArgumentError: ``model`` not an ObjectModel, bad weights or view settings (n_views above the views
             limit of :mod:`perception.limits`).
     """
-    _check_model(model, "multiview_maps")
+    check_object_model(model, "multiview_maps")
     seed = check_seed(seed, model.name, allow_none=False)
     if n_views is not None:
         n_views = check_limit("views", check_count(n_views, "n_views", model.name), f"{model.name}: n_views")
@@ -342,7 +332,7 @@ def saliency(
         >>> attention.interest_points(3).shape  # surface points (mm) to draw contour planes through
         (3, 3)
     """
-    _check_model(model, "saliency")
+    check_object_model(model, "saliency")
     seed = check_seed(seed, model.name, allow_none=False)
     if method not in METHODS + PCL_METHODS:
         raise InvalidArgumentError(

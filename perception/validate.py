@@ -41,4 +41,20 @@ def check_count(
     return int(value)
 
 
-__all__ = ["check_count", "check_seed"]
+def check_object_model(model, what: str):
+    """``model`` if it is a :class:`~perception.geometry.ObjectModel`.
+
+    Raises:
+        InvalidArgumentError: anything else, naming what was given; an Open3D mesh or a file path is told to go
+            through ``perception.load_object`` first.
+    """
+    from perception.geometry import ObjectModel  # geometry imports this module
+
+    if isinstance(model, ObjectModel):
+        return model
+    kind = f"{type(model).__module__}.{type(model).__qualname__}".removeprefix("builtins.")
+    hint = "" if model is None else "; load it with perception.load_object(...) first (a mesh file or an Open3D mesh)"
+    raise InvalidArgumentError(f"{what}: expected a perception.ObjectModel, got {kind}{hint}")
+
+
+__all__ = ["check_count", "check_object_model", "check_seed"]

@@ -39,7 +39,7 @@ from perception.geometry import ObjectModel
 from perception.limits import check_bytes
 from perception.limits import check_count as check_limit
 from perception.runtime import progress_bar
-from perception.validate import check_count, check_seed
+from perception.validate import check_count, check_object_model, check_seed
 from tactile import sampling
 from tactile.contours import Contour, Plane, make_contour
 from tactile.explore import TactileSequence, sequence_nbytes
@@ -77,20 +77,6 @@ def check_strategy(strategy: str) -> None:
         InvalidArgumentError: ``strategy`` is not a key of :data:`tactile.sampling.STRATEGIES` (the keys named).
     """
     sampling.check_strategy(strategy)
-
-
-def check_model(model, what: str = "touch") -> ObjectModel:
-    """``model`` if it is an :class:`~perception.geometry.ObjectModel`.
-
-    Raises:
-        InvalidArgumentError: anything else, naming what was given; an Open3D mesh or a file path is told to go
-            through ``perception.load_object`` first.
-    """
-    if isinstance(model, ObjectModel):
-        return model
-    kind = f"{type(model).__module__}.{type(model).__qualname__}".removeprefix("builtins.")
-    hint = "" if model is None else "; load it with perception.load_object(...) first (a mesh file or an Open3D mesh)"
-    raise InvalidArgumentError(f"{what}: expected a perception.ObjectModel, got {kind}{hint}")
 
 
 def _check_jitter(jitter_mm, name: str | None = None) -> float:
@@ -183,7 +169,7 @@ class Toucher:
         saliency_seed: int = 0,
         timing: TouchTiming | None = None,
     ) -> None:
-        check_model(model, "Toucher")
+        check_object_model(model, "Toucher")
         sampling.check_strategy(strategy)
         self.model, self.strategy = model, strategy
         self.probes = _check_probes(probes, model.name)
@@ -376,7 +362,7 @@ def touch(
         >>> all((a.frames == b.frames).all() for a, b in zip(sequences, again))  # same seed, same frames
         True
     """
-    check_model(model, "touch")
+    check_object_model(model, "touch")
     sampling.check_strategy(strategy)
     if seeding not in SEEDINGS:
         raise InvalidArgumentError(f"unknown seeding {seeding!r}; choose one of {', '.join(SEEDINGS)}")
@@ -438,5 +424,5 @@ def touch(
 explore_object = touch
 
 
-__all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher", "check_model",
+__all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher",
            "check_strategy", "explore_object", "jitter_contour", "object_seed", "touch"]
