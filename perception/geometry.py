@@ -364,7 +364,7 @@ def rescale(model: ObjectModel, size_mm: float = DEFAULT_SIZE_MM, *, name: str |
     ``transform`` maps the model's coordinates to the copy's.
 
     Raises:
-        InvalidMeshError: ``size_mm`` is not a positive number.
+        InvalidArgumentError: ``size_mm`` is not a positive number.
     """
     vertices, scaling = normalize(model.vertices, size_mm, triangles=model.triangles, centering=model.centering)
     return replace(model, vertices=vertices, transform=scaling @ model.transform, name=name or model.name)
@@ -427,14 +427,16 @@ def normalize(
     finite coordinates (a bounding-box pre-scaling comes first, so +-1e308 does not overflow).
 
     Raises:
-        InvalidMeshError: all vertices coincide (zero extent) or ``size_mm`` is not a positive number.
+        InvalidMeshError: all vertices coincide (zero extent). InvalidArgumentError: ``size_mm`` is not a positive
+            number.
         InvalidArgumentError: an unknown ``centering``.
     """
     check_centering(centering, "normalize")
     if isinstance(size_mm, bool) or not isinstance(size_mm, (int, float, np.floating, np.integer)):
-        raise InvalidMeshError(f"size_mm must be a positive number of millimetres, got {size_mm!r}")
+        raise InvalidArgumentError(f"size_mm must be a positive number of millimetres, got {size_mm!r}")
     if not np.isfinite(size_mm) or not 0 < size_mm <= MAX_COORDINATE_MM:
-        raise InvalidMeshError(f"size_mm must be a positive number of millimetres up to {MAX_COORDINATE_MM:g}, got {size_mm!r}")
+        raise InvalidArgumentError(f"size_mm must be a positive number of millimetres up to {MAX_COORDINATE_MM:g}, "
+                                   f"got {size_mm!r}")
     vertices = np.asarray(vertices, dtype=np.float64)
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     half_extent = 0.5 * hi - 0.5 * lo

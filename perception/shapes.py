@@ -832,7 +832,7 @@ def make_object(
     Raises:
         DatasetError: unknown class (the message lists the classes), or a seed that is neither a
             non-negative integer nor a generator.
-        InvalidMeshError: ``size_mm`` is not a positive number, or the construction failed.
+        InvalidArgumentError: ``size_mm`` is not a positive number. InvalidMeshError: the construction failed.
     """
     if class_name not in _CLASS_BUILDERS:
         raise DatasetError(
@@ -851,7 +851,7 @@ def make_object(
             f"{class_name}: seed must be a non-negative integer or a numpy Generator, got {seed!r}"
         )
     if not (isinstance(size_mm, (int, float, np.number)) and np.isfinite(size_mm) and size_mm > 0):
-        raise InvalidMeshError(f"{name}: size_mm must be a positive number of millimetres, got {size_mm!r}")
+        raise InvalidArgumentError(f"{name}: size_mm must be a positive number of millimetres, got {size_mm!r}")
     build = _CLASS_BUILDERS[class_name](rng)
     # A coarse draft gives the scale and area; the edge length follows from them (in final mm).
     draft = build(8.0)

@@ -106,6 +106,7 @@ def virtual_capture(
     from perception.camera import VirtualOakCamera
     from perception.geometry import rescale
     from perception.reconstruct.multiview import reconstruct_frames
+    from perception.reconstruct.tabletop import check_voxel
 
     _check(views, distance_mm, size_mm, elevation_deg)
     options = dict(reconstruct or {})
@@ -114,6 +115,8 @@ def virtual_capture(
         raise InvalidArgumentError(f"virtual capture: unknown reconstruction settings {unknown}; "
                                    f"choose among {', '.join(RECONSTRUCT_OPTIONS)}")
     name = name or f"{model.name}{CAPTURE_SUFFIX}"
+    if "voxel_mm" in options:  # before the views are rendered (about 0.5 s each), not after
+        check_voxel(options["voxel_mm"], f"virtual capture of {model.name}")
     start = time.perf_counter()
     camera = VirtualOakCamera(model, seed=int(seed))
     rec = reconstruct_frames(camera.capture_views(int(views), float(distance_mm), float(elevation_deg)),

@@ -6,7 +6,13 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from perception.errors import DatasetError, InvalidMeshError, MeshLoadError, VisuotactileError
+from perception.errors import (
+    DatasetError,
+    InvalidArgumentError,
+    InvalidMeshError,
+    MeshLoadError,
+    VisuotactileError,
+)
 from perception.geometry import ObjectModel, list_collection, load_object, normalize
 from perception.primitives import sphere
 
@@ -187,7 +193,7 @@ def test_object_model_validates_arrays(vertices, triangles, words):
 def test_normalize_rejects_point_and_bad_size():
     with pytest.raises(InvalidMeshError, match="zero extent"):
         normalize(np.ones((4, 3)))
-    with pytest.raises(InvalidMeshError, match="size_mm"):
+    with pytest.raises(InvalidArgumentError, match="size_mm"):
         normalize(np.eye(3), size_mm=-1.0)
 
 

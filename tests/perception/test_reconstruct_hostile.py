@@ -258,8 +258,13 @@ def test_voxel_range_ends_are_accepted():
         assert np.allclose(scene.plane, [0, 0, 1, 0], atol=1e-9)
 
 
-def test_virtual_capture_refuses_a_nan_voxel():
+def test_virtual_capture_refuses_a_nan_voxel_before_rendering(monkeypatch):
+    from perception.camera import VirtualOakCamera
     from tactile.captures import virtual_capture
 
-    with pytest.raises(InvalidArgumentError, match="voxel_mm"):
+    def no_rendering(*args, **kwargs):
+        raise AssertionError("the views were rendered before the settings were checked")
+
+    monkeypatch.setattr(VirtualOakCamera, "capture_views", no_rendering)
+    with pytest.raises(InvalidArgumentError, match="virtual capture of box/0: voxel_mm"):
         virtual_capture(make_object("box", 0), views=1, reconstruct={"voxel_mm": float("nan")})

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from perception import shapes
-from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError, VisuotactileError
+from perception.errors import DatasetError, InvalidArgumentError, VisuotactileError
 from perception.geometry import ObjectModel, surface_centroid
 from perception.shapes import CLASSES, catalogue_figure, make_dataset, make_object
 
@@ -213,7 +213,7 @@ def test_bad_seed_raises(seed):
 
 @pytest.mark.parametrize("size_mm", [0.0, -10.0, float("nan"), float("inf")])
 def test_bad_size_raises(size_mm):
-    with pytest.raises(InvalidMeshError, match="size_mm"):
+    with pytest.raises(InvalidArgumentError, match="size_mm"):
         make_object("mug", 0, size_mm=size_mm)
 
 
