@@ -211,10 +211,9 @@ def _close_small_holes(
     vertices: np.ndarray, triangles: np.ndarray, max_edges: int = 16
 ) -> tuple[np.ndarray, np.ndarray]:
     """Close each hole of at most ``max_edges`` boundary edges with a fan around its centroid (a new
-    vertex), wound like the faces beside it."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
+    vertex), wound like the faces beside it. A hole is one loop of boundary edges: two holes that touch at a
+    vertex (where a non-manifold edge was cut out) get a fan each, since one fan over both would put four
+    faces on the edge from that vertex to its centre."""
     triangles = np.asarray(triangles, dtype=np.int64)
     directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     keys = np.sort(directed, axis=1)
@@ -222,20 +221,53 @@ def _close_small_holes(
     border = directed[counts[inverse.ravel()] == 1]
     if not len(border):
         return vertices, triangles
-    n = len(vertices)
-    graph = coo_matrix((np.ones(len(border)), (border[:, 0], border[:, 1])), shape=(n, n))
-    _, hole = connected_components(graph, directed=False)
-    hole = hole[border[:, 0]]
-    ids, size = np.unique(hole, return_counts=True)
-    small = ids[size <= max_edges]
-    pick = np.isin(hole, small)
-    border, hole = border[pick], hole[pick]
-    if not len(border):
+    loops = _boundary_loops(border)
+    small = [loop for loop in loops if len(loop) <= max_edges]
+    if not small:
         return vertices, triangles
-    index = {h: n + i for i, h in enumerate(small)}
-    centres = np.array([vertices[border[hole == h, 0]].mean(axis=0) for h in small])
-    fan = np.stack([border[:, 1], border[:, 0], np.array([index[h] for h in hole])], axis=1)
+    n = len(vertices)
+    centres = np.array([vertices[border[loop, 0]].mean(axis=0) for loop in small])
+    fan = np.concatenate([np.stack([border[loop, 1], border[loop, 0], np.full(len(loop), n + i)], axis=1)
+                          for i, loop in enumerate(small)])
     return np.concatenate([vertices, centres]), np.concatenate([triangles, fan])
+
+
+def _boundary_loops(border: np.ndarray) -> list[np.ndarray]:
+    """The boundary edges ``border`` (E, 2) split into simple loops (each an array of edge rows, in order), walked
+    without regard to their direction (the winding may still be mixed here): a walk that comes back to a vertex it
+    passed cuts off the loop since then, so holes that touch at a vertex come out apart. Edges on no loop (an
+    open chain) are left out."""
+    incident: dict[int, list[int]] = {}
+    for e, (a, b) in enumerate(border.tolist()):
+        incident.setdefault(a, []).append(e)
+        incident.setdefault(b, []).append(e)
+    used = np.zeros(len(border), dtype=bool)
+    loops = []
+    for first in range(len(border)):
+        if used[first]:
+            continue
+        used[first] = True
+        path, edges = [int(border[first, 0])], [first]  # edges[i] joins path[i] and path[i + 1]
+        position = {path[0]: 0}
+        at = int(border[first, 1])
+        while True:
+            if at in position:  # a loop closed: cut it off and walk on from here
+                cut = position[at]
+                loops.append(np.asarray(edges[cut:], dtype=np.int64))
+                for v in path[cut + 1:]:
+                    del position[v]
+                del path[cut + 1:], edges[cut:]
+            else:
+                position[at] = len(path)
+                path.append(at)
+            nxt = next((e for e in incident[at] if not used[e]), None)
+            if nxt is None:
+                break
+            used[nxt] = True
+            edges.append(nxt)
+            a, b = border[nxt]
+            at = int(b if a == at else a)
+    return loops
 
 
 def _to_model(vertices, triangles, *, name, label, size_mm, source, pre_transform=None) -> ObjectModel:

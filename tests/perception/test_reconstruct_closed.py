@@ -58,6 +58,22 @@ def test_small_holes_close_with_the_winding_of_their_neighbours():
     assert len(triangles) == len(cap) and len(vertices) == len(sphere.vertices)
 
 
+
+def test_holes_that_touch_at_a_vertex_close_apart():
+    """Two triangular holes sharing one corner (what cutting out a non-manifold edge leaves): one fan over both
+    would put four faces on the edge from that corner to its centre; a fan each closes the cube exactly."""
+    cube = trimesh.creation.box().subdivide()  # 48 triangles, the top face in 8
+    top = np.flatnonzero(cube.triangles_center[:, 2] > 0.49)
+    faces = cube.faces[top]
+    pair = next((i, j) for i in range(len(top)) for j in range(i + 1, len(top))
+                if len(set(faces[i]) & set(faces[j])) == 1)
+    keep = np.setdiff1d(np.arange(len(cube.faces)), top[list(pair)])
+    vertices, triangles = _close_small_holes(cube.vertices, cube.faces[keep])
+    closed = trimesh.Trimesh(vertices, triangles, process=False)
+    assert len(vertices) == len(cube.vertices) + 2  # one centre per hole
+    assert closed.is_watertight and closed.is_winding_consistent
+    assert closed.volume == pytest.approx(1.0, abs=1e-12)
+
 # ------------------------------------------------------------------------------------- segmentation
 def test_a_bowl_keeps_its_inner_bottom_below_the_plane_tolerance():
     """The bowl's inner bottom stands 5.6 mm above the table, under the 6 mm RANSAC tolerance: it is grown
@@ -158,9 +174,15 @@ def test_every_class_reconstructs_closed_at_its_cad_centre_and_size(class_name):
     truth, model = camera.truth, rec.model
     assert model.is_watertight
     assert model.bounds[0, 2] > -0.5  # nothing below the table (its plane is estimated to a tenth of a mm)
-    # Measured over the classes (seed 5): centre within 0.8 mm, diagonal +0.5 to +4 %.
-    assert np.linalg.norm(model.center - truth.center) < 2.0
+    # Where the object stands: its bounding box. Measured over the classes (seed 5): box centres within 1.7 mm
+    # (the funnel's rim 2.7 mm high), diagonal +0.5 to +4 %.
+    box_centre = lambda m: (m.vertices.min(axis=0) + m.vertices.max(axis=0)) / 2
+    assert np.linalg.norm(box_centre(model) - box_centre(truth)) < 2.0
     assert 0.99 < model.diagonal / truth.diagonal < 1.06
-    # Solids keep their volume; hollow objects gain the inside no camera saw (a mug x2.4), never lose.
+    # Solids keep their volume and hence their surface centroid (the object frame's origin); hollow objects gain
+    # the inside no camera saw (a mug x2.4), never lose, and their centroid moves with it (the mug's 9 mm up).
+    solid = class_name in ("bottle", "box", "can", "hammer", "ring")
     ratio = _volume(model) / _volume(truth)
-    assert 0.95 < ratio < (1.05 if class_name in ("bottle", "box", "can", "hammer", "ring") else 3.0)
+    assert 0.95 < ratio < (1.05 if solid else 3.0)
+    if solid:
+        assert np.linalg.norm(model.center - truth.center) < 2.0
