@@ -284,10 +284,28 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     from tqdm import tqdm
 
     stream = options.get("file") or sys.stderr
-    if not getattr(stream, "isatty", lambda: False)():
-        # a log file, not a terminal: a line every half minute, not ten a second (tens of kB per bar otherwise)
-        options.setdefault("mininterval", 30.0)
-    return tqdm(iterable, disable=not progress_enabled(enabled), **options)
+    if getattr(stream, "isatty", lambda: False)():
+        return tqdm(iterable, disable=not progress_enabled(enabled), **options)
+    # a log file, not a terminal: a line every half minute, not ten a second (tens of kB per bar otherwise)
+    options.setdefault("mininterval", 30.0)
+    return _log_bar_class()(iterable, disable=not progress_enabled(enabled), **options)
+
+
+@cache
+def _log_bar_class():
+    from tqdm import tqdm
+
+    class LogBar(tqdm):
+        """A bar writing to a log: a new postfix waits for the next scheduled line (tqdm would write one at once,
+        each epoch of a training run)."""
+
+        def set_postfix(self, ordered_dict=None, refresh=False, **kwargs):
+            super().set_postfix(ordered_dict, refresh=refresh, **kwargs)
+
+        def set_postfix_str(self, s="", refresh=False):
+            super().set_postfix_str(s, refresh=refresh)
+
+    return LogBar
 
 
 __all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "child_pids", "descendant_handles", "kill_handles", "limit_cores",

@@ -70,6 +70,21 @@ class TestProgressSwitch:
         runtime.set_progress(True)  # an explicit switch wins over the environment
         assert runtime.progress_enabled(True) and not runtime.progress_enabled(False)
 
+    def test_a_bar_in_a_log_writes_a_line_per_half_minute_not_per_postfix(self):
+        """Not a terminal: a training run's per-epoch postfix waits for the next scheduled line (tqdm writes one
+        at once otherwise: 50 lines here); the start and the end are written."""
+        import io
+
+        log = io.StringIO()
+        bar = runtime.progress_bar(range(50), enabled=True, desc="train", file=log)
+        for i in bar:
+            bar.set_postfix(loss=f"{i}")
+            bar.set_postfix_str(f"objects {i}")
+        bar.close()
+        lines = [line for line in log.getvalue().split("\r") if line.strip()]
+        assert len(lines) == 2
+        assert lines[0].startswith("train:   0%") and "50/50" in lines[1] and "objects 49" in lines[1]
+
     def test_the_command_line_switch_holds_for_one_command(self, monkeypatch, capsys):
         """``--no-progress`` turns the switch off while the command runs and restores it after."""
         from fusion import cli
