@@ -169,12 +169,7 @@ def _surface(
         density = np.asarray(density)
         if density_trim is not None and len(density):
             mesh.remove_vertices_by_mask(density < np.quantile(density, 0.9) - density_trim)
-        # Open3D's Poisson can emit a face twice (both windings) where two sheets meet in a thin wall:
-        # four faces on each of its edges. The pair encloses nothing; dropping both keeps the rest closed.
-        faces = np.sort(np.asarray(mesh.triangles), axis=1)
-        if len(faces):
-            _, inverse, counts = np.unique(faces, axis=0, return_inverse=True, return_counts=True)
-            mesh.remove_triangles_by_mask(counts[inverse.ravel()] > 1)
+        mesh.remove_triangles_by_mask(_paired_faces(np.asarray(mesh.triangles)))
     elif method == "ball_pivoting":
         spacing = mean_spacing(unit)
         radii = o3d.utility.DoubleVector([spacing, 2 * spacing, 4 * spacing])
@@ -198,13 +193,31 @@ def _surface(
         mesh = mesh.simplify_quadric_decimation(int(max_triangles))
         mesh.remove_degenerate_triangles()
         mesh.remove_unreferenced_vertices()
+    vertices, triangles = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)
     if method == "poisson" and not mesh.is_edge_manifold():
         # Marching cubes and decimation leave an edge with four faces here and there: drop those faces and
         # close the few-edge holes they leave.
         mesh.remove_non_manifold_edges()
         mesh.remove_unreferenced_vertices()
-        return _close_small_holes(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles))
-    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)
+        vertices, triangles = _close_small_holes(np.asarray(mesh.vertices, dtype=np.float64),
+                                                 np.asarray(mesh.triangles))
+    if method == "poisson":  # the clean-up above can leave a pair too: two faces on one edge loop, a flat pillow
+        paired = _paired_faces(triangles)
+        if paired.any():
+            triangles = triangles[~paired]
+            used = np.unique(triangles)
+            vertices, triangles = vertices[used], np.searchsorted(used, triangles)
+    return vertices, triangles
+
+
+def _paired_faces(triangles: np.ndarray) -> np.ndarray:
+    """(F,) True for every face on the same three vertices as another one. Open3D's Poisson can emit a face twice
+    (both windings) where two sheets meet in a thin wall: four faces on each of its edges. The pair encloses
+    nothing; dropping both keeps the rest closed (a mesh clean-up that kept one would leave a hole)."""
+    if not len(triangles):
+        return np.zeros(0, dtype=bool)
+    _, inverse, counts = np.unique(np.sort(triangles, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return counts[inverse.ravel()] > 1
 
 
 def _close_small_holes(

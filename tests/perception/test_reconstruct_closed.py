@@ -13,7 +13,7 @@ from perception.camera import VirtualOakCamera
 from perception.geometry import ObjectModel, rescale
 from perception.reconstruct.carving import _fill_row_gaps, carve
 from perception.reconstruct.multiview import reconstruct_frames
-from perception.reconstruct.surface import _close_small_holes, surface_error
+from perception.reconstruct.surface import _close_small_holes, _paired_faces, surface_error
 from perception.reconstruct.tabletop import segment_table
 from perception.shapes import CLASSES, make_object
 from tactile.contours import make_contour, plane_through
@@ -73,6 +73,18 @@ def test_holes_that_touch_at_a_vertex_close_apart():
     assert len(vertices) == len(cube.vertices) + 2  # one centre per hole
     assert closed.is_watertight and closed.is_winding_consistent
     assert closed.volume == pytest.approx(1.0, abs=1e-12)
+
+
+def test_faces_on_the_same_three_vertices_are_found_in_pairs():
+    """A face emitted twice (both windings, a flat pillow of two faces) encloses nothing: both go, where a clean-up
+    keeping the first would leave a three-edge hole."""
+    box = trimesh.creation.box()
+    pillow = np.array([[8, 9, 10], [8, 10, 9]])  # three new vertices, both windings
+    faces = np.concatenate([box.faces, pillow, box.faces[[3]][:, ::-1]])  # and face 3 again, reversed
+    expected = np.zeros(len(faces), dtype=bool)
+    expected[[3, 12, 13, 14]] = True
+    assert np.array_equal(_paired_faces(faces), expected)
+    assert not _paired_faces(box.faces).any() and _paired_faces(np.zeros((0, 3), dtype=np.int64)).shape == (0,)
 
 # ------------------------------------------------------------------------------------- segmentation
 def test_a_bowl_keeps_its_inner_bottom_below_the_plane_tolerance():
@@ -167,17 +179,19 @@ def test_open_reconstruction_misses_the_bottom(can):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 5])  # 0: the README's reconstruction benchmark
 @pytest.mark.parametrize("class_name", CLASSES)
-def test_every_class_reconstructs_closed_at_its_cad_centre_and_size(class_name):
-    camera = VirtualOakCamera(make_object(class_name, 5), seed=5)
-    rec = reconstruct_frames(camera.capture_views(4, 500.0), target=camera.target, seed=5)
+def test_every_class_reconstructs_closed_at_its_cad_centre_and_size(class_name, seed):
+    camera = VirtualOakCamera(make_object(class_name, seed), seed=seed)
+    rec = reconstruct_frames(camera.capture_views(4, 500.0), target=camera.target, seed=seed)
     truth, model = camera.truth, rec.model
     assert model.is_watertight
     assert model.bounds[0, 2] > -0.5  # nothing below the table (its plane is estimated to a tenth of a mm)
-    # Where the object stands: its bounding box. Measured over the classes (seed 5): box centres within 1.7 mm
-    # (the funnel's rim 2.7 mm high), diagonal +0.5 to +4 %.
+    # Where the object stands: its bounding box, which any bulge moves. Measured over the classes: box centres
+    # within 1.7 mm at seed 5 (the funnel's rim 2.7 mm high) and 2.5 mm at seed 0 (the bowl's thin rim 4.8 mm
+    # high), diagonal +0.5 to +4 %.
     box_centre = lambda m: (m.vertices.min(axis=0) + m.vertices.max(axis=0)) / 2
-    assert np.linalg.norm(box_centre(model) - box_centre(truth)) < 2.0
+    assert np.linalg.norm(box_centre(model) - box_centre(truth)) < 3.0
     assert 0.99 < model.diagonal / truth.diagonal < 1.06
     # Solids keep their volume and hence their surface centroid (the object frame's origin); hollow objects gain
     # the inside no camera saw (a mug x2.4), never lose, and their centroid moves with it (the mug's 9 mm up).
