@@ -412,8 +412,10 @@ class FSRSensor:
         sides = self._ladder(steps[candidates])
         unit_xy = self._unit_grid if taxels is None else self._unit_grid[taxels]  # (T, 2) on the unit pad
         g = gaps[candidates].astype(np.float64)
-        # Rays that started inside the solid (-standoff) or found nothing (range) give no height.
-        found = (g > -self.standoff_mm) & (g < self.range_mm)
+        # Rays that started inside the solid (-standoff) or found nothing (range) give no height. The gaps hold
+        # those as float32: compared with the float64 settings, a range such as 15.8 mm would count a miss (its
+        # float32 just below) as a surface at the far end of the range.
+        found = (g > -np.float32(self.standoff_mm)) & (g < np.float32(self.range_mm))
         weights = found.astype(np.float64)
         # The fit runs on the unit pad, so its conditioning does not depend on the units or the side.
         design = np.concatenate([unit_xy, np.ones((len(unit_xy), 1))], axis=1)  # (T, 3) rows (u, v, 1)
