@@ -193,7 +193,7 @@ def _damaged_objects(path: Path, settings: dict, records: dict[int, dict], progr
     complete = [i for i in sorted(records) if records[i].get("status") == "complete"]
     arrays = _arrays(path, settings) if complete else {}
     damaged = {}
-    for index in progress_bar(complete, enabled=progress, desc="verify", unit="object"):
+    for index in progress_bar(complete, enabled=progress and bool(complete), desc="verify", unit="object"):
         problem = object_damage(path, arrays, settings, index, records[index])
         if problem is not None:
             damaged[index] = problem

@@ -288,3 +288,18 @@ def test_generate_records_an_object_beyond_the_bounds_as_failed_not_a_store_it_t
     ds = open_dataset(out)
     assert ds.object_names == ("box/0",) and verify_store(out).ok
     assert np.isfinite(ds.load().positions).all()
+
+
+def test_a_store_with_no_complete_object_shows_no_verify_bar(tmp_path, capsys):
+    """Nothing to verify (a store just created): no empty "verify: 0 objects" bar before the generation's own."""
+    from perception import runtime
+    from tactile.dataset.store import create_store
+    from tests.test_atomic_writers import _store_settings
+
+    create_store(tmp_path / "new.zarr", _store_settings(), {"command": "test"})
+    runtime.set_progress(True)
+    try:
+        assert damaged_objects(tmp_path / "new.zarr", progress=True) == {}
+    finally:
+        runtime.set_progress(None)
+    assert "verify" not in capsys.readouterr().err
