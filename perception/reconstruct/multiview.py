@@ -110,6 +110,11 @@ class Reconstruction:
     warnings: list[str] = field(default_factory=list)
 
 
+#: The warning of a closed reconstruction that still is not watertight.
+NOT_WATERTIGHT = ("the closed surface came out with holes or mixed winding (not watertight); contours through "
+                  "them may open")
+
+
 def reconstruct_frames(
     frames,
     *,
@@ -225,6 +230,8 @@ def reconstruct_frames(
         if (height < 0).any():
             vertices = model.vertices - np.minimum(height, 0.0)[:, None] * plane[:3]
             model = ObjectModel(vertices, model.triangles, name=name, label=label)
+        if not model.is_watertight:  # rare (e.g. a wine glass from 8 views): contours may then open, say so
+            warnings = warnings + [NOT_WATERTIGHT]
     else:
         model = build(points, normals)
     if size_mm is not None:
