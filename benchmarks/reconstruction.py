@@ -90,7 +90,7 @@ def views_sweep(classes: list[str], quick: bool, seed: int, sweep: str = "all") 
             rec = reconstruct_frames(frames, target=camera.target, poisson_depth=setting["depth"], icp=setting["icp"],
                                      seed=seed, close=close, density_trim=None if close else 1.0)
             t_rec = time.perf_counter() - start
-            err = surface_error(rec.model, camera.truth, seen=rec.points)
+            err = surface_error(rec.model, camera.truth, seed=seed, seen=rec.points)
             closed = rec.model.is_watertight
             per_object.append({"object": name, **err, "capture_s": t_capture, "reconstruct_s": t_rec,
                                "points": len(rec.points), "triangles": rec.model.n_triangles, "watertight": closed,

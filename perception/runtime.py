@@ -283,12 +283,17 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     :func:`progress_enabled` (``enabled``)."""
     from tqdm import tqdm
 
+    disable = bool(options.pop("disable", False)) or not progress_enabled(enabled)
     stream = options.get("file") or sys.stderr
-    if getattr(stream, "isatty", lambda: False)():
-        return tqdm(iterable, disable=not progress_enabled(enabled), **options)
+    try:
+        terminal = bool(stream.isatty())
+    except (AttributeError, TypeError, ValueError, OSError):  # no stream, a closed one, an odd object
+        terminal = False
+    if terminal:
+        return tqdm(iterable, disable=disable, **options)
     # a log file, not a terminal: a line every half minute, not ten a second (tens of kB per bar otherwise)
     options.setdefault("mininterval", 30.0)
-    return _log_bar_class()(iterable, disable=not progress_enabled(enabled), **options)
+    return _log_bar_class()(iterable, disable=disable, **options)
 
 
 @cache

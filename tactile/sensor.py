@@ -412,10 +412,7 @@ class FSRSensor:
         sides = self._ladder(steps[candidates])
         unit_xy = self._unit_grid if taxels is None else self._unit_grid[taxels]  # (T, 2) on the unit pad
         g = gaps[candidates].astype(np.float64)
-        # Rays that started inside the solid (-standoff) or found nothing (range) give no height. The gaps hold
-        # those as float32: compared with the float64 settings, a range such as 15.8 mm would count a miss (its
-        # float32 just below) as a surface at the far end of the range.
-        found = (g > -np.float32(self.standoff_mm)) & (g < np.float32(self.range_mm))
+        found = self._surface_found(g)
         weights = found.astype(np.float64)
         # The fit runs on the unit pad, so its conditioning does not depend on the units or the side.
         design = np.concatenate([unit_xy, np.ones((len(unit_xy), 1))], axis=1)  # (T, 3) rows (u, v, 1)
@@ -450,6 +447,13 @@ class FSRSensor:
         positions[keep], normals[keep], tangents[keep] = settled_p[fits], settled_n[fits], settled_t[fits]
         gaps[keep] = settled_g[fits]
         return (model, positions, normals, tangents), gaps
+
+    def _surface_found(self, gaps: np.ndarray) -> np.ndarray:
+        """Where a ray found the surface: not where it started inside the solid (``-standoff_mm``) or found nothing
+        (``range_mm``), which give no height. The gaps hold those as float32: compared with the float64 settings, a
+        range such as 15.81 mm would count a miss (its float32 just below) as surface at the far end of the range,
+        and a stand-off such as 5.1 mm an inside start as surface."""
+        return (gaps > -np.float32(self.standoff_mm)) & (gaps < np.float32(self.range_mm))
 
     def _survey_indices(self) -> np.ndarray:
         """Row-major taxel indices of a survey_taxels x survey_taxels subset of the taxel grid, outermost

@@ -56,7 +56,9 @@ def refine_views(
     if not clouds:
         return []
     reg = o3d.pipelines.registration
-    centre = np.asarray(clouds[0], dtype=np.float64).mean(axis=0)
+    first = np.asarray(clouds[0], dtype=np.float64).reshape(-1, 3)
+    finite = first[np.isfinite(first).all(axis=1)]
+    centre = finite.mean(axis=0) if len(finite) else np.zeros(3)  # a stray NaN must not reach every correction
     corrections = [np.eye(4)]
     reference = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(clouds[0] - centre))
     for i, pts in enumerate(clouds[1:], start=1):

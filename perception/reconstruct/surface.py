@@ -254,7 +254,21 @@ def _boundary_loops(border: np.ndarray) -> list[np.ndarray]:
     for e, (a, b) in enumerate(border.tolist()):
         incident.setdefault(a, []).append(e)
         incident.setdefault(b, []).append(e)
-    used = np.zeros(len(border), dtype=bool)
+    # Edges on no loop go first: a face's edge from a vertex to itself, then open chains, pruned from their loose
+    # ends inwards (a walk that took one would dead-end and drop the loop it started on).
+    used = border[:, 0] == border[:, 1]
+    degree = {v: sum(not used[e] for e in es) for v, es in incident.items()}
+    loose = [v for v, d in degree.items() if d == 1]
+    while loose:
+        v = loose.pop()
+        e = next((e for e in incident[v] if not used[e]), None)
+        if e is None:
+            continue
+        used[e] = True
+        for w in border[e].tolist():
+            degree[w] -= 1
+            if degree[w] == 1:
+                loose.append(w)
     loops = []
     for first in range(len(border)):
         if used[first]:

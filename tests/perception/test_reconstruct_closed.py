@@ -56,6 +56,24 @@ def test_small_holes_close_with_the_winding_of_their_neighbours():
     cap = sphere.faces[sphere.triangles_center[:, 2] < 0.8]  # a hole of more than 16 edges is an opening
     vertices, triangles = _close_small_holes(sphere.vertices, cap, max_edges=16)
     assert len(triangles) == len(cap) and len(vertices) == len(sphere.vertices)
+    can = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=16)
+    open_top = can.faces[can.triangles_center[:, 2] < 0.49]  # the top cap gone: a hole of exactly 16 edges
+    assert len(_close_small_holes(can.vertices, open_top, max_edges=15)[1]) == len(open_top)
+    vertices, triangles = _close_small_holes(can.vertices, open_top, max_edges=16)
+    assert len(triangles) == len(open_top) + 16
+    assert trimesh.Trimesh(vertices, triangles, process=False).is_watertight
+
+
+def test_boundary_loops_leave_out_chains_and_point_edges_whatever_their_order():
+    """An open chain hanging off a loop (1-7-8) is on no loop, and a face's edge from a vertex to itself is no
+    hole; the loop 0-1-2 comes out whichever edge the walk meets first."""
+    from perception.reconstruct.surface import _boundary_loops
+
+    loop, chain, point = [[0, 1], [1, 2], [2, 0]], [[1, 7], [7, 8]], [[5, 5]]
+    for border in (loop + chain + point, chain + point + loop, [loop[0], *chain, *loop[1:], *point]):
+        border = np.array(border)
+        (found,) = _boundary_loops(border)
+        assert sorted(map(tuple, border[found].tolist())) == sorted(map(tuple, loop))
 
 
 

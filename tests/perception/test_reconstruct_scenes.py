@@ -96,6 +96,21 @@ def test_icp_undoes_a_small_pose_error(where):
     shift = np.array([0.8, -0.6, 0.5])
     offset = np.array(where)
     moved = b @ rotation.T + shift + offset
-    _, correction = refine_views([a + offset, moved])
+    c = sample_surface(box, 6000, seed=2)
+    moved_c = c @ rotation + [-0.5, 0.7, -0.4] + offset  # a third view, off the other way: registered on both
+    _, correction, correction_c = refine_views([a + offset, moved, moved_c])
     restored = moved @ correction[:3, :3].T + correction[:3, 3]
     assert np.abs(restored - (b + offset)).max() < 0.2
+    restored_c = moved_c @ correction_c[:3, :3].T + correction_c[:3, 3]
+    assert np.abs(restored_c - (c + offset)).max() < 0.2
+
+
+def test_a_stray_nan_in_the_first_view_leaves_the_corrections_finite():
+    from perception.reconstruct.multiview import refine_views
+    from tests.perception.test_reconstruct import sample_surface
+
+    box = make_object("box", 0)
+    a, b = sample_surface(box, 3000, seed=0), sample_surface(box, 3000, seed=1) + [0.3, 0.0, 0.0]
+    corrections = refine_views([np.vstack([a, [[np.nan] * 3]]), b])
+    assert np.isfinite(corrections[1]).all()
+    assert np.abs(corrections[1][:3, 3] - [-0.3, 0.0, 0.0]).max() < 0.1

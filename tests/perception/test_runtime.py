@@ -84,6 +84,16 @@ class TestProgressSwitch:
         lines = [line for line in log.getvalue().split("\r") if line.strip()]
         assert len(lines) == 2
         assert lines[0].startswith("train:   0%") and "50/50" in lines[1] and "objects 49" in lines[1]
+        assert bar.mininterval == 30.0
+
+    def test_a_bar_on_a_closed_stream_or_switched_off_by_its_caller_does_not_raise(self):
+        import io
+
+        closed = io.StringIO()
+        closed.close()
+        assert runtime.progress_bar(range(3), enabled=False, file=closed).disable
+        assert runtime.progress_bar(range(3), enabled=True, disable=True).disable
+        assert list(runtime.progress_bar(range(3), enabled=True, disable=True)) == [0, 1, 2]
 
     def test_the_command_line_switch_holds_for_one_command(self, monkeypatch, capsys):
         """``--no-progress`` turns the switch off while the command runs and restores it after."""

@@ -186,6 +186,16 @@ def test_a_miss_is_no_surface_whatever_the_range_in_float32():
     np.testing.assert_allclose(s1.pad_sides_mm / s, s0.pad_sides_mm, rtol=1e-12)
 
 
+@pytest.mark.parametrize("standoff, range_", [(5.1, 15.811388300841896), (4.9, 12.7), (5.0, 10.0)])
+def test_misses_and_inside_starts_give_no_height_whatever_their_float32(standoff, range_):
+    """The gaps of a ray that started inside (-standoff) or missed (range) are float32: neither is surface, whether
+    the setting rounds up or down in float32 (5.1 and 15.81 round down, 4.9 and 12.7 up, 5 and 10 are exact)."""
+    sensor = FSRSensor(standoff_mm=standoff, range_mm=range_)
+    inside, miss = -np.float32(standoff), np.float32(range_)
+    gaps = np.array([[inside, miss, 0.0, -0.5 * standoff, 0.99 * range_]], dtype=np.float32).astype(np.float64)
+    assert sensor._surface_found(gaps).tolist() == [[False, False, True, True, True]]
+
+
 def test_the_sensor_cannot_be_scaled_past_its_length_cap():
     # The default sensor scaled with a 1e4-times object would need a 2e5 mm pad: refused (the base above is
     # 1/20 of the default for this reason). load_object(size_mm=...) is the way to bring such objects in.
