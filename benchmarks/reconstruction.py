@@ -65,11 +65,6 @@ def _settings(quick: bool, sweep: str = "all") -> list[dict]:
     return rows
 
 
-def _box_centre(model) -> np.ndarray:
-    """The bounding-box centre, mm: where the object stands (its surface centroid moves with a filled hollow)."""
-    return (model.vertices.min(axis=0) + model.vertices.max(axis=0)) / 2
-
-
 def _volume(model) -> float:
     """Enclosed volume (divergence theorem), mm^3; meaningful for closed surfaces only."""
     a, b, c = (model.vertices[model.triangles[:, i]] for i in range(3))
@@ -95,7 +90,7 @@ def views_sweep(classes: list[str], quick: bool, seed: int, sweep: str = "all") 
             per_object.append({"object": name, **err, "capture_s": t_capture, "reconstruct_s": t_rec,
                                "points": len(rec.points), "triangles": rec.model.n_triangles, "watertight": closed,
                                "volume_ratio": _volume(rec.model) / _volume(camera.truth) if closed else float("nan"),
-                               "centre_mm": float(np.linalg.norm(_box_centre(rec.model) - _box_centre(camera.truth)))})
+                               "centre_mm": float(np.linalg.norm(rec.model.bounds.mean(axis=0) - camera.truth.bounds.mean(axis=0)))})
         rows.append({
             **setting,
             "mean_mm": statistics.fmean(r["mean_mm"] for r in per_object),

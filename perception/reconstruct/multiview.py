@@ -19,7 +19,7 @@ from perception.errors import InvalidMeshError
 from perception.geometry import ObjectModel, rescale
 from perception.reconstruct.carving import carve
 from perception.reconstruct.points import MIN_POINTS, estimate_normals
-from perception.reconstruct.surface import _close_small_holes, points_to_model
+from perception.reconstruct.surface import close_holes, points_to_model
 from perception.reconstruct.tabletop import (
     Cluster,
     TableScene,
@@ -236,7 +236,7 @@ def reconstruct_frames(
             vertices = model.vertices - np.minimum(height, 0.0)[:, None] * plane[:3]
             model = ObjectModel(vertices, model.triangles, name=name, label=label)
         if not model.is_watertight:  # a hole larger than the surface clean-up closes (a wine glass from 8 views)
-            vertices, triangles = _close_small_holes(model.vertices, model.triangles, max_edges=CLOSED_HOLE_EDGES)
+            vertices, triangles = close_holes(model.vertices, model.triangles, max_edges=CLOSED_HOLE_EDGES)
             if len(triangles) > len(model.triangles):
                 filled = ObjectModel(vertices, triangles, name=name, label=label)
                 model = filled if filled.is_watertight else model

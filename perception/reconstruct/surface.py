@@ -193,14 +193,15 @@ def _surface(
         mesh = mesh.simplify_quadric_decimation(int(max_triangles))
         mesh.remove_degenerate_triangles()
         mesh.remove_unreferenced_vertices()
-    vertices, triangles = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)
-    if method == "poisson" and not mesh.is_edge_manifold():
+    cut = method == "poisson" and not mesh.is_edge_manifold()
+    if cut:
         # Marching cubes and decimation leave an edge with four faces here and there: drop those faces and
         # close the few-edge holes they leave.
         mesh.remove_non_manifold_edges()
         mesh.remove_unreferenced_vertices()
-        vertices, triangles = _close_small_holes(np.asarray(mesh.vertices, dtype=np.float64),
-                                                 np.asarray(mesh.triangles))
+    vertices, triangles = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)
+    if cut:
+        vertices, triangles = close_holes(vertices, triangles)
     if method == "poisson":  # the clean-up above can leave a pair too: two faces on one edge loop, a flat pillow
         paired = _paired_faces(triangles)
         if paired.any():
@@ -220,13 +221,13 @@ def _paired_faces(triangles: np.ndarray) -> np.ndarray:
     return counts[inverse.ravel()] > 1
 
 
-def _close_small_holes(
+def close_holes(
     vertices: np.ndarray, triangles: np.ndarray, max_edges: int = 16
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Close each hole of at most ``max_edges`` boundary edges with a fan around its centroid (a new
-    vertex), wound like the faces beside it. A hole is one loop of boundary edges: two holes that touch at a
-    vertex (where a non-manifold edge was cut out) get a fan each, since one fan over both would put four
-    faces on the edge from that vertex to its centre."""
+    """(vertices, triangles) with each hole of at most ``max_edges`` boundary edges closed by a fan around its
+    centroid (a new vertex), wound like the faces beside it. A hole is one loop of boundary edges: two holes that
+    touch at a vertex (where a non-manifold edge was cut out) get a fan each, since one fan over both would put
+    four faces on the edge from that vertex to its centre."""
     triangles = np.asarray(triangles, dtype=np.int64)
     directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     keys = np.sort(directed, axis=1)
@@ -482,4 +483,4 @@ def surface_error(model: ObjectModel, truth: ObjectModel, *, n_samples: int = 20
     return out
 
 
-__all__ = ["METHODS", "SEEN_MM", "load_points", "points_to_model", "surface_error", "surface_from_points"]
+__all__ = ["METHODS", "SEEN_MM", "close_holes", "load_points", "points_to_model", "surface_error", "surface_from_points"]

@@ -13,7 +13,7 @@ from perception.camera import VirtualOakCamera
 from perception.geometry import ObjectModel, rescale
 from perception.reconstruct.carving import _fill_row_gaps, carve
 from perception.reconstruct.multiview import reconstruct_frames
-from perception.reconstruct.surface import _close_small_holes, _paired_faces, surface_error
+from perception.reconstruct.surface import _paired_faces, close_holes, surface_error
 from perception.reconstruct.tabletop import segment_table
 from perception.shapes import CLASSES, make_object
 from tactile.contours import make_contour, plane_through
@@ -48,18 +48,18 @@ def test_small_holes_close_with_the_winding_of_their_neighbours():
     box = trimesh.creation.box()  # unit cube, 12 triangles, outward
     top = np.nonzero(box.triangles_center[:, 2] > 0.49)[0]
     keep = np.setdiff1d(np.arange(len(box.faces)), top)  # a square hole of 4 edges
-    vertices, triangles = _close_small_holes(box.vertices, box.faces[keep])
+    vertices, triangles = close_holes(box.vertices, box.faces[keep])
     closed = trimesh.Trimesh(vertices, triangles, process=False)
     assert closed.is_watertight and closed.is_winding_consistent
     assert closed.volume == pytest.approx(1.0, abs=1e-12)  # the fan lies in the missing face's plane
     sphere = trimesh.creation.icosphere(subdivisions=3)
     cap = sphere.faces[sphere.triangles_center[:, 2] < 0.8]  # a hole of more than 16 edges is an opening
-    vertices, triangles = _close_small_holes(sphere.vertices, cap, max_edges=16)
+    vertices, triangles = close_holes(sphere.vertices, cap, max_edges=16)
     assert len(triangles) == len(cap) and len(vertices) == len(sphere.vertices)
     can = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=16)
     open_top = can.faces[can.triangles_center[:, 2] < 0.49]  # the top cap gone: a hole of exactly 16 edges
-    assert len(_close_small_holes(can.vertices, open_top, max_edges=15)[1]) == len(open_top)
-    vertices, triangles = _close_small_holes(can.vertices, open_top, max_edges=16)
+    assert len(close_holes(can.vertices, open_top, max_edges=15)[1]) == len(open_top)
+    vertices, triangles = close_holes(can.vertices, open_top, max_edges=16)
     assert len(triangles) == len(open_top) + 16
     assert trimesh.Trimesh(vertices, triangles, process=False).is_watertight
 
@@ -76,7 +76,6 @@ def test_boundary_loops_leave_out_chains_and_point_edges_whatever_their_order():
         assert sorted(map(tuple, border[found].tolist())) == sorted(map(tuple, loop))
 
 
-
 def test_holes_that_touch_at_a_vertex_close_apart():
     """Two triangular holes sharing one corner (what cutting out a non-manifold edge leaves): one fan over both
     would put four faces on the edge from that corner to its centre; a fan each closes the cube exactly."""
@@ -86,7 +85,7 @@ def test_holes_that_touch_at_a_vertex_close_apart():
     pair = next((i, j) for i in range(len(top)) for j in range(i + 1, len(top))
                 if len(set(faces[i]) & set(faces[j])) == 1)
     keep = np.setdiff1d(np.arange(len(cube.faces)), top[list(pair)])
-    vertices, triangles = _close_small_holes(cube.vertices, cube.faces[keep])
+    vertices, triangles = close_holes(cube.vertices, cube.faces[keep])
     closed = trimesh.Trimesh(vertices, triangles, process=False)
     assert len(vertices) == len(cube.vertices) + 2  # one centre per hole
     assert closed.is_watertight and closed.is_winding_consistent
