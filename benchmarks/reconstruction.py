@@ -41,7 +41,7 @@ from benchmarks._common import DATA, machine
 from perception.camera import VirtualOakCamera, read_recording
 from perception.reconstruct.multiview import reconstruct_frames
 from perception.reconstruct.pointfiles import write_points
-from perception.reconstruct.surface import _sample_surface, load_points, surface_error
+from perception.reconstruct.surface import load_points, sample_surface, surface_error
 from perception.reconstruct.tabletop import frames_to_points, segment_table
 from perception.shapes import CLASSES, make_object
 
@@ -114,7 +114,7 @@ def files_sweep(classes: list[str], seed: int) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         for name in classes:
             truth = make_object(name, 0)
-            points = _sample_surface(truth, 15000, np.random.default_rng(seed))
+            points = sample_surface(truth, 15000, np.random.default_rng(seed))
             for suffix in FORMATS:
                 path = write_points(Path(tmp) / f"{name}{suffix}", points)
                 start = time.perf_counter()

@@ -427,7 +427,13 @@ def load_points(
     )
 
 
-def _sample_surface(model: ObjectModel, n: int, rng: np.random.Generator) -> np.ndarray:
+def sample_surface(model: ObjectModel, n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) points drawn uniformly on ``model``'s surface (triangles chosen by area, then uniform in the triangle),
+    mm, from ``rng``.
+
+    Raises:
+        InvalidMeshError: the mesh has zero surface area.
+    """
     areas = model.triangle_areas
     if areas.sum() <= 0:
         raise InvalidMeshError(f"{model.name}: zero surface area")
@@ -459,9 +465,9 @@ def surface_error(model: ObjectModel, truth: ObjectModel, *, n_samples: int = 20
         InvalidMeshError: a mesh with zero area, or ``seen`` not finite (N, 3) points near none of the samples.
     """
     rng = np.random.default_rng(seed)
-    samples = _sample_surface(model, n_samples, rng)
+    samples = sample_surface(model, n_samples, rng)
     _, dist = truth.closest_points(samples)
-    _, back = model.closest_points(_sample_surface(truth, n_samples, rng))
+    _, back = model.closest_points(sample_surface(truth, n_samples, rng))
     out = {
         "mean_mm": float(dist.mean()),
         "p95_mm": float(np.quantile(dist, 0.95)),
@@ -483,4 +489,4 @@ def surface_error(model: ObjectModel, truth: ObjectModel, *, n_samples: int = 20
     return out
 
 
-__all__ = ["METHODS", "SEEN_MM", "close_holes", "load_points", "points_to_model", "surface_error", "surface_from_points"]
+__all__ = ["METHODS", "SEEN_MM", "close_holes", "load_points", "points_to_model", "sample_surface", "surface_error", "surface_from_points"]

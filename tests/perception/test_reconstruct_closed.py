@@ -10,10 +10,11 @@ import pytest
 import trimesh
 
 from perception.camera import VirtualOakCamera
+from perception.errors import InvalidMeshError
 from perception.geometry import ObjectModel, rescale
 from perception.reconstruct.carving import _fill_row_gaps, carve
 from perception.reconstruct.multiview import reconstruct_frames
-from perception.reconstruct.surface import _paired_faces, close_holes, surface_error
+from perception.reconstruct.surface import _paired_faces, close_holes, sample_surface, surface_error
 from perception.reconstruct.tabletop import segment_table
 from perception.shapes import CLASSES, make_object
 from tactile.contours import make_contour, plane_through
@@ -33,6 +34,28 @@ def can():
 
 
 # ------------------------------------------------------------------------------------------- helpers
+def test_surface_samples_are_uniform_on_a_box():
+    """A 10 x 20 x 40 mm box (trimesh's, 12 triangles of unequal shapes): every sample on a face, each face pair
+    holding its share of the 2,800 mm^2 (200, 400 and 800 mm^2 a pair), uniform across a face (mean 0, variance
+    side^2 / 12)."""
+    box = trimesh.creation.box((10.0, 20.0, 40.0))
+    model = ObjectModel(np.asarray(box.vertices), np.asarray(box.faces), name="box")
+    n = 200_000
+    points = sample_surface(model, n, np.random.default_rng(0))
+    on_face = np.isclose(np.abs(points), [5.0, 10.0, 20.0], atol=1e-9)
+    assert points.shape == (n, 3) and on_face.any(axis=1).all()
+    for axis, share in ((0, 2 * 800 / 2800), (1, 2 * 400 / 2800), (2, 2 * 200 / 2800)):
+        observed = on_face[:, axis].mean()
+        assert abs(observed - share) < 4 * np.sqrt(share * (1 - share) / n), (axis, observed, share)
+    top = points[on_face[:, 2]]  # the z faces: x in [-5, 5], y in [-10, 10]
+    for column, side in ((0, 10.0), (1, 20.0)):
+        assert abs(top[:, column].mean()) < 4 * side / np.sqrt(12 * len(top))
+        assert abs(top[:, column].var() / (side**2 / 12) - 1) < 0.03
+    flat = ObjectModel(np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]]), np.array([[0, 1, 2]]), name="sliver")
+    with pytest.raises(InvalidMeshError, match="sliver: zero surface area"):
+        sample_surface(flat, 10, np.random.default_rng(0))
+
+
 def test_row_gaps_take_the_farther_end_but_not_next_to_the_edges():
     depth = np.zeros((3, 70), dtype=np.float32)
     depth[0, :5], depth[0, 15:20] = 500.0, 700.0  # a 10-pixel gap between a near and a far surface

@@ -60,12 +60,12 @@ def test_virtual_oak_reconstruction_of_a_bottle_is_within_millimetres():
 def test_virtual_oak_reconstruction_of_every_class(class_name):
     from scipy.spatial import cKDTree
 
-    from perception.reconstruct.surface import _sample_surface
+    from perception.reconstruct.surface import sample_surface
 
     rec, truth = _reconstruct(class_name)
     # Where the cameras saw the object (the surface within 2 mm of a captured point), within millimetres of
     # the truth; elsewhere the surface is closed from the carved space (tests/perception/test_reconstruct_closed.py).
-    samples = _sample_surface(rec.model, 20000, np.random.default_rng(0))
+    samples = sample_surface(rec.model, 20000, np.random.default_rng(0))
     seen = samples[cKDTree(rec.points).query(samples, distance_upper_bound=2.0)[0] <= 2.0]
     _, distance = truth.closest_points(seen)
     assert len(seen) > 0.5 * len(samples)
