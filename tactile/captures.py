@@ -11,8 +11,11 @@ instances shows the classifier those effects without ever showing it a test obje
   :func:`~perception.geometry.rescale`;
 - :func:`catalogue_capture`: the same for a catalogue instance, a picklable loader for
   :class:`~tactile.dataset.objects.ObjectSpec`, so a :func:`~tactile.dataset.generate` worker reconstructs it;
-- :func:`training_specs`: the objects of a training store from catalogue pairs: their CAD meshes, their
-  captures, or both (``source``), captures named ``"<class>/<seed>@capture"``.
+- :func:`object_capture`: the same for any object a store can hold (a mesh file, say), set down on the table in a
+  resting pose first;
+- :func:`training_specs`: the objects of a training store: their CAD meshes, their captures, or both (``source``),
+  captures named ``"<name>@capture"`` and marked as made from their object, so that splits by object keep the two
+  together (``visuotactile generate --captures N``).
 
 Units are millimetres; the same object, settings and seed give the same bytes.
 """
@@ -20,6 +23,7 @@ Units are millimetres; the same object, settings and seed give the same bytes.
 from __future__ import annotations
 
 import functools
+import hashlib
 import time
 from dataclasses import dataclass
 
@@ -198,6 +202,36 @@ def catalogue_capture(
     return virtual_capture(model, views=views, distance_mm=distance_mm, size_mm=size_mm, seed=camera_seed).model
 
 
+def _capture_seed(name: str) -> int:
+    """A camera seed for the object named ``name`` (Open3D takes 31 bits): the same name, the same seed."""
+    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:4], "little") % 2**31
+
+
+def object_capture(spec, *, views: int = 4, distance_mm: float = 500.0, size_mm: float = DEFAULT_SIZE_MM,
+                   turn_deg: float = 0.0, camera_seed: int | None = None) -> ObjectModel:
+    """The virtual capture (:func:`virtual_capture`) of the object of ``spec`` (an
+    :class:`~tactile.dataset.objects.ObjectSpec`: a mesh file, say) at ``size_mm``: loaded, set down on the table in
+    the resting pose :func:`resting_rotation` draws from the camera seed (a stored mesh's pose says nothing of how it
+    stands), turned by ``turn_deg`` about the vertical, captured with the camera seeded by ``camera_seed`` (default:
+    from the object's name). A loader for :class:`~tactile.dataset.objects.ObjectSpec`.
+
+    Raises:
+        InvalidArgumentError: bad capture settings or a turn that is not finite.
+        InvalidMeshError: a flat object (no resting pose) or frames that hold no object; and what loading raises.
+    """
+    from perception.geometry import rotate
+
+    _check(views, distance_mm, size_mm)
+    if isinstance(turn_deg, bool) or not isinstance(turn_deg, (int, float, np.number)) or not np.isfinite(turn_deg):
+        raise InvalidArgumentError(f"object_capture: turn_deg must be a finite number, got {turn_deg!r}")
+    camera_seed = _capture_seed(spec.name) if camera_seed is None else int(camera_seed)
+    model = spec.load()
+    a = np.radians(float(turn_deg))
+    turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    model = rotate(model, turn @ resting_rotation(model, camera_seed))
+    return virtual_capture(model, views=views, distance_mm=distance_mm, size_mm=size_mm, seed=camera_seed).model
+
+
 def capture_name(name: str, index: int = 0) -> str:
     """The object name of capture ``index`` of the object named ``name``: ``"<name>@capture"`` for the first,
     ``"<name>@capture<index>"`` for the others."""
@@ -216,18 +250,22 @@ _CAMERA_SEED_STEP = 100_003
 
 def training_specs(objects, source: str = "both", *, views: int = 4, distance_mm: float = 500.0,
                    size_mm: float = DEFAULT_SIZE_MM, captures_per_object: int = 1) -> list:
-    """The :class:`~tactile.dataset.objects.ObjectSpec` of a training store made of catalogue ``objects``
-    ((class, seed) pairs): their CAD meshes (``"cad"``, named ``"class/seed"`` as :func:`generate` names
-    them), their virtual captures (``"capture"``, reconstructed in the worker by :func:`catalogue_capture`) or
-    both, CAD first (``"both"``).
+    """The :class:`~tactile.dataset.objects.ObjectSpec` of a training store made of ``objects`` (anything
+    :func:`~tactile.dataset.generate` takes: catalogue (class, seed) pairs, (path, label) pairs, a class-per-folder
+    collection, specs): their CAD meshes (``"cad"``, named as :func:`~tactile.dataset.generate` names them), their
+    virtual captures (``"capture"``, reconstructed in the worker) or both, CAD first (``"both"``). A capture is
+    marked as made from its object (``made_from``), so splits by object keep them on one side.
 
-    ``captures_per_object`` captures of each object: capture k (named by :func:`capture_name`) turns the
-    object by k * 360 / (views * captures_per_object) degrees about the vertical axis, so the captures look at
-    it from azimuths between the views, and seeds the camera with ``seed + 100003 k``.
+    A catalogue object is captured standing as it is built (:func:`catalogue_capture`, the camera seeded by its
+    seed), any other in a resting pose (:func:`object_capture`, the camera seeded by its name). ``captures_per_object``
+    captures of each object: capture k (named by :func:`capture_name`) turns the object by
+    k * 360 / (views * captures_per_object) degrees about the vertical axis, so the captures look at it from azimuths
+    between the views, and steps the camera seed by 100003 k.
 
     Raises:
-        InvalidArgumentError: unknown ``source``, bad capture settings, or an item that is not a (class, seed) pair.
-        DatasetError: an unknown class or a negative seed.
+        InvalidArgumentError: unknown ``source`` or bad capture settings.
+        DatasetError: what :func:`~tactile.dataset.objects.object_specs` refuses (an unknown class, a negative seed,
+            an item of no known form, two objects of one name).
     """
     from tactile.dataset.objects import ObjectSpec, object_specs
 
@@ -237,27 +275,27 @@ def training_specs(objects, source: str = "both", *, views: int = 4, distance_mm
     n = captures_per_object
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise InvalidArgumentError(f"training_specs: captures_per_object must be a positive integer, got {n!r}")
-    pairs = list(objects)
-    for item in pairs:
-        if not (isinstance(item, (tuple, list)) and len(item) == 2 and isinstance(item[0], str)
-                and isinstance(item[1], (int, np.integer)) and not isinstance(item[1], bool)):
-            raise InvalidArgumentError(f"training_specs: expected (class, seed) pairs, got {item!r}")
-    cad = object_specs([(c, int(s)) for c, s in pairs])  # checks the classes and seeds
+    cad = object_specs(objects)
     if source == "cad":
         return cad
     captures = []
     for spec in cad:
-        cls, seed = spec.catalogue
+        if spec.made_from is not None or is_capture(spec.name):
+            raise InvalidArgumentError(f"training_specs: {spec.name!r} is made from another object already; give the "
+                                       "objects themselves")
+        base = spec.catalogue[1] if spec.catalogue is not None else _capture_seed(spec.name)
         for k in range(int(n)):
             settings = {"views": int(views), "distance_mm": float(distance_mm), "size_mm": float(size_mm)}
             if k:
-                settings.update(turn_deg=k * 360.0 / (int(views) * int(n)), camera_seed=seed + _CAMERA_SEED_STEP * k)
-            captures.append(ObjectSpec(capture_name(spec.name, k), spec.label,
-                                       loader=functools.partial(catalogue_capture, cls, seed, **settings)))
+                settings.update(turn_deg=k * 360.0 / (int(views) * int(n)),
+                                camera_seed=(base + _CAMERA_SEED_STEP * k) % 2**31)
+            loader = (functools.partial(catalogue_capture, *spec.catalogue, **settings) if spec.catalogue is not None
+                      and spec.rotation_seed is None else functools.partial(object_capture, spec, **settings))
+            captures.append(ObjectSpec(capture_name(spec.name, k), spec.label, loader=loader, made_from=spec))
     return captures if source == "capture" else cad + captures
 
 
 __all__ = [
     "CAPTURE_SUFFIX", "DEFAULT_ELEVATION_DEG", "RECONSTRUCT_OPTIONS", "SOURCES", "Capture", "capture_name",
-    "catalogue_capture", "is_capture", "resting_rotation", "training_specs", "virtual_capture",
+    "catalogue_capture", "is_capture", "object_capture", "resting_rotation", "training_specs", "virtual_capture",
 ]

@@ -73,10 +73,13 @@ class ObjectSpec:
         path: made absolute, since workers (Ray ones included) may run in another folder.
         rotation_seed: present the object in the pose :func:`perception.geometry.random_rotation` draws from
             this seed (uniform over all rotations), applied to the raw mesh before loading; None: as stored.
+        made_from: the object this one is made from (e.g. a camera capture of it, :mod:`tactile.captures`), or
+            None. Splits by object keep an object and what is made from it on one side
+            (:meth:`~tactile.dataset.reader.TactileDataset.mesh_ids`).
 
     Raises:
-        DatasetError: an empty name or label, not exactly one source, or a rotation seed that is not a
-            non-negative integer.
+        DatasetError: an empty name or label, not exactly one source, a rotation seed that is not a
+            non-negative integer, or a ``made_from`` that is not an ObjectSpec.
     """
 
     name: str
@@ -85,6 +88,7 @@ class ObjectSpec:
     catalogue: tuple[str, int] | None = None
     loader: Callable[[], ObjectModel] | None = None
     rotation_seed: int | None = None
+    made_from: ObjectSpec | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -99,6 +103,9 @@ class ObjectSpec:
         seed = self.rotation_seed
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
             raise DatasetError(f"object {self.name!r}: rotation_seed must be a non-negative integer, got {seed!r}")
+        if self.made_from is not None and not isinstance(self.made_from, ObjectSpec):
+            raise DatasetError(f"object {self.name!r}: made_from must be an ObjectSpec or None, got "
+                               f"{type(self.made_from).__name__}")
 
     def load(self) -> ObjectModel:
         """Load the object (in the worker), in its pose. Raises what the loader raises (MeshLoadError, ...)."""
@@ -141,6 +148,8 @@ class ObjectSpec:
                 out["loader_args"] = _stable_repr((self.loader.args, self.loader.keywords), self.name)
         if self.rotation_seed is not None:
             out["rotation_seed"] = int(self.rotation_seed)
+        if self.made_from is not None:
+            out["made_from"] = self.made_from.to_dict()
         return out
 
 
@@ -178,6 +187,8 @@ def object_specs(objects) -> list[ObjectSpec]:
             path = Path(first)
             specs.append(ObjectSpec(f"{text_name(str(second))}/{text_name(path.stem)}", text_name(str(second)),
                                     path=str(path)))
+        elif isinstance(first, str) and first in CLASSES:
+            raise DatasetError(f"catalogue object {item!r}: the seed must be a non-negative integer, got {second!r}")
         elif isinstance(first, str) and isinstance(second, int):
             raise DatasetError(
                 f"catalogue object {item!r}: unknown class {first!r}; the built-in classes are {', '.join(CLASSES)}"

@@ -95,6 +95,30 @@ def check_disjoint_splits(object_ids, train, test, what: str, mesh_ids=None, by_
             raise DataLeakError(f"{what}: {len(same)} mesh(es) are in both train and test (identical files)")
 
 
+#: How many ``made_from`` links :func:`_made_of` follows (a store's settings are untrusted: no unbounded walk).
+MAX_MADE_FROM = 16
+
+
+def _made_of(obj: dict) -> str:
+    """The id :meth:`TactileDataset.mesh_ids` gives the object described by ``obj`` (a store's settings entry): that
+    of the object at the end of its ``made_from`` links (at most :data:`MAX_MADE_FROM`), by file content, catalogue
+    pair or name."""
+    import hashlib
+
+    for _ in range(MAX_MADE_FROM):
+        if not isinstance(obj.get("made_from"), dict):
+            break
+        obj = obj["made_from"]
+    if isinstance(obj.get("path"), str):
+        try:
+            return "sha256:" + hashlib.sha256(Path(obj["path"]).read_bytes()).hexdigest()
+        except OSError:
+            return "path:" + obj["path"]
+    if isinstance(obj.get("catalogue"), list):
+        return "catalogue:" + "/".join(map(str, obj["catalogue"]))
+    return "name:" + str(obj.get("name"))
+
+
 class TactileDataset:
     """A generated store, opened for reading (see :func:`open_dataset`).
 
@@ -338,24 +362,11 @@ class TactileDataset:
         """(n_objects,) object: what each complete object is made from, so that identical meshes can be told apart
         from different ones: ``"sha256:<hex>"`` of a mesh file (read when the split is made; its path when it is
         unreadable), ``"catalogue:<class>/<seed>"`` for a built-in object, ``"name:<name>"`` otherwise. A rotated
-        copy of a mesh has the same id."""
-        import hashlib
-
+        copy of a mesh has the same id, and so has an object made from another (``made_from``: a camera capture of
+        it), which splits by object keep on the side of what it was made from."""
         if getattr(self, "_mesh_ids", None) is None:
-            ids = []
             objects = self._settings["objects"]
-            for i in self._store_objects:
-                obj = objects[int(i)]
-                if isinstance(obj.get("path"), str):
-                    try:
-                        ids.append("sha256:" + hashlib.sha256(Path(obj["path"]).read_bytes()).hexdigest())
-                    except OSError:
-                        ids.append("path:" + obj["path"])
-                elif isinstance(obj.get("catalogue"), list):
-                    ids.append("catalogue:" + "/".join(map(str, obj["catalogue"])))
-                else:
-                    ids.append("name:" + obj["name"])
-            self._mesh_ids = np.asarray(ids, dtype=object)
+            self._mesh_ids = np.asarray([_made_of(objects[int(i)]) for i in self._store_objects], dtype=object)
         return self._mesh_ids
 
     def indices(self, strategy: str | None = None) -> np.ndarray:
@@ -497,11 +508,23 @@ class TactileDataset:
             )
         return train, test
 
-    def _objects_by_class(self, idx: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
-        """Per class (sorted), the objects present in ``idx``, in a seeded random order."""
+    def _groups_by_class(self, idx: np.ndarray, rng: np.random.Generator) -> list[list[np.ndarray]]:
+        """Per class (sorted), the objects present in ``idx`` as groups made from one mesh (:meth:`mesh_ids`: an
+        object with its captures, or copies of one file), in a seeded random order; each group is dealt whole. Where
+        every object is its own group the order is that of the objects themselves (the folds of stores before
+        groups are unchanged)."""
         present = np.unique(self.object_ids[idx])
-        return [rng.permutation(present[self.object_labels[present] == c])
-                for c in np.unique(self.object_labels[present])]
+        mesh = self.mesh_ids()[present]
+        out = []
+        for c in np.unique(self.object_labels[present]):
+            members = present[self.object_labels[present] == c]
+            # a group is named by its first object; the permutation runs over those names
+            first = {}
+            for obj, made in zip(members.tolist(), mesh[self.object_labels[present] == c].tolist()):
+                first.setdefault(made, []).append(obj)
+            groups = {objs[0]: np.array(objs, dtype=np.int64) for objs in first.values()}
+            out.append([groups[int(g)] for g in rng.permutation(np.array(sorted(groups), dtype=np.int64))])
+        return out
 
     def split_by_object(self, test_fraction: float = 0.2, seed: int = 0, index=None) -> tuple[np.ndarray, np.ndarray]:
         """Seeded split by object (test objects unseen in training), stratified by class: of a class's n
@@ -521,11 +544,12 @@ class TactileDataset:
         test_fraction = self._check_fraction(test_fraction)
         idx = np.unique(self._index(index))
         test_objects = []
-        for objects in self._objects_by_class(idx, np.random.default_rng(seed)):
-            if len(objects) >= 2:
-                test_objects.extend(objects[: max(1, round(test_fraction * len(objects)))])
+        for groups in self._groups_by_class(idx, np.random.default_rng(seed)):
+            if len(groups) >= 2:
+                test_objects.extend(np.concatenate(groups[: max(1, round(test_fraction * len(groups)))]).tolist())
         if not test_objects:
-            raise DatasetError(f"{self.path}: no class has two objects, so no object can be held out")
+            raise DatasetError(f"{self.path}: no class has two objects made from different meshes, so no object can "
+                               "be held out")
         in_test = np.isin(self.object_ids[idx], test_objects)
         return idx[~in_test], idx[in_test]
 
@@ -551,12 +575,12 @@ class TactileDataset:
         idx = np.unique(self._index(index))
         fold_of = {}
         turn = 0
-        for objects in self._objects_by_class(idx, np.random.default_rng(seed)):
-            for obj in objects:
-                fold_of[int(obj)] = turn % k
+        for groups in self._groups_by_class(idx, np.random.default_rng(seed)):
+            for group in groups:
+                fold_of.update(dict.fromkeys(group.tolist(), turn % k))
                 turn += 1
         if turn < k:
-            raise DatasetError(f"{self.path}: {turn} objects cannot fill {k} folds")
+            raise DatasetError(f"{self.path}: {turn} objects (made from different meshes) cannot fill {k} folds")
         folds = np.array([fold_of[int(o)] for o in self.object_ids[idx]], dtype=np.int64)
         return [(idx[folds != f], idx[folds == f]) for f in range(k)]
 

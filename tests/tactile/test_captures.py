@@ -178,19 +178,20 @@ class TestTrainingSpecs:
         assert is_capture("mug/0@capture") and is_capture("mug/0@capture12")
         assert not is_capture("mug/0") and not is_capture("mug/0@captured") and not is_capture("a@capture/b")
 
-    @pytest.mark.parametrize("objects, error", [
+    @pytest.mark.parametrize("objects, message", [
         ([("mug", 0)], None),
-        ([("mug", True)], InvalidArgumentError),
-        ([("mug", 0.5)], InvalidArgumentError),
-        (["mug"], InvalidArgumentError),
-        ([("teapot", 0)], DatasetError),
-        ([("mug", -1)], DatasetError),
+        ([("mug", True)], r"\('mug', True\): the seed must be a non-negative integer, got True"),
+        ([("mug", 0.5)], r"\('mug', 0.5\): the seed must be a non-negative integer, got 0.5"),
+        (["mug"], r"object 'mug': expected \(path, label\)"),
+        ([("teapot", 0)], "unknown class 'teapot'"),
+        ([("mug", -1)], "the seed must be >= 0"),
+        ([("mug", 0), ("mug", 0)], "both named 'mug/0'"),
     ])
-    def test_checks_the_pairs(self, objects, error):
-        if error is None:
+    def test_checks_the_objects_as_generate_does(self, objects, message):
+        if message is None:
             assert len(training_specs(objects, "both")) == 2
         else:
-            with pytest.raises(error):
+            with pytest.raises(DatasetError, match=message):
                 training_specs(objects, "both")
 
     def test_refuses_an_unknown_source(self):
@@ -208,3 +209,111 @@ class TestTrainingSpecs:
         positions = data.load().positions.reshape(-1, 3)
         _, distance = can_capture.model.closest_points(positions)
         assert distance.max() < 1e-3
+
+
+@pytest.fixture(scope="module")
+def box_file(tmp_path_factory):
+    """A 40 x 60 x 100 mm box as an OFF file (trimesh's box, written here)."""
+    import trimesh
+
+    path = tmp_path_factory.mktemp("meshes") / "crate.off"
+    trimesh.creation.box((40.0, 60.0, 100.0)).export(path)
+    return path
+
+
+class TestCapturesOfAnyObject:
+    """Captures of objects that are not built in (mesh files), marked as made from their object."""
+
+    def test_file_objects_get_object_capture_loaders_made_from_them(self, box_file):
+        from tactile.captures import object_capture
+
+        cad, first, second = training_specs([(box_file, "crate")], "both", captures_per_object=2)
+        assert (cad.name, first.name, second.name) == ("crate/crate", "crate/crate@capture", "crate/crate@capture1")
+        for capture in (first, second):
+            assert capture.made_from is cad and capture.label == "crate"
+            loader = pickle.loads(pickle.dumps(capture.loader))
+            assert loader.func is object_capture and loader.args == (cad,)
+        assert "camera_seed" not in first.loader.keywords and second.loader.keywords["turn_deg"] == pytest.approx(45.0)
+        assert first.to_dict()["made_from"] == cad.to_dict()
+        with pytest.raises(InvalidArgumentError, match="made from another object already"):
+            training_specs([first], "both")
+
+    def test_a_posed_catalogue_object_is_captured_resting(self):
+        """A catalogue spec in a random pose is no longer upright: it is set down like a file."""
+        from tactile.captures import object_capture
+        from tactile.dataset.objects import ObjectSpec
+
+        posed = ObjectSpec("mug/1", "mug", catalogue=("mug", 1), rotation_seed=5)
+        (capture,) = training_specs([posed], "capture")
+        assert capture.loader.func is object_capture and capture.made_from is posed
+
+    def test_a_file_capture_is_the_box_at_the_training_size(self, box_file):
+        """The capture of the box, set down on a face and seen from 4 views, comes back the box scaled so that its
+        half-diagonal is 75 mm (the 150 mm enclosing sphere about its centre): oriented-bounding-box extents
+        (trimesh's) and volume within 3 % of that box's."""
+        import trimesh
+
+        from tactile.captures import object_capture
+        from tactile.dataset.objects import object_specs
+
+        (spec,) = object_specs([(box_file, "crate")])
+        model = object_capture(spec)
+        assert model.is_watertight and model.name == "crate/crate@capture" and model.label == "crate"
+        mesh = trimesh.Trimesh(model.vertices, model.triangles, process=False)
+        scale = 75.0 / np.linalg.norm([20.0, 30.0, 50.0])
+        extents = np.sort(mesh.bounding_box_oriented.primitive.extents)
+        assert extents == pytest.approx(scale * np.array([40.0, 60.0, 100.0]), rel=0.03)
+        assert mesh.volume == pytest.approx(40.0 * 60.0 * 100.0 * scale**3, rel=0.03)
+
+
+class TestSplitsKeepCapturesWithTheirObjects:
+    """A store of objects and things made from them (stand-ins for captures: another catalogue instance, loaded
+    cheaply) is split by what each was made from: an object and its captures are always on one side."""
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def store(cls, tmp_path_factory):
+        import functools
+
+        from tactile.dataset.objects import ObjectSpec, object_specs
+
+        cad = object_specs([(c, s) for c in ("box", "can") for s in range(3)])
+        made = [ObjectSpec(capture_name(spec.name, k), spec.label, made_from=spec,
+                           loader=functools.partial(make_object, spec.label, 10 + 2 * i + k))
+                for i, spec in enumerate(cad) for k in range(2)]
+        out = tmp_path_factory.mktemp("made") / "store.zarr"
+        report = generate(cad + made, out, strategies=("blind",), contours_per_object=2,
+                          sensor=FSRSensor(rows=4, cols=4), probes=4, workers=1, progress=False)
+        assert not report.failed
+        return open_dataset(out)
+
+    def test_a_capture_is_made_of_its_object(self, store):
+        meshes = dict(zip(store.object_names, store.mesh_ids().tolist()))
+        assert meshes["can/2@capture1"] == meshes["can/2@capture"] == meshes["can/2"] == "catalogue:can/2"
+        assert len(set(meshes.values())) == 6
+
+    def test_every_split_and_fold_keeps_the_groups_whole(self, store):
+        base = np.array([name.split("@")[0] for name in store.object_names])[store.object_ids]
+        for seed in range(6):
+            train, test = store.split_by_object(0.34, seed=seed)
+            assert len(set(base[test])) == 2  # one of the three groups of each class
+            splits = [(train, test), *store.kfold_by_object(3, seed=seed)]
+            for tr, te in splits:
+                assert not set(base[tr]) & set(base[te])
+                assert sorted(np.concatenate([tr, te]).tolist()) == list(range(len(store)))
+            assert all(len(set(base[te])) == 2 for _, te in splits[1:])  # three folds of two groups
+
+    def test_without_made_from_the_folds_are_those_dealt_object_by_object(self, tmp_path):
+        """Stores of objects made from different meshes split as before groups existed: each class's objects
+        permuted by the seeded generator and dealt in turn (the rule written out here)."""
+        out = tmp_path / "plain.zarr"
+        generate([(c, s) for c in ("box", "can", "ring") for s in range(4)], out, strategies=("blind",),
+                 contours_per_object=1, sensor=FSRSensor(rows=4, cols=4), probes=4, workers=1, progress=False)
+        ds = open_dataset(out)
+        for seed in range(3):
+            rng, turn, fold_of = np.random.default_rng(seed), 0, {}
+            for c in range(3):
+                for obj in rng.permutation(np.flatnonzero(ds.object_labels == c)):
+                    fold_of[int(obj)], turn = turn % 3, turn + 1
+            for f, (_, test) in enumerate(ds.kfold_by_object(3, seed=seed)):
+                assert sorted({int(o) for o in ds.object_ids[test]}) == sorted(o for o, g in fold_of.items() if g == f)
