@@ -1,8 +1,12 @@
 """``visuotactile generate``: explore a mesh collection or catalogue objects into a tactile dataset store.
 
     visuotactile generate (--data FOLDER [--classes ...] [--objects-per-class N] | --catalogue N)
-        --out STORE [--strategies guided blind] [--contours 950] [--probes 25] [--workers N]
+        --out STORE [--captures N] [--strategies guided blind] [--contours 950] [--probes 25] [--workers N]
         [--executor local|ray] [--seed 0] [--strict] [--timeout S] [--json]
+
+``--captures N`` adds N virtual depth-camera captures of every object (:mod:`tactile.captures`: the object set on a
+table, seen by a virtual OAK-D from 4 views, reconstructed as ``visuotactile camera`` reconstructs): a classifier
+trained on them meets reconstructions as it will on the robot. Splits by object keep each capture with its object.
 
 Re-running the same command resumes (complete, intact objects are skipped; damaged ones are explored again);
 other settings on an existing store are refused. Exit code 0 when every object is complete, 1 when some failed (they are listed and
@@ -19,14 +23,21 @@ from fusion.commands import positive_int, print_json
 
 
 def _objects(args: argparse.Namespace) -> list:
-    """(class, seed) or (path, class) pairs from the arguments (:mod:`fusion.experiments.data`)."""
+    """(class, seed) or (path, class) pairs from the arguments (:mod:`fusion.experiments.data`), and with
+    ``--captures`` their captures' specs after them."""
     from fusion.experiments.data import catalogue_objects, folder_objects
 
     if args.catalogue is not None:
         from perception.shapes import CLASSES
 
-        return catalogue_objects(args.classes or list(CLASSES), args.catalogue)
-    return folder_objects(args.data, classes=args.classes, per_class=args.objects_per_class)
+        objects = catalogue_objects(args.classes or list(CLASSES), args.catalogue)
+    else:
+        objects = folder_objects(args.data, classes=args.classes, per_class=args.objects_per_class)
+    if not args.captures:
+        return objects
+    from tactile.captures import training_specs
+
+    return training_specs(objects, "both", captures_per_object=args.captures)
 
 
 def _command(args: argparse.Namespace) -> str:
@@ -40,6 +51,8 @@ def _command(args: argparse.Namespace) -> str:
         words += ["--classes", *args.classes]
     if args.objects_per_class is not None:
         words += ["--objects-per-class", str(args.objects_per_class)]
+    if args.captures:
+        words += ["--captures", str(args.captures)]
     words += ["--out", str(args.out), "--strategies", *args.strategies, "--contours", str(args.contours),
               "--probes", str(args.probes), "--seed", str(args.seed)]
     return shlex.join(words)
@@ -108,6 +121,9 @@ def register(sub) -> None:
     p.add_argument("--objects-per-class", type=positive_int, metavar="N", help="with --data: the first N files of each class")
     # A string, checked in run(): Path("") would already read as the current folder.
     p.add_argument("--out", required=True, help="the store folder (created, or resumed)")
+    p.add_argument("--captures", type=positive_int, default=None, metavar="N",
+                   help="also N virtual depth-camera captures of each object (reconstructions as the camera makes "
+                        "them, about 5 s each), kept with their object in splits")
     p.add_argument("--strategies", nargs="+", default=["guided", "blind"],
                    help="sampling strategies: blind, guided, mesh, iss (default: guided blind)")
     p.add_argument("--contours", type=positive_int, default=950, help="contours per object and strategy (default: 950, the paper's)")

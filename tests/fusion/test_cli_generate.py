@@ -86,3 +86,31 @@ def test_folder_sources_are_the_librarys_objects(tmp_path, capsys):
 def test_a_source_is_required(capsys):
     assert main(["generate", "--out", "x"]) == 2
     assert "one of the arguments" in capsys.readouterr().err
+
+
+def test_captures_join_their_objects(tmp_path, capsys):
+    """--captures 1: each object and its virtual capture (named "<name>@capture", the same class), recorded in the
+    command; the capture counts as made from the object's file, so a split by object keeps the two together."""
+    for cls, names in (("cube", ("a", "b")), ("slab", ("c", "d"))):
+        (tmp_path / "data" / cls).mkdir(parents=True)
+        for name in names:
+            text = CUBE_OFF.replace("OFF\n", f"OFF\n# {name}\n", 1)
+            if cls == "slab":  # a box 0.4 high: another shape
+                head, body = text.split("8 6 0\n")
+                vertices, faces = body.split("\n")[:8], body.split("\n")[8:]
+                vertices = [v[:-1] + "0.4" if v.endswith(" 1") else v for v in vertices]
+                text = head + "8 6 0\n" + "\n".join(vertices + faces)
+            (tmp_path / "data" / cls / f"{name}.off").write_text(text)
+    out = tmp_path / "s"
+    assert main(["generate", "--data", str(tmp_path / "data"), "--captures", "1", "--out", str(out), *SMALL]) == 0
+    ds = open_dataset(out)
+    assert ds.object_names == ("cube/a", "cube/b", "slab/c", "slab/d",
+                               "cube/a@capture", "cube/b@capture", "slab/c@capture", "slab/d@capture")
+    assert ds.object_labels.tolist() == [0, 0, 1, 1, 0, 0, 1, 1]
+    assert "--captures 1 --out" in ds.attrs["command"]
+    meshes = ds.mesh_ids()
+    assert meshes[0] == meshes[4] and meshes[2] == meshes[6] and len(set(meshes.tolist())) == 4
+    group = np.array([n.split("@")[0] for n in ds.object_names])[ds.object_ids]
+    for seed in range(4):
+        train, test = ds.split_by_object(0.5, seed=seed)
+        assert not set(group[train]) & set(group[test]) and len(set(group[test])) == 2
