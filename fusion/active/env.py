@@ -32,8 +32,9 @@ import numpy as np
 from fusion.active.episode import touch_seed
 from fusion.active.policies import noisy_copy
 from fusion.cues import INVARIANT_NAMES, kinesthetic_cues
-from perception.errors import ContourError, InvalidArgumentError
+from perception.errors import ContourError, InvalidArgumentError, InvalidMeshError
 from perception.geometry import ObjectModel, random_rotation, rotate
+from perception.limits import check_bytes, check_count
 from tactile.contours import Plane
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
@@ -44,9 +45,17 @@ ENV_ID = "visuotactile/ActiveTouch-v0"
 DEFAULT_OBJECTS = tuple((c, s) for c in ("bottle", "bowl", "box", "mug") for s in (0, 1))
 
 
+#: Largest |logit| a prediction may hold: the loss's softmax works in float32, where differences of larger logits
+#: overflow (a reward of -inf or NaN).
+MAX_LOGIT = 1e30
+
+
 def _load(objects) -> list[ObjectModel]:
     from perception.shapes import make_object
 
+    if isinstance(objects, (str, bytes, ObjectModel)) or not hasattr(objects, "__iter__"):
+        raise InvalidArgumentError(f"ActiveTouchEnv: objects must be a list of ObjectModels or (class, seed) pairs, "
+                                   f"got {type(objects).__name__}")
     models = []
     for item in objects:
         model = item if isinstance(item, ObjectModel) else (
@@ -55,6 +64,8 @@ def _load(objects) -> list[ObjectModel]:
             raise InvalidArgumentError(f"ActiveTouchEnv: expected ObjectModels or (class, seed) pairs, got {item!r}")
         if model.label is None:
             raise InvalidArgumentError(f"ActiveTouchEnv: object {model.name} has no label (class)")
+        if not model.triangle_areas.sum() > 0:  # no surface to sample the camera's points from or to touch
+            raise InvalidMeshError(f"ActiveTouchEnv: object {model.name} has zero surface area")
         models.append(model)
     if not models:
         raise InvalidArgumentError("ActiveTouchEnv: no objects given")
@@ -75,7 +86,9 @@ class ActiveTouchEnv(ap_gym.ActiveClassificationEnv):
         cloud_points: points of the observed visual point cloud.
 
     Raises:
-        InvalidArgumentError: no or unlabelled objects, a label not in ``class_names``, bad counts or noise.
+        InvalidArgumentError: no or unlabelled objects, a label not in ``class_names``, fewer than two or repeated
+            class names, bad counts or noise, observations too large to allocate, a render mode (there is none).
+        InvalidMeshError: an object without surface area.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
@@ -89,14 +102,24 @@ class ActiveTouchEnv(ap_gym.ActiveClassificationEnv):
         missing = sorted(set(labels) - set(self.class_names))
         if missing:
             raise InvalidArgumentError(f"ActiveTouchEnv: labels {missing} are not in class_names {self.class_names}")
+        if len(set(self.class_names)) != len(self.class_names) or len(self.class_names) < 2:
+            raise InvalidArgumentError(f"ActiveTouchEnv: needs two or more distinct class names, got {self.class_names}")
         for name, value, low in (("step_limit", step_limit, 1), ("probes", probes, 2), ("cloud_points", cloud_points, 1)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise InvalidArgumentError(f"ActiveTouchEnv: {name} must be an integer >= {low}, got {value!r}")
-        if isinstance(visual_noise_mm, bool) or not np.isfinite(visual_noise_mm) or visual_noise_mm < 0:
-            raise InvalidArgumentError(f"ActiveTouchEnv: visual_noise_mm must be >= 0, got {visual_noise_mm!r}")
+        check_count("probes", probes, "ActiveTouchEnv: probes")
+        if isinstance(visual_noise_mm, bool) or not isinstance(visual_noise_mm, (int, float, np.number)) \
+                or not np.isfinite(visual_noise_mm) or visual_noise_mm < 0:
+            raise InvalidArgumentError(f"ActiveTouchEnv: visual_noise_mm must be a number >= 0, got {visual_noise_mm!r}")
+        if render_mode is not None:
+            raise InvalidArgumentError(f"ActiveTouchEnv: render_mode {render_mode!r} is not supported (there is none); "
+                                       "draw an episode with fusion.active.figure.plot_episode")
         self.sensor = sensor or FSRSensor(rows=16, cols=16)
         self.probes, self.step_limit, self.cloud_points = int(probes), int(step_limit), int(cloud_points)
         self.any_pose, self.visual_noise_mm = bool(any_pose), float(visual_noise_mm)
+        # float32 observations: frames, the point cloud and the per-probe arrays
+        values = self.probes * (self.sensor.rows * self.sensor.cols + 16) + 3 * self.cloud_points
+        check_bytes(4 * values, f"ActiveTouchEnv: an observation of {self.probes} probes and {self.cloud_points} points")
         self.render_mode = render_mode
         super().__init__(len(self.class_names), gym.spaces.Box(-1.0, 1.0, (3,), np.float32))
         p, (rows, cols) = self.probes, (self.sensor.rows, self.sensor.cols)
@@ -149,13 +172,39 @@ class ActiveTouchEnv(ap_gym.ActiveClassificationEnv):
         self._step_count = 0
         return self._blank(), {"object": model.name}
 
+    def step(self, action):
+        """One touch and one prediction: ``action`` = {"action": plane normal (3,), "prediction": logits (C,)}.
+
+        Raises:
+            InvalidArgumentError: not such a dict, a normal that is not a finite real 3-vector, or logits that are
+                not C finite reals within +-:data:`MAX_LOGIT`.
+            gymnasium.error.ResetNeeded: before ``reset()`` or after the episode ended.
+        """
+        if not isinstance(action, dict) or not {"action", "prediction"} <= set(action):
+            raise InvalidArgumentError(f"ActiveTouchEnv: step takes {{'action': normal, 'prediction': logits}}, got "
+                                       f"{type(action).__name__}")
+        logits = np.asarray(action["prediction"])
+        if logits.dtype.kind not in "fiu" or logits.shape != (len(self.class_names),) \
+                or not (np.isfinite(logits).all() and np.abs(logits).max() <= MAX_LOGIT):
+            raise InvalidArgumentError(f"ActiveTouchEnv: the prediction must be {len(self.class_names)} finite real logits "
+                                       f"within +-{MAX_LOGIT:g}, got shape {logits.shape}, dtype {logits.dtype}")
+        return super().step(action)
+
     def _step(self, action, prediction):
         if self._true is None:
             raise gym.error.ResetNeeded("ActiveTouchEnv: call reset() before step()")
-        normal = np.asarray(action, dtype=np.float64).reshape(3)
+        if self._step_count >= self.step_limit:
+            raise gym.error.ResetNeeded("ActiveTouchEnv: the episode has ended; call reset()")
+        raw = np.asarray(action)
+        if raw.dtype.kind not in "fiu" or raw.size != 3:
+            raise InvalidArgumentError(f"ActiveTouchEnv: the action must be a real 3-vector (a plane normal), got "
+                                       f"{action!r}")
+        normal = raw.astype(np.float64).reshape(3)
         if not np.isfinite(normal).all():
             raise InvalidArgumentError(f"ActiveTouchEnv: the action must be a finite 3-vector, got {action!r}")
-        if np.linalg.norm(normal) < 1e-6:
+        largest = np.abs(normal).max()
+        normal = normal / largest if largest > 0 else normal  # no overflow in the norm below
+        if largest < 1e-6:
             normal = np.array([0.0, 0.0, 1.0])
         plane = Plane(self.visual_model.center, normal)
         seed = touch_seed(self._episode_seed, self._step_count)

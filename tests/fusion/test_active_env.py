@@ -80,3 +80,77 @@ def test_observation_reads_back_as_a_sequence():
 def test_bad_settings(kwargs, match):
     with pytest.raises(InvalidArgumentError, match=match):
         ActiveTouchEnv(**{**SMALL, **kwargs})
+
+
+@pytest.mark.parametrize("prediction", [[np.nan, 0.0], [np.inf, np.inf], [3e38, -3e38], [0.0, 0.0, 0.0], [0.0],
+                                        ["a", "b"], [1 + 2j, 0]])
+def test_predictions_that_would_make_the_reward_not_finite_are_refused(prediction):
+    """NaN / Inf logits gave a NaN reward, float32 logits of +-3e38 a reward of -inf (the loss's softmax
+    overflows), three logits in a two-class env a reward as if all were fine."""
+    env = ActiveTouchEnv(**SMALL)
+    env.reset(seed=0)
+    with pytest.raises(InvalidArgumentError, match="the prediction must be 2 finite real logits"):
+        env.step({"action": np.ones(3), "prediction": np.asarray(prediction)})
+    _, reward, *_ = env.step({"action": np.ones(3), "prediction": np.array([1e30, -1e30])})  # the largest allowed
+    assert np.isfinite(reward)
+
+
+@pytest.mark.parametrize("action, match", [
+    (np.ones(4), "real 3-vector"), (np.float64(1.0), "real 3-vector"), (None, "real 3-vector"), ("abc", "real 3-vector"),
+    ({"x": 1}, "real 3-vector"), (np.array([1 + 1j, 0, 0]), "real 3-vector"), (np.array(["1", "2", "3"]), "real 3-vector"),
+    (np.array([np.nan, 0, 0]), "finite 3-vector"),
+])
+def test_bad_actions_name_the_problem(action, match):
+    env = ActiveTouchEnv(**SMALL)
+    env.reset(seed=0)
+    with pytest.raises(InvalidArgumentError, match=match):
+        env.step({"action": action, "prediction": np.zeros(2)})
+    with pytest.raises(InvalidArgumentError, match="step takes"):
+        env.step({"action": np.ones(3)})
+
+
+def test_a_huge_normal_touches_the_plane_of_its_direction():
+    """1e300 * (1, 2, 2): the norm overflowed (a warning); the plane is that of (1, 2, 2) / 3."""
+    env = ActiveTouchEnv(**SMALL)
+    env.reset(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        obs, *_ = env.step({"action": np.array([1e300, 2e300, 2e300]), "prediction": np.zeros(2)})
+    np.testing.assert_allclose(obs["plane_normal"], np.array([1, 2, 2]) / 3, atol=1e-7)
+
+
+def test_stepping_past_the_end_asks_for_a_reset():
+    """After the last touch the time step would leave its space (2 / 1 after one more step of a 1-step episode)."""
+    env = ActiveTouchEnv(**{**SMALL, "step_limit": 1})
+    env.reset(seed=0)
+    *_, terminated, _, _ = env.step({"action": np.ones(3), "prediction": np.zeros(2)})
+    assert terminated
+    with pytest.raises(gym.error.ResetNeeded, match="ended"):
+        env.step({"action": np.ones(3), "prediction": np.zeros(2)})
+    env.reset(seed=1)
+    env.step({"action": np.ones(3), "prediction": np.zeros(2)})
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"objects": [("box", 0), ("box", 1)]}, "two or more distinct class names"),
+    ({"class_names": ["box", "mug", "box"]}, "two or more distinct class names"),
+    ({"render_mode": "human"}, "render_mode 'human' is not supported"),
+    ({"visual_noise_mm": "a"}, "visual_noise_mm must be a number"),
+    ({"objects": 5}, "objects must be a list"),
+    ({"probes": 10**7}, "above the limit"),
+    ({"cloud_points": 10**12}, "ActiveTouchEnv: an observation of 6 probes and 1000000000000 points"),
+])
+def test_more_bad_settings(kwargs, match):
+    with pytest.raises(InvalidArgumentError, match=match):
+        ActiveTouchEnv(**{**SMALL, **kwargs})
+
+
+def test_an_object_without_area_is_refused_when_the_env_is_made():
+    """A mesh whose only triangle has collinear corners: reset divided 0 by 0 (numpy's 'probabilities contain NaN')."""
+    from perception.errors import InvalidMeshError
+    from perception.geometry import ObjectModel
+    from perception.shapes import make_object
+
+    stick = ObjectModel(np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]]), np.array([[0, 1, 2]]), name="stick", label="box")
+    with pytest.raises(InvalidMeshError, match="stick has zero surface area"):
+        ActiveTouchEnv(**{**SMALL, "objects": [stick, make_object("mug", 0)]})
