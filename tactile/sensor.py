@@ -26,7 +26,7 @@ import numpy as np
 import open3d as o3d
 
 from perception.errors import SensorSpecError
-from perception.geometry import ObjectModel
+from perception.geometry import MAX_COORDINATE_MM, ObjectModel
 from perception.validate import check_seed
 from tactile.contours import orthonormal_tangents
 
@@ -567,12 +567,28 @@ class FSRSensor:
             raise SensorSpecError(
                 f"{model.name}: {len(positions)} positions, {len(normals)} normals and {len(tangents)} tangents differ"
             )
+        if (np.abs(positions) > MAX_COORDINATE_MM).any():
+            raise SensorSpecError(f"{model.name}: probe positions lie beyond +-{MAX_COORDINATE_MM:g} mm of the origin")
+        # Rows whose squares would overflow (a norm of inf made them zero, every ray a miss) are scaled down first;
+        # the others are left as they are, bit for bit.
+        normals, tangents = _tame(normals), _tame(tangents)
         length = np.linalg.norm(normals, axis=1)
         if (length < 1e-12).any():
             raise SensorSpecError(f"{model.name}: probe {int(np.argmin(length))} has a zero normal")
         normals = normals / length[:, None]
         tangents = orthonormal_tangents(normals, tangents, np.array([0.0, 0.0, 1.0]))
         return positions, normals, tangents
+
+
+def _tame(vectors: np.ndarray) -> np.ndarray:
+    """``vectors`` (N, 3) with the rows above 1e150 in some component divided by that component's magnitude."""
+    largest = np.abs(vectors).max(axis=1)
+    huge = largest > 1e150
+    if not huge.any():
+        return vectors
+    vectors = vectors.copy()
+    vectors[huge] /= largest[huge, None]
+    return vectors
 
 
 __all__ = ["MAX_RAYS_PER_CAST", "MODES", "FSRSensor", "unit_taxel_grid"]

@@ -472,3 +472,25 @@ def test_one_tetrahedron_goes_through_contours_touch_and_attention(tmp_path):
         assert_sequence_sane(sequence, SMALL)
         assert_on_surface(model, sequence.positions)
 
+
+
+# ------------------------------------------------------------------------------------------ huge poses
+def test_huge_but_finite_pose_vectors_press_as_their_directions():
+    """Normals or tangents of 1e200-1e300 times a unit vector gave all-range frames (the norm overflowed to inf, the
+    rays had zero directions): now the frames and sides of the unit vectors, bit for bit; positions beyond the
+    largest coordinate a mesh may have are refused."""
+    from perception.errors import SensorSpecError
+
+    sphere = primitives.sphere(40.0, 3)
+    model = ObjectModel(sphere.vertices, sphere.triangles, name="sphere")
+    positions = np.array([[40.0, 0.0, 0.0], [0.0, 0.0, 40.0]])
+    normals = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    tangents = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    frames, sides = SMALL.press(model, positions, normals, tangents)
+    assert frames.min() < 1.0 < frames.max() < SMALL.range_mm  # pads on the surface, its curve falling away
+    for scale_n, scale_t in ((1e200, 1.0), (1e300, 1.0), (1.0, 1e300), (1e300, 1e300)):
+        got, got_sides = SMALL.press(model, positions, normals * scale_n, tangents * scale_t)
+        np.testing.assert_array_equal(got, frames)
+        np.testing.assert_array_equal(got_sides, sides)
+    with pytest.raises(SensorSpecError, match="beyond"):
+        SMALL.press(model, positions + 1e300, normals, tangents)
