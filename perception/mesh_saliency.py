@@ -46,7 +46,9 @@ def _lee_normalize(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     if top <= 0:
         return np.zeros_like(values)
     x = values / top
-    maxima = np.sort(x[_local_maxima(x, edges)])[:-1]
+    # Maxima of x rounded to 1e-4: on a plateau (a cylinder's side) the 1e-7 differences that turning the object
+    # leaves would otherwise pick which vertices count, and with them the normalisation.
+    maxima = np.sort(x[_local_maxima(np.round(x, 4), edges)])[:-1]
     mean_other = maxima.mean() if maxima.size else 0.0
     return x * (1.0 - mean_other) ** 2
 
@@ -193,13 +195,16 @@ def mesh_saliency(
 
 
 def iss_keypoints(model: ObjectModel) -> np.ndarray:
-    """Indices of the vertices Open3D's ISS detector (Zhong 2009) picks, with its default radii and ratios."""
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(model.vertices))
+    """Indices of the vertices Open3D's ISS detector (Zhong 2009) picks, with its default radii and ratios, on the
+    vertices in the object's pose-free frame rounded to 1e-6 mm: a regular mesh holds exact ties among the ratios
+    ISS compares, which the rounding noise of another pose would otherwise break one way or the other."""
+    local = np.round(model.to_scene(model.vertices), 6)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(local))
     keypoints = np.asarray(o3d.geometry.keypoint.compute_iss_keypoints(cloud).points)
     if len(keypoints) == 0:
         return np.zeros(0, dtype=np.int64)
     # The keypoints are copies of input points: the nearest vertex is exact.
-    _, index = cKDTree(model.vertices).query(keypoints)
+    _, index = cKDTree(local).query(keypoints)
     return np.unique(index)
 
 

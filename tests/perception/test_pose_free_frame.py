@@ -167,3 +167,36 @@ class TestPoseFreeLoading:
     def test_centering_is_validated_on_the_model(self):
         with pytest.raises(InvalidArgumentError, match="centering"):
             ObjectModel(np.eye(3), np.array([[0, 1, 2]]), centering="nowhere")
+
+
+class TestSaliencyIgnoresThePose:
+    """The same mesh turned by a random rotation gets the same saliency: ISS picked other keypoints (about half of
+    them) where a regular mesh's exact ties were broken by rotation rounding; mesh saliency's plateaus (a mug's side)
+    changed which vertices were local maxima and so its normalisation, by up to 0.09."""
+
+    @pytest.mark.parametrize("name, seed", [
+        ("box", 0), ("mug", 0),
+        pytest.param("can", 1, marks=pytest.mark.xfail(strict=True, reason=(
+            "a solid of revolution has no unique principal frame: turned, its pose-free frame turns about the axis, "
+            "the rounded vertices differ and the ties break otherwise (56-82 of 64-78 keypoints differ)"))),
+    ])
+    def test_iss_keypoints_are_the_same_in_any_pose(self, name, seed):
+        from perception.geometry import random_rotation, rotate
+        from perception.mesh_saliency import iss_keypoints
+
+        model = make_object(name, seed)
+        upright = iss_keypoints(model)
+        assert len(upright) > 0
+        for k in range(3):
+            np.testing.assert_array_equal(iss_keypoints(rotate(model, random_rotation(k))), upright)
+
+    @pytest.mark.parametrize("name, seed", [("mug", 0), ("can", 1)])
+    def test_mesh_saliency_is_the_same_in_any_pose(self, name, seed):
+        from perception.geometry import random_rotation, rotate
+        from perception.saliency import saliency
+
+        model = make_object(name, seed)
+        upright = saliency(model, "mesh").scores
+        for k in range(3):
+            turned = saliency(rotate(model, random_rotation(k)), "mesh").scores
+            assert np.abs(turned - upright).max() < 1e-4
