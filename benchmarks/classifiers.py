@@ -90,7 +90,7 @@ def cnn_rows(train, test, cue: str, args) -> list[dict]:
             # a fusion model trains both nets: its training time is the pair's
             "train_s": fit_s if modality == "fusion" else None,
             "infer_ms_per_seq": 1000 * infer_s / len(test) if modality == "fusion" else None,
-            "epochs": history.get("epochs"), "epoch_s": history.get("epoch_seconds"),
+            "epochs": history.get("epochs"), "epoch_s": getattr(model, "epoch_seconds_", {}).get(modality),
         })
     return rows
 
@@ -136,7 +136,7 @@ def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | 
     )
     model = CNNClassifier(epochs=1, val_fraction=0.0, threads=threads, progress=False, random_state=seed)
     model.fit(batch)
-    paper_epoch_s = {k: h["epoch_seconds"] * PAPER_TRAIN / n for k, h in model.history_.items()}
+    paper_epoch_s = {k: seconds * PAPER_TRAIN / n for k, seconds in model.epoch_seconds_.items()}
     default = CNNClassifier()
     # the default epochs, or fewer under each net's step cap
     epochs = {k: min((epochs_run or {}).get(k) or default.epochs, default.epochs_for(PAPER_TRAIN, k))

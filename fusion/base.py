@@ -46,8 +46,9 @@ log = logging.getLogger(__name__)
 READOUT_SETTINGS = ("noise_std", "dead_taxel_rate")
 #: Fitted attributes every classifier has; the model file stores them in its description's header fields.
 BASE_FITTED = ("classes_", "sensor_spec_", "n_probes_", "grid_", "training_")
-#: Attributes a loaded model carries about its file, never saved (the same model saves the same bytes).
-FILE_ATTRIBUTES = ("_source_file",)
+#: Attributes never saved, so that the same model saves the same bytes: what a loaded model carries about its file,
+#: and how long this process took to fit it (a CNN's ``epoch_seconds_``).
+FILE_ATTRIBUTES = ("_source_file", "epoch_seconds_")
 #: The toolkit's classifiers by the class name a model file gives, and the module that defines each (imported
 #: on demand: a model file can name only classes defined in the running process or listed here).
 KNOWN_CLASSES = {"fusion.cnn.CNNClassifier": "fusion.cnn",

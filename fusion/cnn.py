@@ -297,7 +297,9 @@ class CNNClassifier(TactileClassifier):
             those epochs); small sets train all ``epochs``.
 
     Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
-    ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs.
+    ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs;
+    ``epoch_seconds_`` (per net: median seconds an epoch took) only on the model this process fitted (never saved: the
+    same training saves the same bytes).
 
     Examples:
         >>> from fusion.experiments.touch import touch_objects
@@ -553,9 +555,9 @@ class CNNClassifier(TactileClassifier):
         net.to("cpu").eval()
         log.info("%s net: %d epochs, best %d, validation accuracy %.4f", kind, epoch + 1, best_epoch + 1,
                  best[0])
+        self.epoch_seconds_[kind] = float(np.median(epoch_times)) if epoch_times else 0.0
         return {"epochs": epoch + 1, "best_epoch": best_epoch + 1,
-                "val_accuracy": None if len(val_idx) == 0 else best[0], "val_curve": curve,
-                "epoch_seconds": float(np.median(epoch_times)) if epoch_times else 0.0}
+                "val_accuracy": None if len(val_idx) == 0 else best[0], "val_curve": curve}
 
     def _steps_per_epoch(self, n_train: int) -> int:
         """Optimizer steps in one epoch of ``n_train`` sequences (a last batch of one is skipped: batch norm)."""
@@ -631,7 +633,7 @@ class CNNClassifier(TactileClassifier):
         split = self._split(y_index, batch.object_ids)
         n_classes = len(self.classes_)
         self.cutaneous_net_ = self.kinesthetic_net_ = None
-        self.history_ = {}
+        self.history_, self.epoch_seconds_ = {}, {}
         # fork_rng: seeding here must not change the caller's global random stream
         with _torch_settings(self.threads or usable_cores(), deterministic=True), torch.random.fork_rng([]):
             if self._uses("cutaneous"):
@@ -685,6 +687,8 @@ class CNNClassifier(TactileClassifier):
         joined.cutaneous_net_ = copy.deepcopy(cutaneous.cutaneous_net_)
         joined.kinesthetic_net_ = copy.deepcopy(kinesthetic.kinesthetic_net_)
         joined.history_ = {net: copy.deepcopy(model.history_[net]) for net, model in models.items()}
+        joined.epoch_seconds_ = {net: model.epoch_seconds_[net] for net, model in models.items()
+                                 if net in getattr(model, "epoch_seconds_", {})}
         return joined
 
     # -------------------------------------------------------------------------------- prediction

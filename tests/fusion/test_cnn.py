@@ -321,6 +321,17 @@ def test_save_load_predicts_identically_and_refuses_another_sensor(tmp_path):
         loaded.predict(make_batch(n_per_class=2, probes=6))
 
 
+def test_the_same_training_saves_the_same_bytes(tmp_path):
+    """Two fits with the same seed save byte-identical files: the wall-clock seconds per epoch, which the saved
+    history held, stay on the fitted model (``epoch_seconds_``) and are not written."""
+    train = make_batch(seed=0)
+    first, second = (CNNClassifier(**{**FAST, "epochs": 2}).fit(train) for _ in range(2))
+    assert set(first.epoch_seconds_) == {"cutaneous", "kinesthetic"} and min(first.epoch_seconds_.values()) > 0
+    a, b = first.save(tmp_path / "a.vtm"), second.save(tmp_path / "b.vtm")
+    assert a.read_bytes() == b.read_bytes()
+    assert not hasattr(load_model(a), "epoch_seconds_")
+
+
 # ---------------------------------------------------------------------------------------- numerics
 def test_constant_and_huge_inputs_give_finite_probabilities():
     train = make_batch(informative=("kinesthetic",))
