@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
+import threading
 
 from perception.errors import VisuotactileError
 
@@ -88,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     from perception.runtime import set_progress
 
     set_progress(False if args.no_progress or getattr(args, "json", False) else None)
+    handler = _on_sigterm_unwind()
     try:
         check_common(args)
         code = int(args.func(args, rest) or 0)
@@ -104,14 +107,34 @@ def main(argv: list[str] | None = None) -> int:
         print(f"visuotactile {args.command}: error: the output pipe was closed before all output was written",
               file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         # Only commands that resume (set resumable=True) promise it; others say what an interruption loses.
         what = ("finished work is kept, re-run to resume" if getattr(args, "resumable", False)
                 else "nothing was saved")
-        print(f"visuotactile {args.command}: interrupted; {what}", file=sys.stderr)
-        return 130
+        terminated = isinstance(exc, Terminated)
+        print(f"visuotactile {args.command}: {'terminated' if terminated else 'interrupted'}; {what}", file=sys.stderr)
+        return 143 if terminated else 130
     finally:
         set_progress(None)
+        if handler is not None:
+            signal.signal(signal.SIGTERM, handler[0] if handler[0] is not None else signal.SIG_DFL)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a batch scheduler, ``docker stop``) while a command runs: raised in the main
+    thread so that the command unwinds as on Ctrl-C (workers stopped, temporary files removed); exit 143."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated(f"signal {signum}")
+
+
+def _on_sigterm_unwind() -> tuple | None:
+    """Make SIGTERM raise :class:`Terminated` in the main thread; returns (the handler to restore,) or None off the
+    main thread, where Python sets no handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return (signal.signal(signal.SIGTERM, _raise_terminated),)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
 import stat
 from collections.abc import Iterator
@@ -43,6 +44,23 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     finally:
         if tmp is not None and os.path.exists(tmp):
             os.remove(tmp)
+
+
+#: The name :func:`atomic_path` gives a temporary file: ``.<name>.<8 hex digits><the name's suffix>``.
+_TEMPORARY = re.compile(r"\.(?P<name>.+)\.[0-9a-f]{8}(?P<suffix>(\.[^./]*)?)")
+
+
+def stale_temporaries(folder: str | Path) -> list[Path]:
+    """The files under ``folder`` named as :func:`atomic_path` names its temporary files: what a writer killed before
+    it could clean up (SIGKILL, a power cut) leaves. Only call this while no writer can be running there (under the
+    folder's lock): a live writer's temporary file looks the same."""
+    stale = []
+    for path in Path(folder).rglob(".*"):
+        match = _TEMPORARY.fullmatch(path.name)
+        if match and path.is_file() and not path.is_symlink() \
+                and Path(match["name"]).suffix == match["suffix"]:
+            stale.append(path)
+    return sorted(stale)
 
 
 def _nearest_existing(path: Path) -> Path:

@@ -164,6 +164,18 @@ def _open_or_create(out: Path, settings: dict, command: str | None) -> None:
     create_store(out, settings, meta)
 
 
+def _remove_stale_temporaries(out: Path) -> None:
+    """Remove the temporary files of writers killed mid-write (a chunk being replaced when SIGKILL came) from the
+    store ``out``: called under its lock, where no writer of it can be alive."""
+    from perception.atomic import stale_temporaries
+
+    stale = stale_temporaries(out)
+    for path in stale:
+        path.unlink(missing_ok=True)
+    if stale:
+        log.info("%s: removed %d temporary files of an interrupted run", out, len(stale))
+
+
 def generate(
     objects,
     out: str | Path,
@@ -251,6 +263,7 @@ def generate(
     out = Path(out).resolve()
     with store_lock(out):  # one writer at a time: a second run on this store is refused
         _open_or_create(out, settings, command)
+        _remove_stale_temporaries(out)
         layout = layout_of(settings)
         repaired = _forget_damaged(out, specs, progress)
         records = read_records(out, len(specs))

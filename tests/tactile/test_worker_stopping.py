@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from tests._processes import alive
+from tests._processes import alive, children
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals, /proc")
 ROOT = Path(__file__).resolve().parents[2]
@@ -263,3 +263,63 @@ def test_an_object_done_while_generate_was_held_up_is_kept(tmp_path):
     assert result["failed"] == [], result
     assert result["completed"] == 4, result  # the bad object and the three good ones
     clean(result)
+
+
+# ------------------------------------------------------------------ SIGTERM and what a kill leaves
+def test_stale_temporaries_are_the_names_atomic_path_gives(tmp_path):
+    from perception.atomic import atomic_path, stale_temporaries
+
+    (tmp_path / "c" / "0").mkdir(parents=True)
+    for name in (".keep", ".0.notahex", "0.abcd1234", ".3.json.0123abcd.txt"):  # not atomic_path's
+        (tmp_path / "c" / name).write_text("x")
+    for target in (tmp_path / "c" / "0" / "0", tmp_path / "records" / "3.json", tmp_path / "zarr.json"):
+        with atomic_path(target) as tmp:
+            assert stale_temporaries(tmp_path) == [tmp]
+    assert stale_temporaries(tmp_path) == []
+
+
+def test_a_resumed_run_removes_what_killed_writers_left(tmp_path):
+    """A worker SIGKILLed while it replaced a chunk leaves its temporary file; the next run on the store, holding its
+    lock, removes such files (and only those) and the store verifies."""
+    from tactile.dataset import generate, verify_store
+    from tactile.sensor import FSRSensor
+
+    store = tmp_path / "store"
+    kwargs = {"strategies": ("blind",), "contours_per_object": 2, "sensor": FSRSensor(rows=8, cols=8), "probes": 5,
+              "workers": 1, "progress": False}
+    generate([("box", 0), ("can", 1)], store, **kwargs)
+    chunk = next(p for p in (store / "frames" / "c").rglob("*") if p.is_file())
+    planted = [chunk.with_name(f".{chunk.name}.0badc0de"), store / "records" / ".1.json.12345678.json"]
+    for path in planted:
+        path.write_bytes(b"half a chunk")
+    (store / ".mine").write_text("a user's file")
+    generate([("box", 0), ("can", 1)], store, **kwargs)
+    assert not any(p.exists() for p in planted) and (store / ".mine").exists()
+    assert verify_store(store).ok
+
+
+def test_sigterm_stops_generate_as_ctrl_c_does(tmp_path):
+    """`kill`, `timeout` and batch schedulers send SIGTERM: the command unwinds (workers stopped, each removing its
+    temporary file), says so in one line and exits 143; the run resumes."""
+    store = tmp_path / "store"
+    argv = [sys.executable, "-m", "fusion.cli", "generate", "--catalogue", "3", "--out", str(store),
+            "--strategies", "blind", "--contours", "300", "--probes", "10", "--workers", "2", "--no-progress"]
+    with open(tmp_path / "stderr", "w") as stderr:
+        proc = subprocess.Popen(argv, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.DEVNULL,
+                                stderr=stderr)
+        deadline = time.monotonic() + 120
+        while not list((store / "records").glob("*.json")) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        workers = children(proc.pid)
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=60)
+    err = (tmp_path / "stderr").read_text()
+    assert code == 143, err
+    assert err.strip().splitlines()[-1] == ("visuotactile generate: terminated; finished work is kept, re-run to "
+                                           "resume"), err
+    assert "resource_tracker" not in err and "Traceback" not in err, err
+    deadline = time.monotonic() + 5
+    while any(map(alive, workers)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(map(alive, workers))
+    assert [p for p in store.rglob(".*") if p.is_file()] == []
