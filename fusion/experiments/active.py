@@ -27,6 +27,7 @@ from fusion.active import ActiveState, make_policy, noisy_copy, run_episode
 from fusion.active.policies import SMOOTH_ITERATIONS, InformationPolicy, smoothed, visual_belief
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
+from perception.atomic import atomic_path
 from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
 from perception.geometry import ObjectModel
 from perception.limits import check_count
@@ -82,7 +83,6 @@ def camera_models(captures: Path, spec, true, seed: int, views: int = CAMERA_VIE
     noise seeded by ``seed``); the visual model is the reconstruction, the true model the mesh as placed, both
     in the table's frame (mm, physical size). Cached in the folder ``captures`` (``captures/`` of the report
     folder; a capture takes about 3 s on 2 cores)."""
-    import os
     import zlib
 
     from tactile.captures import virtual_capture
@@ -97,11 +97,9 @@ def camera_models(captures: Path, spec, true, seed: int, views: int = CAMERA_VIE
             return visual, placed
     capture = virtual_capture(true, views=views, seed=seed)
     visual = ObjectModel(capture.world.vertices, capture.world.triangles, name=f"{true.name}@capture")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-    np.savez(tmp, visual_vertices=visual.vertices, visual_triangles=visual.triangles,
-             true_vertices=capture.truth.vertices)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:  # an interrupt leaves the old file or none, never half of one
+        np.savez(tmp, visual_vertices=visual.vertices, visual_triangles=visual.triangles,
+                 true_vertices=capture.truth.vertices)
     return visual, capture.truth
 
 

@@ -42,6 +42,7 @@ from perception.runtime import (
     limit_cores,
     progress_bar,
     set_progress,
+    stop_as_told,
     usable_cores,
     without_main_module,
 )
@@ -321,6 +322,7 @@ def _picklable(jobs: list) -> bool:
 
 
 def _start_worker(cores: int, caller: int) -> None:
+    stop_as_told()  # stopped (an interrupt in the caller): unwind, so that a model file half saved is removed
     exit_with(caller)  # the caller terminated or killed: no worker trains on for nobody
     set_progress(False)  # one bar, the caller's, counts the models
     limit_cores(cores)
@@ -433,10 +435,20 @@ def _run_pool(jobs: list, order: list[int], workers: int, cores: int, done: dict
     return [i for i in order if i not in done]
 
 
+#: Seconds stopped workers have to unwind (a model file half saved removed) before they are killed.
+STOP_GRACE_S = 2.0
+
+
 def _kill(pool: ProcessPoolExecutor) -> None:
-    """Stop ``pool``'s workers now."""
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
-        process.kill()
+    """Stop ``pool``'s workers now: SIGTERM (each unwinds), SIGKILL for those not gone within :data:`STOP_GRACE_S`."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        process.terminate()
+    deadline = time.monotonic() + STOP_GRACE_S
+    for process in processes:
+        process.join(timeout=max(deadline - time.monotonic(), 0.0))
+        if process.is_alive():
+            process.kill()
     pool.shutdown(wait=False, cancel_futures=True)
 
 

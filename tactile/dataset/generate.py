@@ -32,6 +32,7 @@ from perception.runtime import (
     libc,
     package_version,
     progress_bar,
+    stop_as_told,
     usable_cores,
     without_main_module,
 )
@@ -342,10 +343,7 @@ def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache:
     one's progress and outcome through ``conn``. One process explores many objects, so only the first pays for a
     fresh process's memory (page faults, first calls: 0.55 of the 5.3 s of a SHREC object explored alone); an object
     that kills its worker (a native abort) or hangs is recorded as failed and the parent starts a new worker."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt stops
-    # Asked to stop mid-object (an interrupt, a timeout): unwind, so that a chunk file half written is removed and
-    # what the process made for the resource tracker is released, instead of dying where it stands.
-    signal.signal(signal.SIGTERM, _unwind)
+    stop_as_told()  # asked to stop mid-object (an interrupt, a timeout): unwind, removing a chunk file half written
     exit_with(caller)  # generate's process killed: no orphan writes on into the store
     _keep_freed_memory()
     from tactile.dataset.worker import explore_into_store
@@ -368,12 +366,6 @@ def _next_task(conn):
         return conn.recv()
     except (EOFError, OSError):
         return None
-
-
-def _unwind(signum, frame) -> None:
-    """SIGTERM handler of a worker: leave through SystemExit, which no ``except Exception`` catches, running every
-    ``finally`` and exit handler on the way (a native call in progress finishes first)."""
-    raise SystemExit(128 + signum)
 
 
 def _keep_freed_memory() -> None:
@@ -431,7 +423,7 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
     def stop(*ending: _Running, dead: bool = False) -> None:
         """End the ``ending`` workers together, each so that its clean-up runs (a SIGKILL leaves half-written temporary
         chunk files, and the semaphores a library made for the resource tracker to warn about): an idle one is told to
-        exit, a busy one is sent SIGTERM (see :func:`_unwind`); any not gone within ``STOP_GRACE_S`` is killed.
+        exit, a busy one is sent SIGTERM (see :func:`perception.runtime.stop_as_told`); any not gone within ``STOP_GRACE_S`` is killed.
         ``dead``: workers whose pipe is closed, only reaped. The processes a worker's loader started go with it: listed
         before it is signalled (an orphan can no longer be traced to it), killed once it is gone."""
         started = [descendant_handles(worker.process.pid) for worker in ending]

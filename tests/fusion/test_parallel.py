@@ -412,3 +412,60 @@ def test_the_noise_part_predicts_on_every_core():
     assert _on_every_core(CNNClassifier(threads=1)).threads is None
     model = FitLog(log="x")
     assert _on_every_core(model) is model and model.get_params() == {"log": "x", "fail": "", "sleep": 0.0}
+
+
+class SlowWriter:
+    """A job that writes a large file slowly through atomic_path, as a worker saves a model (marks when it starts)."""
+
+    def __init__(self, folder: str, tag: str):
+        self.folder, self.tag = folder, tag
+
+    def cost(self) -> float:
+        return 1.0
+
+    def run(self):
+        from perception.atomic import atomic_path
+
+        with atomic_path(Path(self.folder, "out", f"{self.tag}.bin")) as tmp, open(tmp, "wb") as f:
+            Path(self.folder, f"started-{self.tag}").write_text(str(os.getpid()))
+            for _ in range(6000):
+                f.write(b"x" * 65536)
+                time.sleep(0.01)
+
+
+@two_cores
+def test_an_interrupt_stops_the_workers_and_they_remove_what_they_were_writing(tmp_path):
+    """Ctrl-C in the caller: its workers were SIGKILLed where they stood (a file half saved left behind, semaphores
+    leaked); now they unwind within the grace period, removing their temporary files."""
+    script = textwrap.dedent(f"""
+        import os, signal, threading, time
+        from pathlib import Path
+        from fusion.experiments.parallel import run_jobs
+        from tests.fusion.test_parallel import SlowWriter
+
+        folder = {str(tmp_path)!r}
+
+        def interrupt():
+            while len(list(Path(folder).glob("started-*"))) < 2:
+                time.sleep(0.02)
+            time.sleep(0.3)
+            os.kill(os.getpid(), signal.SIGINT)
+
+        threading.Thread(target=interrupt, daemon=True).start()
+        start = time.monotonic()
+        try:
+            run_jobs([SlowWriter(folder, "a"), SlowWriter(folder, "b")], workers=2, progress=False)
+        except KeyboardInterrupt:
+            print("interrupted after", time.monotonic() - start)
+    """)
+    root = Path(__file__).resolve().parents[2]
+    run = subprocess.run([sys.executable, "-c", script], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and "interrupted after" in run.stdout, run.stderr
+    assert "leaked" not in run.stderr and "Traceback" not in run.stderr, run.stderr
+    pids = [int(p.read_text()) for p in tmp_path.glob("started-*")]
+    deadline = time.monotonic() + 5
+    while any(map(alive, pids)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(map(alive, pids))
+    assert list((tmp_path / "out").iterdir()) == []
