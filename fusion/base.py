@@ -62,8 +62,8 @@ MAX_TAXELS = 4096
 MAX_CLASS_NAME = 200
 #: The answer of a model that rejects an object (:func:`fusion.openset.decide`); no class may bear this name.
 UNKNOWN = "unknown"
-#: Largest coordinate (mm) a sequence may carry: a kilometre from the object centre is no touch of an object, and
-#: cues computed from larger numbers overflow float32.
+#: Largest coordinate (mm) a sequence may carry: positions are float32, which a kilometre from the origin holds to
+#: 0.06 mm (larger numbers lose the millimetres the cues are made of, then overflow them); pads are not that large.
 MAX_COORDINATE_MM = 1e6
 _ATTRIBUTE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*_$|^_[A-Za-z][A-Za-z0-9_]*$")
 _REGISTRY: dict[str, type] = {}
@@ -96,7 +96,10 @@ def as_batch(X) -> SequenceBatch:
         if not np.isfinite(values).all():
             raise DatasetError(f"sequence {name} contain NaN or Inf{_first_object(batch, ~np.isfinite(values))}")
         if name in ("positions", "plane_points", "pad_sides_mm") and (np.abs(values) > MAX_COORDINATE_MM).any():
-            raise DatasetError(f"sequence {name} lie beyond {MAX_COORDINATE_MM:g} mm of the object centre"
+            where = "" if name == "pad_sides_mm" else (" from the origin (float32 positions hold no millimetres "
+                                                        "there: touch the object near the origin, as load_object "
+                                                        "centres it)")
+            raise DatasetError(f"sequence {name} exceed {MAX_COORDINATE_MM:g} mm{where}"
                                f"{_first_object(batch, np.abs(values) > MAX_COORDINATE_MM)}")
     return batch
 

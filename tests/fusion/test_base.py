@@ -64,7 +64,8 @@ def test_non_finite_or_far_sequence_arrays_are_refused_naming_the_object(batch, 
     if name != "plane_normals":
         values = getattr(batch, name).copy()
         values[5] = 3e38  # finite, but cues made from it overflow float32
-        with pytest.raises(DatasetError, match=f"sequence {field} lie beyond 1e\\+06 mm"):
+        where = "" if name == "pad_sides_mm" else " from the origin \\(float32 positions hold no millimetres"
+        with pytest.raises(DatasetError, match=f"sequence {field} exceed 1e\\+06 mm{where}"):
             MeanFrame().fit(dataclasses.replace(batch, **{name: values}))
 
 
