@@ -363,6 +363,14 @@ def points_to_model(
             raise InvalidArgumentError(f"{where}: viewpoints must be a finite (3,) point or (N, 3) array shaped like "
                                        f"the points {points.shape}, got shape {viewpoints.shape}")
         viewpoints = viewpoints - centre
+    # Repeated points (a cloud merged twice, a scanner's duplicates) would fill the k nearest neighbours of the normal
+    # estimate and the outlier statistics with copies: keep the first of each, in order.
+    _, first = np.unique(points, axis=0, return_index=True)
+    if len(first) < len(points):
+        keep = np.sort(first)
+        points = points[keep]
+        normals = None if normals is None else normals[keep]
+        viewpoints = viewpoints[keep] if viewpoints is not None and np.ndim(viewpoints) == 2 else viewpoints
     if viewpoints is not None and np.ndim(viewpoints) == 2:
         points, normals, viewpoints = _clean(points, normals, viewpoints, outlier_neighbors, outlier_std)
     else:

@@ -48,6 +48,18 @@ def test_sphere_cloud_gives_a_surface_on_the_sphere():
     assert mesh.get_volume() == pytest.approx(4 / 3 * np.pi * RADIUS**3, rel=0.02)
 
 
+@pytest.mark.parametrize("copies", [np.repeat, np.tile])
+def test_repeated_points_count_once(copies):
+    """Each point five times (a cloud merged with itself): the surface of the cloud itself, not one whose normals
+    were estimated from neighbourhoods of copies (radial error std 0.61 mm instead of 0.24 mm)."""
+    cloud = fibonacci_sphere(3000)
+    once = load_points(cloud, size_mm=None, poisson_depth=6)
+    five = load_points(copies(cloud, 5, axis=0) if copies is np.repeat else np.tile(cloud, (5, 1)), size_mm=None,
+                       poisson_depth=6)
+    np.testing.assert_array_equal(five.vertices, once.vertices)
+    np.testing.assert_array_equal(five.triangles, once.triangles)
+
+
 def test_estimated_normals_point_outward_on_a_sphere():
     points = fibonacci_sphere(3000)
     normals = estimate_normals(points)
