@@ -460,7 +460,7 @@ def test_an_interrupt_stops_the_workers_and_they_remove_what_they_were_writing(t
     """)
     root = Path(__file__).resolve().parents[2]
     run = subprocess.run([sys.executable, "-c", script], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=120, check=False)
     assert run.returncode == 0 and "interrupted after" in run.stdout, run.stderr
     assert "leaked" not in run.stderr and "Traceback" not in run.stderr, run.stderr
     pids = [int(p.read_text()) for p in tmp_path.glob("started-*")]
