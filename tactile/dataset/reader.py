@@ -517,19 +517,20 @@ class TactileDataset:
         mesh = self.mesh_ids()[present]
         out = []
         for c in np.unique(self.object_labels[present]):
-            members = present[self.object_labels[present] == c]
+            in_class = self.object_labels[present] == c
+            by_mesh: dict[str, list[int]] = {}
+            for obj, made in zip(present[in_class].tolist(), mesh[in_class].tolist()):
+                by_mesh.setdefault(made, []).append(obj)
             # a group is named by its first object; the permutation runs over those names
-            first = {}
-            for obj, made in zip(members.tolist(), mesh[self.object_labels[present] == c].tolist()):
-                first.setdefault(made, []).append(obj)
-            groups = {objs[0]: np.array(objs, dtype=np.int64) for objs in first.values()}
+            groups = {objs[0]: np.array(objs, dtype=np.int64) for objs in by_mesh.values()}
             out.append([groups[int(g)] for g in rng.permutation(np.array(sorted(groups), dtype=np.int64))])
         return out
 
     def split_by_object(self, test_fraction: float = 0.2, seed: int = 0, index=None) -> tuple[np.ndarray, np.ndarray]:
         """Seeded split by object (test objects unseen in training), stratified by class: of a class's n
         objects, max(1, round(test_fraction * n)) go to test when n >= 2 (a class with one object stays in
-        training). Returns sorted int64 sequence indices (train, test) within ``index``.
+        training); objects made from one mesh (:meth:`mesh_ids`: an object and its captures) count as one and go
+        together. Returns sorted int64 sequence indices (train, test) within ``index``.
 
         Raises:
             DataLeakError: train and test would share a sequence, an object or a mesh (checked on what is returned).
@@ -556,7 +557,8 @@ class TactileDataset:
     def kfold_by_object(self, k: int = 5, seed: int = 0, index=None) -> list[tuple[np.ndarray, np.ndarray]]:
         """``k`` seeded folds by object, stratified by class: each class's objects (shuffled) are dealt to
         the folds in turn, continuing where the previous class stopped, so every object is tested exactly
-        once and fold sizes differ by at most one object. Returns [(train, test)] sorted int64 indices.
+        once and fold sizes differ by at most one object; objects made from one mesh (an object and its captures)
+        are dealt together, as one. Returns [(train, test)] sorted int64 indices.
 
         Raises:
             DataLeakError: train and test would share a sequence, an object or a mesh (checked on what is returned).
