@@ -108,7 +108,9 @@ def draw_plane(model: ObjectModel, points: np.ndarray, rng: np.random.Generator)
         except ContourError:
             continue  # near-collinear with the centre: draw again
     raise ContourError(
-        f"{model.name}: {MAX_DRAWS} draws of two points gave only planes near-collinear with the centre"
+        f"{model.name}: {MAX_DRAWS} draws of two points gave only planes near-collinear with the centre (seen from "
+        "its centre the object lies along one line: a needle, or parts far apart on either side of the centre; "
+        "touch each part as an object of its own)"
     )
 
 
