@@ -178,6 +178,12 @@ class FSRSensor:
             raise SensorSpecError(
                 f"FSRSensor.min_side_mm ({self.min_side_mm}) must not exceed side_mm ({self.side_mm})"
             )
+        if self.standoff_mm <= self.penetration_eps_mm:
+            raise SensorSpecError(
+                f"FSRSensor.standoff_mm ({self.standoff_mm}) must exceed penetration_eps_mm ({self.penetration_eps_mm}): "
+                "surface poking through the pad reads at most the stand-off deep, so the pad would never count as "
+                "penetrating and never settle or shrink"
+            )
         if not 0 < self.shrink_factor < 1:
             raise SensorSpecError(f"FSRSensor.shrink_factor must be in (0, 1), got {self.shrink_factor}")
         if self.dead_taxel_rate >= 1:

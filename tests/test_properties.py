@@ -132,6 +132,7 @@ def sensors(draw, max_taxels: int = 12) -> FSRSensor:
     """Any valid FSRSensor (within its documented ranges), on grids of up to ``max_taxels`` a side."""
     mode = draw(st.sampled_from(MODES))
     side = draw(log_uniform(-3, 4))
+    standoff = draw(log_uniform(-2, 4))
     noise = log_uniform(-6, 4) if mode == "gap" else log_uniform(-30, 30)
     return FSRSensor(
         rows=draw(st.integers(1, max_taxels)),
@@ -140,14 +141,14 @@ def sensors(draw, max_taxels: int = 12) -> FSRSensor:
         min_side_mm=side * draw(st.floats(1e-3, 1.0)),
         mode=mode,
         range_mm=draw(log_uniform(-2, 4)),
-        standoff_mm=draw(log_uniform(-2, 4)),
+        standoff_mm=standoff,
         indent_mm=draw(st.one_of(st.just(0.0), log_uniform(-6, 4))),
         stiffness=draw(log_uniform(-30, 30)),
         saturation=draw(log_uniform(-30, 30)),
         adc_bits=draw(st.integers(1, 32)),
         noise_std=draw(st.one_of(st.just(0.0), noise)),
         dead_taxel_rate=draw(st.one_of(st.just(0.0), st.floats(0.0, 0.999))),
-        penetration_eps_mm=draw(st.floats(0.0, 5.0)),
+        penetration_eps_mm=min(5.0, standoff * draw(st.floats(0.0, 0.99))),  # below the stand-off
         settle_mm=draw(st.one_of(st.just(0.0), log_uniform(-3, 2))),
         shrink_factor=draw(st.floats(0.05, 0.95)),
         survey_taxels=draw(st.integers(0, 16)),
@@ -323,6 +324,7 @@ def _any_spec_is_valid_or_refused(base, values):
     assert 0 < sensor.range_mm <= 1e4 and 0 < sensor.standoff_mm <= 1e4 and 0 <= sensor.indent_mm <= 1e4
     assert 1e-30 <= sensor.stiffness <= 1e30 and 1e-30 <= sensor.saturation <= 1e30
     assert 0 <= sensor.dead_taxel_rate < 1 and 0 < sensor.shrink_factor < 1 and sensor.noise_std >= 0
+    assert 0 <= sensor.penetration_eps_mm < sensor.standoff_mm
     spec = json.loads(json.dumps(sensor.spec()))
     assert spec.pop("sensor") == "FSRSensor" and FSRSensor(**spec) == sensor
 
@@ -333,6 +335,15 @@ test_any_spec_is_valid_or_refused, test_any_spec_is_valid_or_refused_slow = _any
 @pytest.mark.parametrize("values", [{"rows": np.int64(16)}, {"side_mm": np.float32(20.0)}])
 def test_a_spec_with_numpy_numbers_is_json(values):
     json.dumps(FSRSensor(**values).spec())
+
+
+def test_a_stand_off_the_pad_cannot_see_penetration_through_is_refused():
+    """Surface poking through the pad reads at most -standoff_mm: with a penetration threshold at or above it the
+    adaptive pad would never settle or shrink."""
+    FSRSensor(standoff_mm=0.3, penetration_eps_mm=0.2)
+    for standoff in (0.2, 0.1, 1e-12):
+        with pytest.raises(SensorSpecError, match=r"standoff_mm \(.*\) must exceed penetration_eps_mm \(0.2\)"):
+            FSRSensor(standoff_mm=standoff, penetration_eps_mm=0.2)
 
 
 def test_a_huge_integer_spec_value_is_a_number():

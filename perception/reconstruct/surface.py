@@ -366,7 +366,7 @@ def points_to_model(
     # Repeated points (a cloud merged twice, a scanner's duplicates) would fill the k nearest neighbours of the normal
     # estimate and the outlier statistics with copies: keep the first of each, in order.
     _, first = np.unique(points, axis=0, return_index=True)
-    if False:
+    if len(first) < len(points):
         keep = np.sort(first)
         points = points[keep]
         normals = None if normals is None else normals[keep]
