@@ -75,6 +75,9 @@ def check_common(args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv`` (default: this process's) and return its exit code. While a command runs, SIGTERM
+    raises :class:`Terminated` in the main thread, so that it unwinds as on Ctrl-C, and returns 143; the caller's
+    own SIGTERM handler is set back before this returns (a library calling ``main`` sees the 143, not the signal)."""
     parser = build_parser()
     try:  # a bad option (one line on stderr) or --help returns its exit code, as every other outcome does
         args, rest = parser.parse_known_args(argv)
@@ -115,9 +118,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"visuotactile {args.command}: {'terminated' if terminated else 'interrupted'}; {what}", file=sys.stderr)
         return 143 if terminated else 130
     finally:
-        set_progress(None)
-        if handler is not None:
+        if handler is not None:  # first: a SIGTERM from here on is the caller's again
             signal.signal(signal.SIGTERM, handler[0] if handler[0] is not None else signal.SIG_DFL)
+        set_progress(None)
 
 
 class Terminated(KeyboardInterrupt):

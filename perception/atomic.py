@@ -47,7 +47,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 #: The name :func:`atomic_path` gives a temporary file: ``.<name>.<8 hex digits><the name's suffix>``.
-_TEMPORARY = re.compile(r"\.(?P<name>.+)\.[0-9a-f]+(?P<suffix>(\.[^./]*)?)")
+_TEMPORARY = re.compile(r"\.(?P<name>.+)\.[0-9a-f]{8}(?P<suffix>(\.[^./]*)?)")
 
 
 def stale_temporaries(folder: str | Path) -> list[Path]:

@@ -154,8 +154,13 @@ def stop_as_told() -> None:
     signal.signal(signal.SIGTERM, _unwind)
 
 
+class Stopped(SystemExit):
+    """Raised in a worker by SIGTERM (:func:`stop_as_told`): a SystemExit that code running jobs can tell from a job's
+    own ``sys.exit``."""
+
+
 def _unwind(signum, frame) -> None:
-    raise SystemExit(128 + signum)
+    raise Stopped(128 + signum)
 
 
 def exit_with(pid: int) -> None:

@@ -183,19 +183,27 @@ class ActiveTouchEnv(ap_gym.ActiveClassificationEnv):
         if not isinstance(action, dict) or not {"action", "prediction"} <= set(action):
             raise InvalidArgumentError(f"ActiveTouchEnv: step takes {{'action': normal, 'prediction': logits}}, got "
                                        f"{type(action).__name__}")
-        logits = np.asarray(action["prediction"])
-        if logits.dtype.kind not in "fiu" or logits.shape != (len(self.class_names),) \
-                or not (np.isfinite(logits).all() and np.abs(logits).max() <= MAX_LOGIT):
-            raise InvalidArgumentError(f"ActiveTouchEnv: the prediction must be {len(self.class_names)} finite real logits "
-                                       f"within +-{MAX_LOGIT:g}, got shape {logits.shape}, dtype {logits.dtype}")
-        return super().step(action)
+        problem = f"the prediction must be {len(self.class_names)} finite real logits within +-{MAX_LOGIT:g}"
+        try:
+            logits = np.asarray(action["prediction"])
+        except (TypeError, ValueError) as exc:  # a ragged list
+            raise InvalidArgumentError(f"ActiveTouchEnv: {problem} ({exc})") from None
+        # float64 for the checks and the loss: float16 logits of 6e4 overflowed its softmax to a reward of -inf
+        values = logits.astype(np.float64) if logits.dtype.kind in "fiu" else None
+        if values is None or values.shape != (len(self.class_names),) \
+                or not (np.isfinite(values).all() and np.abs(values).max() <= MAX_LOGIT):
+            raise InvalidArgumentError(f"ActiveTouchEnv: {problem}, got shape {logits.shape}, dtype {logits.dtype}")
+        return super().step({**action, "prediction": values})
 
     def _step(self, action, prediction):
         if self._true is None:
             raise gym.error.ResetNeeded("ActiveTouchEnv: call reset() before step()")
         if self._step_count >= self.step_limit:
             raise gym.error.ResetNeeded("ActiveTouchEnv: the episode has ended; call reset()")
-        raw = np.asarray(action)
+        try:
+            raw = np.asarray(action)
+        except (TypeError, ValueError):  # a ragged list
+            raw = np.asarray(None)
         if raw.dtype.kind not in "fiu" or raw.size != 3:
             raise InvalidArgumentError(f"ActiveTouchEnv: the action must be a real 3-vector (a plane normal), got "
                                        f"{action!r}")
@@ -203,8 +211,10 @@ class ActiveTouchEnv(ap_gym.ActiveClassificationEnv):
         if not np.isfinite(normal).all():
             raise InvalidArgumentError(f"ActiveTouchEnv: the action must be a finite 3-vector, got {action!r}")
         largest = np.abs(normal).max()
-        normal = normal / largest if largest > 0 else normal  # no overflow in the norm below
-        if largest < 1e-6:
+        # the length as the largest component times the norm of the scaled vector: no overflow for 1e300
+        length = largest * np.linalg.norm(normal / largest) if largest > 0 else 0.0
+        normal = normal / largest if largest > 0 else normal
+        if length < 1e-6:
             normal = np.array([0.0, 0.0, 1.0])
         plane = Plane(self.visual_model.center, normal)
         seed = touch_seed(self._episode_seed, self._step_count)

@@ -35,7 +35,12 @@ def _objects(args: argparse.Namespace) -> list:
         objects = folder_objects(args.data, classes=args.classes, per_class=args.objects_per_class)
     if not args.captures:
         return objects
+    from perception.limits import check_count
     from tactile.captures import training_specs
+
+    # before a spec is built: 10**8 captures would fill the memory first
+    check_count("objects", len(objects) * (1 + args.captures), f"--captures {args.captures}: the objects with their "
+                                                                 "captures")
 
     return training_specs(objects, "both", captures_per_object=args.captures)
 

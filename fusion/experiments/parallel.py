@@ -38,6 +38,7 @@ from fusion.experiments.models import Factory, Predictions, cached_predictions, 
 from fusion.modelfile import SUFFIX
 from perception.errors import InvalidArgumentError, WorkerError
 from perception.runtime import (
+    Stopped,
     exit_with,
     limit_cores,
     progress_bar,
@@ -303,6 +304,8 @@ def _outcome(job):
         return job.run()
     except Exception as exc:  # noqa: BLE001 -- handed to the caller, which decides
         return exc
+    except Stopped:  # the worker was told to stop: not the job's outcome
+        raise
     except SystemExit as exc:  # a job that exits must not end the caller's process (nor, from a worker, its run)
         return RuntimeError(f"{job}: it called sys.exit({exc.code!r})")
 
@@ -336,6 +339,10 @@ def _run_in_worker(job):
         # idle timeout (300 s) when it stops
         with joblib.parallel_config(backend="threading"):
             return _travelling(_outcome(job))
+    except Stopped as exc:
+        # The job has unwound (a file it was saving removed). Leave now: the pool's loop would catch the SystemExit,
+        # report it and hand this worker the next queued job.
+        os._exit(exc.code)
     finally:
         _last_read.clear()  # an idle worker holds no data
 
@@ -442,6 +449,7 @@ STOP_GRACE_S = 2.0
 def _kill(pool: ProcessPoolExecutor) -> None:
     """Stop ``pool``'s workers now: SIGTERM (each unwinds), SIGKILL for those not gone within :data:`STOP_GRACE_S`."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)  # no queued job starts while they stop
     for process in processes:
         process.terminate()
     deadline = time.monotonic() + STOP_GRACE_S
@@ -449,7 +457,6 @@ def _kill(pool: ProcessPoolExecutor) -> None:
         process.join(timeout=max(deadline - time.monotonic(), 0.0))
         if process.is_alive():
             process.kill()
-    pool.shutdown(wait=False, cancel_futures=True)
 
 
 __all__ = ["FIT_COST", "FitTask", "StoreRows", "fit_cost", "raise_failures", "run_jobs", "run_tasks", "shared_workers"]

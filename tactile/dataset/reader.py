@@ -99,20 +99,32 @@ def check_disjoint_splits(object_ids, train, test, what: str, mesh_ids=None, by_
 MAX_MADE_FROM = 16
 
 
-def _made_of(obj: dict) -> str:
+def _made_of(obj: dict, where: str) -> str:
     """The id :meth:`TactileDataset.mesh_ids` gives the object described by ``obj`` (a store's settings entry): that
-    of the object at the end of its ``made_from`` links (at most :data:`MAX_MADE_FROM`), by file content, catalogue
-    pair or name."""
+    of the object at the end of its ``made_from`` links, by file content (a regular file of at most the ``file_mb``
+    limit, else its path), catalogue pair or name.
+
+    Raises:
+        DatasetError: more than :data:`MAX_MADE_FROM` links (``where`` names the store).
+    """
     import hashlib
 
-    for _ in range(MAX_MADE_FROM):
+    from perception.limits import limit
+    from perception.untrusted import open_regular
+
+    start = obj
+    for _ in range(MAX_MADE_FROM + 1):
         if not isinstance(obj.get("made_from"), dict):
             break
         obj = obj["made_from"]
+    else:
+        raise DatasetError(f"{where}: object {str(start.get('name'))[:80]!r} is made from a chain of more than "
+                           f"{MAX_MADE_FROM} objects")
     if isinstance(obj.get("path"), str):
-        try:
-            return "sha256:" + hashlib.sha256(Path(obj["path"]).read_bytes()).hexdigest()
-        except OSError:
+        try:  # a store's paths are untrusted: no FIFO that blocks, no endless device
+            with open_regular(obj["path"], limit("file_mb") << 20) as f:
+                return "sha256:" + hashlib.file_digest(f, "sha256").hexdigest()
+        except (OSError, ValueError):
             return "path:" + obj["path"]
     if isinstance(obj.get("catalogue"), list):
         return "catalogue:" + "/".join(map(str, obj["catalogue"]))
@@ -366,7 +378,8 @@ class TactileDataset:
         it), which splits by object keep on the side of what it was made from."""
         if getattr(self, "_mesh_ids", None) is None:
             objects = self._settings["objects"]
-            self._mesh_ids = np.asarray([_made_of(objects[int(i)]) for i in self._store_objects], dtype=object)
+            self._mesh_ids = np.asarray([_made_of(objects[int(i)], str(self.path)) for i in self._store_objects],
+                                        dtype=object)
         return self._mesh_ids
 
     def indices(self, strategy: str | None = None) -> np.ndarray:

@@ -83,14 +83,15 @@ def test_bad_settings(kwargs, match):
 
 
 @pytest.mark.parametrize("prediction", [[np.nan, 0.0], [np.inf, np.inf], [3e38, -3e38], [0.0, 0.0, 0.0], [0.0],
-                                        ["a", "b"], [1 + 2j, 0]])
+                                        ["a", "b"], [1 + 2j, 0], [[0.0], 0.0]])
 def test_predictions_that_would_make_the_reward_not_finite_are_refused(prediction):
     """NaN / Inf logits gave a NaN reward, float32 logits of +-3e38 a reward of -inf (the loss's softmax
     overflows), three logits in a two-class env a reward as if all were fine."""
     env = ActiveTouchEnv(**SMALL)
     env.reset(seed=0)
     with pytest.raises(InvalidArgumentError, match="the prediction must be 2 finite real logits"):
-        env.step({"action": np.ones(3), "prediction": np.asarray(prediction)})
+        env.step({"action": np.ones(3), "prediction": prediction if isinstance(prediction[0], list)
+                  else np.asarray(prediction)})
     _, reward, *_ = env.step({"action": np.ones(3), "prediction": np.array([1e30, -1e30])})  # the largest allowed
     assert np.isfinite(reward)
 
@@ -98,7 +99,7 @@ def test_predictions_that_would_make_the_reward_not_finite_are_refused(predictio
 @pytest.mark.parametrize("action, match", [
     (np.ones(4), "real 3-vector"), (np.float64(1.0), "real 3-vector"), (None, "real 3-vector"), ("abc", "real 3-vector"),
     ({"x": 1}, "real 3-vector"), (np.array([1 + 1j, 0, 0]), "real 3-vector"), (np.array(["1", "2", "3"]), "real 3-vector"),
-    (np.array([np.nan, 0, 0]), "finite 3-vector"),
+    (np.array([np.nan, 0, 0]), "finite 3-vector"), ([[1.0], 2.0, 3.0], "real 3-vector"),
 ])
 def test_bad_actions_name_the_problem(action, match):
     env = ActiveTouchEnv(**SMALL)
@@ -107,6 +108,25 @@ def test_bad_actions_name_the_problem(action, match):
         env.step({"action": action, "prediction": np.zeros(2)})
     with pytest.raises(InvalidArgumentError, match="step takes"):
         env.step({"action": np.ones(3)})
+
+
+def test_float16_logits_give_a_finite_reward():
+    """float16 logits of +-6e4 pass every bound, but the loss's softmax overflowed in float16: a reward of -inf."""
+    env = ActiveTouchEnv(**SMALL)
+    env.reset(seed=0)
+    for logits in ([60000.0, -60000.0], [-60000.0, 60000.0]):
+        _, reward, *_ = env.step({"action": np.ones(3), "prediction": np.array(logits, np.float16)})
+        assert np.isfinite(reward)
+
+
+def test_a_short_normal_means_up_by_its_length():
+    """Shorter than 1e-6 (its length, not its largest component): the plane normal to +z."""
+    env = ActiveTouchEnv(**SMALL)
+    env.reset(seed=0)
+    short, _, *_ = env.step({"action": np.full(3, 5e-7), "prediction": np.zeros(2)})  # length 8.7e-7
+    long, _, *_ = env.step({"action": np.full(3, 8e-7), "prediction": np.zeros(2)})  # length 1.4e-6
+    np.testing.assert_array_equal(short["plane_normal"], [0, 0, 1])
+    np.testing.assert_allclose(long["plane_normal"], np.full(3, 1 / np.sqrt(3)), rtol=1e-6)
 
 
 def test_a_huge_normal_touches_the_plane_of_its_direction():

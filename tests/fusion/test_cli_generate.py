@@ -64,6 +64,8 @@ def test_folder_generation_picks_classes_and_objects_per_class(tmp_path, capsys)
         (["--catalogue", "1", "--classes", "teapot"], "unknown catalogue classes ['teapot']"),
         (["--catalogue", "0"], "argument --catalogue: must be a positive integer"),
         (["--data", "NOWHERE"], "not a folder"),
+        (["--catalogue", "1", "--classes", "box", "--captures", "100000000"],
+         "--captures 100000000: the objects with their captures: 100000001 is above the limit of 100000 objects"),
     ],
 )
 def test_bad_sources_exit_2_with_one_line(tmp_path, capsys, argv, message):

@@ -436,7 +436,8 @@ class SlowWriter:
 @two_cores
 def test_an_interrupt_stops_the_workers_and_they_remove_what_they_were_writing(tmp_path):
     """Ctrl-C in the caller: its workers were SIGKILLed where they stood (a file half saved left behind, semaphores
-    leaked); now they unwind within the grace period, removing their temporary files."""
+    leaked); now they unwind within the grace period, removing their temporary files, and start none of the jobs
+    still queued (a worker that caught its SystemExit took the next job and was killed writing it)."""
     script = textwrap.dedent(f"""
         import os, signal, threading, time
         from pathlib import Path
@@ -454,9 +455,10 @@ def test_an_interrupt_stops_the_workers_and_they_remove_what_they_were_writing(t
         threading.Thread(target=interrupt, daemon=True).start()
         start = time.monotonic()
         try:
-            run_jobs([SlowWriter(folder, "a"), SlowWriter(folder, "b")], workers=2, progress=False)
+            run_jobs([SlowWriter(folder, tag) for tag in "abcd"], workers=2, progress=False)
         except KeyboardInterrupt:
             print("interrupted after", time.monotonic() - start)
+        print("started", sorted(p.name for p in Path(folder).glob("started-*")))
     """)
     root = Path(__file__).resolve().parents[2]
     run = subprocess.run([sys.executable, "-c", script], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
@@ -469,3 +471,5 @@ def test_an_interrupt_stops_the_workers_and_they_remove_what_they_were_writing(t
         time.sleep(0.05)
     assert not any(map(alive, pids))
     assert list((tmp_path / "out").iterdir()) == []
+    assert "started ['started-a', 'started-b']" in run.stdout, run.stdout
+    assert float(run.stdout.split("interrupted after")[1].split()[0]) < 30  # not the 60 s the jobs would take

@@ -317,3 +317,29 @@ class TestSplitsKeepCapturesWithTheirObjects:
                     fold_of[int(obj)], turn = turn % 3, turn + 1
             for f, (_, test) in enumerate(ds.kfold_by_object(3, seed=seed)):
                 assert sorted({int(o) for o in ds.object_ids[test]}) == sorted(o for o, g in fold_of.items() if g == f)
+
+
+def test_made_from_in_untrusted_settings(tmp_path):
+    """What a store's settings say an object is made from is untrusted: a chain longer than MAX_MADE_FROM is refused,
+    a FIFO or a device is not read (it would block or never end), a path with a NUL byte is only a name; a nested
+    file is read by content, as a top-level one."""
+    import hashlib
+    import os
+
+    from tactile.dataset.reader import MAX_MADE_FROM, _made_of
+
+    mesh = tmp_path / "m.off"
+    mesh.write_text("OFF\n")
+    root = {"name": "m", "path": str(mesh)}
+    chain = root
+    for i in range(MAX_MADE_FROM):
+        chain = {"name": f"c{i}", "made_from": chain}
+    assert _made_of(chain, "s") == "sha256:" + hashlib.sha256(b"OFF\n").hexdigest()
+    with pytest.raises(DatasetError, match=f"s: object 'x' is made from a chain of more than {MAX_MADE_FROM}"):
+        _made_of({"name": "x", "made_from": chain}, "s")
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    for path in (str(fifo), "/dev/zero", "a\x00b"):
+        assert _made_of({"name": "c", "made_from": {"name": "m", "path": path}}, "s") == "path:" + path
+    assert _made_of({"name": "c", "made_from": ["not", "a", "dict"], "catalogue": ["mug", 1]}, "s") == \
+        "catalogue:mug/1"
