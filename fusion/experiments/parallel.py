@@ -341,7 +341,13 @@ def _run_in_worker(job):
             return _travelling(_outcome(job))
     except Stopped as exc:
         # The job has unwound (a file it was saving removed). Leave now: the pool's loop would catch the SystemExit,
-        # report it and hand this worker the next queued job.
+        # report it and hand this worker the next queued job. multiprocessing's exit finalizers first (what a normal
+        # exit of the process runs; private, hence guarded): semaphores a job made are released, not reported leaked.
+        from multiprocessing import util
+
+        with contextlib.suppress(Exception):
+            util._run_finalizers(0)
+            util._run_finalizers()
         os._exit(exc.code)
     finally:
         _last_read.clear()  # an idle worker holds no data

@@ -97,19 +97,22 @@ def check_disjoint_splits(object_ids, train, test, what: str, mesh_ids=None, by_
 
 #: How many ``made_from`` links :func:`_made_of` follows (a store's settings are untrusted: no unbounded walk).
 MAX_MADE_FROM = 16
+#: Mesh files up to this size are told apart by content, larger ones by path: a constant, not the ``file_mb`` limit,
+#: so that which objects count as one (and so the folds) does not depend on a reader's environment.
+MAX_HASHED_BYTES = 1 << 30
 
 
-def _made_of(obj: dict, where: str) -> str:
+def _made_of(obj: dict, where: str, digests: dict | None = None) -> str:
     """The id :meth:`TactileDataset.mesh_ids` gives the object described by ``obj`` (a store's settings entry): that
-    of the object at the end of its ``made_from`` links, by file content (a regular file of at most the ``file_mb``
-    limit, else its path), catalogue pair or name.
+    of the object at the end of its ``made_from`` links, by file content (a regular file of at most
+    :data:`MAX_HASHED_BYTES`, else its path), catalogue pair or name. ``digests``: ids already found, by path (an
+    object and its captures read their file once).
 
     Raises:
         DatasetError: more than :data:`MAX_MADE_FROM` links (``where`` names the store).
     """
     import hashlib
 
-    from perception.limits import limit
     from perception.untrusted import open_regular
 
     start = obj
@@ -121,11 +124,17 @@ def _made_of(obj: dict, where: str) -> str:
         raise DatasetError(f"{where}: object {str(start.get('name'))[:80]!r} is made from a chain of more than "
                            f"{MAX_MADE_FROM} objects")
     if isinstance(obj.get("path"), str):
+        path = obj["path"]
+        if digests is not None and path in digests:
+            return digests[path]
         try:  # a store's paths are untrusted: no FIFO that blocks, no endless device
-            with open_regular(obj["path"], limit("file_mb") << 20) as f:
-                return "sha256:" + hashlib.file_digest(f, "sha256").hexdigest()
+            with open_regular(path, MAX_HASHED_BYTES) as f:
+                found = "sha256:" + hashlib.file_digest(f, "sha256").hexdigest()
         except (OSError, ValueError):
-            return "path:" + obj["path"]
+            found = "path:" + path
+        if digests is not None:
+            digests[path] = found
+        return found
     if isinstance(obj.get("catalogue"), list):
         return "catalogue:" + "/".join(map(str, obj["catalogue"]))
     return "name:" + str(obj.get("name"))
@@ -378,8 +387,9 @@ class TactileDataset:
         it), which splits by object keep on the side of what it was made from."""
         if getattr(self, "_mesh_ids", None) is None:
             objects = self._settings["objects"]
-            self._mesh_ids = np.asarray([_made_of(objects[int(i)], str(self.path)) for i in self._store_objects],
-                                        dtype=object)
+            digests: dict[str, str] = {}
+            self._mesh_ids = np.asarray([_made_of(objects[int(i)], str(self.path), digests)
+                                         for i in self._store_objects], dtype=object)
         return self._mesh_ids
 
     def indices(self, strategy: str | None = None) -> np.ndarray:

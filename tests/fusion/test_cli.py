@@ -95,3 +95,22 @@ class TestBenchmarksPackaging:
         assert main(["bench", "geometry"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "checkout" in err[0] and "python -m benchmarks.NAME" in err[0]
+
+
+def test_the_callers_sigterm_handler_is_set_back():
+    """main() turns SIGTERM into an unwinding exception while a command runs; a program calling it gets its own
+    handler back whatever the outcome."""
+    import signal
+
+    def mine(signum, frame):
+        pass
+
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        assert main(["generate", "--catalogue", "1", "--classes", "teapot", "--out", "x"]) == 2
+        assert signal.getsignal(signal.SIGTERM) is mine
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        assert main(["generate", "--catalogue", "1", "--classes", "teapot", "--out", "x"]) == 2
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    finally:
+        signal.signal(signal.SIGTERM, previous)

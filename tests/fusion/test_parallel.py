@@ -415,7 +415,8 @@ def test_the_noise_part_predicts_on_every_core():
 
 
 class SlowWriter:
-    """A job that writes a large file slowly through atomic_path, as a worker saves a model (marks when it starts)."""
+    """A job that holds a semaphore and writes a large file slowly through atomic_path, as a worker saves a model
+    (marks when it starts)."""
 
     def __init__(self, folder: str, tag: str):
         self.folder, self.tag = folder, tag
@@ -424,8 +425,12 @@ class SlowWriter:
         return 1.0
 
     def run(self):
+        import multiprocessing
+
         from perception.atomic import atomic_path
 
+        # a semaphore of its own, as a library's queue or lock holds one: released when the worker stops
+        self.lock = multiprocessing.get_context("forkserver").Lock()
         with atomic_path(Path(self.folder, "out", f"{self.tag}.bin")) as tmp, open(tmp, "wb") as f:
             Path(self.folder, f"started-{self.tag}").write_text(str(os.getpid()))
             for _ in range(6000):
@@ -436,8 +441,9 @@ class SlowWriter:
 @two_cores
 def test_an_interrupt_stops_the_workers_and_they_remove_what_they_were_writing(tmp_path):
     """Ctrl-C in the caller: its workers were SIGKILLed where they stood (a file half saved left behind, semaphores
-    leaked); now they unwind within the grace period, removing their temporary files, and start none of the jobs
-    still queued (a worker that caught its SystemExit took the next job and was killed writing it)."""
+    leaked); now they unwind within the grace period, removing their temporary files and releasing their semaphores,
+    and start none of the jobs still queued (a worker that caught its SystemExit took the next job and was killed
+    writing it)."""
     script = textwrap.dedent(f"""
         import os, signal, threading, time
         from pathlib import Path

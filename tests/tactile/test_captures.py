@@ -343,3 +343,25 @@ def test_made_from_in_untrusted_settings(tmp_path):
         assert _made_of({"name": "c", "made_from": {"name": "m", "path": path}}, "s") == "path:" + path
     assert _made_of({"name": "c", "made_from": ["not", "a", "dict"], "catalogue": ["mug", 1]}, "s") == \
         "catalogue:mug/1"
+
+
+def test_files_are_told_apart_by_content_up_to_a_fixed_size(tmp_path, monkeypatch):
+    """Copies of one file are one object up to MAX_HASHED_BYTES (a constant: the file_mb limit of the reader's
+    environment does not change the groups); beyond it each path is its own; each file is read once per call."""
+    import hashlib
+
+    from tactile.dataset import reader
+
+    small, copy, big = tmp_path / "a.off", tmp_path / "b.off", tmp_path / "c.off"
+    small.write_bytes(b"x" * 10)
+    copy.write_bytes(b"x" * 10)
+    big.write_bytes(b"x" * 11)
+    monkeypatch.setattr(reader, "MAX_HASHED_BYTES", 10)
+    monkeypatch.setenv("VISUOTACTILE_MAX_FILE_MB", "0")
+    digest = "sha256:" + hashlib.sha256(b"x" * 10).hexdigest()
+    assert [reader._made_of({"name": n, "path": str(p)}, "s") for n, p in (("a", small), ("b", copy), ("c", big))] \
+        == [digest, digest, f"path:{big}"]
+    seen = {}
+    reader._made_of({"name": "a", "path": str(small)}, "s", seen)
+    small.write_bytes(b"y" * 10)  # not read again within one call
+    assert reader._made_of({"name": "a@capture", "made_from": {"name": "a", "path": str(small)}}, "s", seen) == digest

@@ -271,7 +271,7 @@ def test_stale_temporaries_are_the_names_atomic_path_gives(tmp_path):
 
     (tmp_path / "c" / "0").mkdir(parents=True)
     for name in (".keep", ".0.notahex", "0.abcd1234", ".3.json.0123abcd.txt", ".backup.1", ".notes.cafebab",
-                 ".notes.123456789"):  # not atomic_path's: it names 8 hex digits and keeps the suffix
+                 ".notes.123456789", ".notes.CAFEBABE"):  # not atomic_path's: it names 8 hex digits and keeps the suffix
         (tmp_path / "c" / name).write_text("x")
     for target in (tmp_path / "c" / "0" / "0", tmp_path / "records" / "3.json", tmp_path / "zarr.json"):
         with atomic_path(target) as tmp:
