@@ -45,8 +45,8 @@ ENV_ID = "visuotactile/ActiveTouch-v0"
 DEFAULT_OBJECTS = tuple((c, s) for c in ("bottle", "bowl", "box", "mug") for s in (0, 1))
 
 
-#: Largest |logit| a prediction may hold: the loss's softmax works in float32, where differences of larger logits
-#: overflow (a reward of -inf or NaN).
+#: Largest |logit| a prediction may hold: the loss (scored here in float64) then stays finite; a float32 softmax
+#: overflowed on differences of 3e38 (a reward of -inf or NaN).
 MAX_LOGIT = 1e30
 
 
