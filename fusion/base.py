@@ -48,7 +48,7 @@ READOUT_SETTINGS = ("noise_std", "dead_taxel_rate")
 BASE_FITTED = ("classes_", "sensor_spec_", "n_probes_", "grid_", "training_")
 #: Attributes never saved, so that the same model saves the same bytes: what a loaded model carries about its file,
 #: and how long this process took to fit it (a CNN's ``epoch_seconds_``).
-FILE_ATTRIBUTES = ("_source_file", "epoch_seconds_")
+UNSAVED_ATTRIBUTES = ("_source_file", "epoch_seconds_")
 #: The toolkit's classifiers by the class name a model file gives, and the module that defines each (imported
 #: on demand: a model file can name only classes defined in the running process or listed here).
 KNOWN_CLASSES = {"fusion.cnn.CNNClassifier": "fusion.cnn",
@@ -376,7 +376,7 @@ class TactileClassifier(ClassifierMixin, BaseEstimator):
         """
         params = set(self.get_params(deep=False))
         fitted = {k: v for k, v in vars(self).items()
-                  if k not in params and k not in BASE_FITTED and k not in FILE_ATTRIBUTES and k not in exclude}
+                  if k not in params and k not in BASE_FITTED and k not in UNSAVED_ATTRIBUTES and k not in exclude}
         odd = [k for k in fitted if not is_fitted_name(k)]
         if odd:
             raise TypeError(f"attributes {odd} are neither parameters nor fitted attributes (name_)")

@@ -663,7 +663,7 @@ class CNNClassifier(TactileClassifier):
             InvalidArgumentError: not one fitted model of each modality (with its net and its history), other
             parameters, or fitted on other data (classes, sensor, training sequences or input statistics differ).
         """
-        from fusion.base import FILE_ATTRIBUTES
+        from fusion.base import UNSAVED_ATTRIBUTES
 
         models = {"cutaneous": cutaneous, "kinesthetic": kinesthetic}
         kinds = {"cutaneous": CutaneousNet, "kinesthetic": KinestheticNet}
@@ -676,7 +676,7 @@ class CNNClassifier(TactileClassifier):
         params = {**cutaneous.get_params(deep=False), "modality": "fusion"}
         if {**kinesthetic.get_params(deep=False), "modality": "fusion"} != params:
             raise InvalidArgumentError("CNNClassifier.from_nets: the two models were made with other parameters")
-        own = {"history_", "cutaneous_net_", "kinesthetic_net_", *FILE_ATTRIBUTES, *params}
+        own = {"history_", "cutaneous_net_", "kinesthetic_net_", *UNSAVED_ATTRIBUTES, *params}
         shared = [k for k in vars(cutaneous) if k not in own]
         differ = [k for k in shared if not _same_value(vars(cutaneous)[k], vars(kinesthetic).get(k))]
         if differ or set(shared) != {k for k in vars(kinesthetic) if k not in own}:

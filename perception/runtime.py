@@ -143,6 +143,10 @@ def libc():
 MAX_PID = 2**31 - 1
 
 
+#: Seconds a worker told to stop (SIGTERM) has to unwind before it is killed: generate's and reproduce's alike.
+STOP_GRACE_S = 2.0
+
+
 def stop_as_told() -> None:
     """Signal set-up of a worker process: ignore SIGINT (its parent decides what an interrupt stops), and leave on
     SIGTERM through SystemExit, which no ``except Exception`` catches, so that every ``finally`` runs on the way (a
@@ -333,6 +337,6 @@ def _log_bar_class():
     return LogBar
 
 
-__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "checkout_root", "child_pids", "descendant_handles", "kill_handles", "limit_cores",
-           "machine", "machine_line", "package_version", "progress_bar", "progress_enabled", "set_progress",
-           "usable_cores", "versions", "without_main_module"]
+__all__ = ["DISTRIBUTION", "PROGRESS_ENV", "STOP_GRACE_S", "Stopped", "checkout_root", "child_pids", "descendant_handles",
+           "exit_with", "kill_handles", "limit_cores", "machine", "machine_line", "package_version", "progress_bar",
+           "progress_enabled", "set_progress", "stop_as_told", "usable_cores", "versions", "without_main_module"]

@@ -175,6 +175,18 @@ def resting_rotation(model: ObjectModel, seed: int | np.random.Generator) -> np.
     return (turn * align).as_matrix()
 
 
+def _vertical_turn(turn_deg, where: str) -> np.ndarray:
+    """(3, 3) rotation by ``turn_deg`` degrees about +z (the table's vertical).
+
+    Raises:
+        InvalidArgumentError: a turn that is not a finite number (``where`` names the caller).
+    """
+    if isinstance(turn_deg, bool) or not isinstance(turn_deg, (int, float, np.number)) or not np.isfinite(turn_deg):
+        raise InvalidArgumentError(f"{where}: turn_deg must be a finite number, got {turn_deg!r}")
+    a = np.radians(float(turn_deg))
+    return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
 def catalogue_capture(
     class_name: str, seed: int, *, views: int = 4, distance_mm: float = 500.0, size_mm: float = DEFAULT_SIZE_MM,
     turn_deg: float = 0.0, camera_seed: int | None = None,
@@ -192,12 +204,10 @@ def catalogue_capture(
     from perception.shapes import make_object
 
     _check(views, distance_mm, size_mm)
-    if isinstance(turn_deg, bool) or not isinstance(turn_deg, (int, float, np.number)) or not np.isfinite(turn_deg):
-        raise InvalidArgumentError(f"catalogue_capture: turn_deg must be a finite number, got {turn_deg!r}")
+    turn = _vertical_turn(turn_deg, "catalogue_capture")
     model = make_object(class_name, seed)
     if turn_deg:
-        a = np.radians(float(turn_deg))
-        model = rotate(model, np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]]))
+        model = rotate(model, turn)
     camera_seed = seed if camera_seed is None else camera_seed
     return virtual_capture(model, views=views, distance_mm=distance_mm, size_mm=size_mm, seed=camera_seed).model
 
@@ -222,12 +232,9 @@ def object_capture(spec, *, views: int = 4, distance_mm: float = 500.0, size_mm:
     from perception.geometry import rotate
 
     _check(views, distance_mm, size_mm)
-    if isinstance(turn_deg, bool) or not isinstance(turn_deg, (int, float, np.number)) or not np.isfinite(turn_deg):
-        raise InvalidArgumentError(f"object_capture: turn_deg must be a finite number, got {turn_deg!r}")
+    turn = _vertical_turn(turn_deg, "object_capture")
     camera_seed = _capture_seed(spec.name) if camera_seed is None else int(camera_seed)
     model = spec.load()
-    a = np.radians(float(turn_deg))
-    turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
     model = rotate(model, turn @ resting_rotation(model, camera_seed))
     return virtual_capture(model, views=views, distance_mm=distance_mm, size_mm=size_mm, seed=camera_seed).model
 

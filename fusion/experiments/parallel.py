@@ -38,6 +38,7 @@ from fusion.experiments.models import Factory, Predictions, cached_predictions, 
 from fusion.modelfile import SUFFIX
 from perception.errors import InvalidArgumentError, WorkerError
 from perception.runtime import (
+    STOP_GRACE_S,
     Stopped,
     exit_with,
     limit_cores,
@@ -446,10 +447,6 @@ def _run_pool(jobs: list, order: list[int], workers: int, cores: int, done: dict
     else:
         pool.shutdown()
     return [i for i in order if i not in done]
-
-
-#: Seconds stopped workers have to unwind (a model file half saved removed) before they are killed.
-STOP_GRACE_S = 2.0
 
 
 def _kill(pool: ProcessPoolExecutor) -> None:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from perception.errors import DatasetError, InvalidArgumentError
 from perception.runtime import (
+    STOP_GRACE_S,
     descendant_handles,
     exit_with,
     kill_handles,
@@ -54,8 +55,6 @@ from tactile.sensor import FSRSensor
 log = logging.getLogger(__name__)
 
 EXECUTORS = ("local", "ray")
-#: Seconds a worker asked to stop has to exit by itself before it is killed.
-STOP_GRACE_S = 2.0
 #: Messages of an overdue worker read before its timeout is enforced (its object may have finished meanwhile).
 MAX_WAITING_MESSAGES = 1000
 #: What the workers' forkserver imports before it forks them, with Ctrl-C held off meanwhile (the guards).
@@ -423,7 +422,8 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
     def stop(*ending: _Running, dead: bool = False) -> None:
         """End the ``ending`` workers together, each so that its clean-up runs (a SIGKILL leaves half-written temporary
         chunk files, and the semaphores a library made for the resource tracker to warn about): an idle one is told to
-        exit, a busy one is sent SIGTERM (see :func:`perception.runtime.stop_as_told`); any not gone within ``STOP_GRACE_S`` is killed.
+        exit, a busy one is sent SIGTERM (see :func:`perception.runtime.stop_as_told`); any not gone within
+        ``STOP_GRACE_S`` is killed.
         ``dead``: workers whose pipe is closed, only reaped. The processes a worker's loader started go with it: listed
         before it is signalled (an orphan can no longer be traced to it), killed once it is gone."""
         started = [descendant_handles(worker.process.pid) for worker in ending]
