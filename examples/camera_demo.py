@@ -20,8 +20,9 @@ from tactile.sensor import FSRSensor
 mug = make_object("mug", seed=3)
 camera = VirtualOakCamera(mug, seed=0)  # OAK-D geometry (75 mm baseline, 640 x 400) and stereo noise
 frames = camera.capture_views(4, distance_mm=500.0)  # four RGB-D frames around the table, poses known
-folder = write_recording(tempfile.mkdtemp(prefix="camera_demo_"), frames)  # colour PNG, 16-bit depth PNG, JSON
-frames = read_recording(folder)  # ... replays without a device
+with tempfile.TemporaryDirectory(prefix="camera_demo_") as folder:
+    write_recording(folder, frames)  # colour PNG, 16-bit depth PNG, JSON
+    frames = read_recording(folder)  # ... replays without a device
 # Table removed, mug segmented, views fused, Poisson; closed where no camera saw it (the bottom on the table,
 # the inside below the sight lines) from the space the frames left uncarved.
 rec = reconstruct_frames(frames, target=camera.target)

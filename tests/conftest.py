@@ -1,7 +1,9 @@
-"""Shared fixtures: the real data folder (skipped, saying why, where absent)."""
+"""Shared fixtures: the real data folder (skipped, saying why, where absent), a folder for killed processes."""
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -43,3 +45,13 @@ def no_oak() -> None:
             pytest.skip("an OAK is connected")
     except DeviceNotFoundError:
         pass
+
+
+@pytest.fixture
+def killed_tmpdir():
+    """A short temporary folder to give a process the tests kill as its TMPDIR: what it leaves there (multiprocessing's
+    socket folder, which only a clean exit removes) goes with the test instead of piling up in /tmp. Short, because a
+    Unix socket's path is limited to 107 bytes."""
+    folder = tempfile.mkdtemp(prefix="vt-killed-")
+    yield folder
+    shutil.rmtree(folder, ignore_errors=True)

@@ -89,12 +89,14 @@ def test_bad_sources_are_one_line_errors(source, message, capsys):
 
 
 @pytest.mark.slow
-def test_camera_demo_example_runs(capsys, monkeypatch):
+def test_camera_demo_example_runs(capsys, monkeypatch, tmp_path):
     import runpy
     import sys
+    import tempfile
     from pathlib import Path
 
     monkeypatch.setattr(sys, "argv", ["camera_demo.py"])  # no model: everything up to the tactile batch
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     runpy.run_path(str(Path(__file__).resolve().parents[2] / "examples" / "camera_demo.py"), run_name="__main__")
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("reconstructed") and "mean error" in lines[0]
@@ -103,3 +105,4 @@ def test_camera_demo_example_runs(capsys, monkeypatch):
     seen = float(lines[0].split("where a camera looked: ")[1].split(" /")[0])
     assert seen < 1.0 and seen <= float(lines[0].split("mean error ")[1].split(" mm")[0])
     assert lines[1] == "(4, 25, 32, 32)"
+    assert not any(tmp_path.iterdir())  # its recording went with it (it was left in /tmp on every run)

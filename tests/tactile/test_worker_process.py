@@ -81,7 +81,7 @@ def test_a_worker_takes_the_processes_it_started_with_it():
             os.kill(pid, signal.SIGKILL)
 
 
-def test_generation_workers_die_when_generate_is_killed(tmp_path):
+def test_generation_workers_die_when_generate_is_killed(tmp_path, killed_tmpdir):
     """Killing ``generate``'s process ends its object workers at once, though their parent (the forkserver) waits
     for them: no orphan explores on and writes into the store."""
     script = textwrap.dedent(f"""
@@ -92,7 +92,9 @@ def test_generation_workers_die_when_generate_is_killed(tmp_path):
                  contours_per_object=20000, sensor=FSRSensor(rows=8, cols=8), probes=10, seed=0, workers=2,
                  progress=False)
     """)
-    caller = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    # its temporary files in a folder of the test's: a killed process cannot remove them
+    caller = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT,
+                              env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": killed_tmpdir})
     workers: list[int] = []
     try:
         deadline = time.monotonic() + 60
