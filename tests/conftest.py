@@ -1,4 +1,4 @@
-"""Shared fixtures: the real data folder (skipped, saying why, where absent), a folder for killed processes."""
+"""Shared fixtures: the real data folder (skipped, saying why, where absent), a TMPDIR for child processes."""
 
 from __future__ import annotations
 
@@ -48,10 +48,10 @@ def no_oak() -> None:
 
 
 @pytest.fixture
-def killed_tmpdir():
-    """A short temporary folder to give a process the tests kill as its TMPDIR: what it leaves there (multiprocessing's
-    socket folder, which only a clean exit removes) goes with the test instead of piling up in /tmp. Short, because a
-    Unix socket's path is limited to 107 bytes."""
-    folder = tempfile.mkdtemp(prefix="vt-killed-")
+def child_tmpdir():
+    """A short temporary folder to give a child process as its TMPDIR: what it leaves there (its own temporary
+    folders; multiprocessing's socket folder, which only a clean exit removes) goes with the test instead of piling
+    up in /tmp. Short, because a Unix socket's path is limited to 107 bytes."""
+    folder = tempfile.mkdtemp(prefix="vt-child-")
     yield folder
     shutil.rmtree(folder, ignore_errors=True)

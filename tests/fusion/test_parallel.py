@@ -286,7 +286,7 @@ def test_a_fit_that_kills_its_worker_is_a_worker_error_and_the_caller_lives(stor
 @two_cores
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a process asks to die with its parent on Linux")
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL])
-def test_the_workers_die_when_their_caller_is_killed(store, tmp_path, how, killed_tmpdir):
+def test_the_workers_die_when_their_caller_is_killed(store, tmp_path, how, child_tmpdir):
     """A caller terminated or killed mid-fit (the forkserver exits with it) leaves no worker training on."""
     path, train, test = store
     log = tmp_path / "fits.log"
@@ -308,7 +308,7 @@ def test_the_workers_die_when_their_caller_is_killed(store, tmp_path, how, kille
     root = Path(__file__).resolve().parents[2]
     # its temporary files in a folder of the test's: a killed process cannot remove them
     caller = subprocess.Popen([sys.executable, "-c", script], cwd=root,
-                              env={**os.environ, "PYTHONPATH": str(root), "TMPDIR": killed_tmpdir})
+                              env={**os.environ, "PYTHONPATH": str(root), "TMPDIR": child_tmpdir})
     started = Path(str(log) + ".start")
     deadline = time.monotonic() + 60
     while (not started.exists() or len(started.read_text().split()) < 2) and time.monotonic() < deadline:

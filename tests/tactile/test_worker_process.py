@@ -81,7 +81,7 @@ def test_a_worker_takes_the_processes_it_started_with_it():
             os.kill(pid, signal.SIGKILL)
 
 
-def test_generation_workers_die_when_generate_is_killed(tmp_path, killed_tmpdir):
+def test_generation_workers_die_when_generate_is_killed(tmp_path, child_tmpdir):
     """Killing ``generate``'s process ends its object workers at once, though their parent (the forkserver) waits
     for them: no orphan explores on and writes into the store."""
     script = textwrap.dedent(f"""
@@ -94,7 +94,7 @@ def test_generation_workers_die_when_generate_is_killed(tmp_path, killed_tmpdir)
     """)
     # its temporary files in a folder of the test's: a killed process cannot remove them
     caller = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT,
-                              env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": killed_tmpdir})
+                              env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": child_tmpdir})
     workers: list[int] = []
     try:
         deadline = time.monotonic() + 60
@@ -174,7 +174,7 @@ def test_the_generation_workers_preload_leaves_out_scipy_stats():
     assert run.stdout.split() == ["False", "True"]
 
 
-def test_generation_ends_its_workers_cleanly():
+def test_generation_ends_its_workers_cleanly(child_tmpdir):
     """Idle workers are asked to exit, not killed: a killed worker's clean-up does not run, and the resource tracker
     then warns the user of the semaphores it left behind."""
     script = textwrap.dedent("""
@@ -187,7 +187,7 @@ def test_generation_ends_its_workers_cleanly():
         print(report.completed)
     """)
     run = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True, cwd=ROOT,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+                         env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": child_tmpdir})
     assert run.stdout.split() == ["4"]
     assert "leaked" not in run.stderr and "resource_tracker" not in run.stderr, run.stderr
 
@@ -201,7 +201,7 @@ def box_then_wait_for_ever(folder: str):
         Path(folder, "unwound").touch()
 
 
-def test_an_interrupt_unwinds_the_busy_workers():
+def test_an_interrupt_unwinds_the_busy_workers(child_tmpdir):
     """Ctrl-C during generation: a worker busy with an object is sent SIGTERM and unwinds (its ``finally`` blocks run:
     a chunk file half written is removed), and its exit handlers release what it made for the resource tracker. A
     SIGKILL left both, and the tracker warned the user of leaked semaphores."""
@@ -229,7 +229,7 @@ def test_an_interrupt_unwinds_the_busy_workers():
             print("interrupted", Path(folder, "unwound").exists(), time.monotonic() - start < 60)
     """)
     run = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True, cwd=ROOT,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
+                         env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": child_tmpdir}, timeout=120)
     assert run.stdout.split() == ["interrupted", "True", "True"], run.stderr
     assert "leaked" not in run.stderr and "resource_tracker" not in run.stderr, run.stderr
 

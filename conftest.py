@@ -1,0 +1,12 @@
+"""Doctests write their temporary files into pytest's own folder, which pytest cleans up (the examples call
+``tempfile.mkdtemp()`` as a user would, and left a folder in /tmp on every run)."""
+
+import tempfile
+
+import pytest
+
+
+@pytest.fixture(autouse=True)
+def _doctest_tmpdir(request, tmp_path, monkeypatch):
+    if isinstance(request.node, pytest.DoctestItem):
+        monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
