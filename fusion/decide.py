@@ -23,7 +23,8 @@ def fuse_touches(proba: np.ndarray, rule: str = "log", dependence: float = 0.0) 
     ``dependence``: rho of the ``"tempered"`` rule (0: the log rule).
 
     Raises:
-        DatasetError: unknown rule, bad shape, or non-finite / negative probabilities.
+        InvalidArgumentError: unknown rule, or a bad ``dependence``.
+        DatasetError: bad shape, or non-finite / negative probabilities.
     """
     if rule not in RULES:
         raise InvalidArgumentError(f"unknown fusion rule {rule!r}; choose one of {', '.join(RULES)}")
