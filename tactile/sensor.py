@@ -353,9 +353,20 @@ class FSRSensor:
         except (TypeError, ValueError) as exc:
             raise SensorSpecError(f"{model.name}: the contours' probe poses do not stack into (N, 3): {exc}") from exc
         gaps, sides = self._adapted_gaps(model, *stacked, adaptive)
+        self._warn_if_nothing_touched(model, gaps)
         ends = np.cumsum(counts)[:-1]
         return [(self._read(g, np.random.default_rng(seed)), side)
                 for g, side, seed in zip(np.split(gaps, ends), np.split(sides, ends), seeds)]
+
+    def _warn_if_nothing_touched(self, model: ObjectModel, gaps: np.ndarray) -> None:
+        """Warn when pads met no surface at all (every taxel at the range): the frames say nothing of the object.
+        Objects at the trained size never do this (none of 3,000 presses on ten thin SHREC objects); one much
+        smaller than the pad (a mesh in metres loaded without rescaling) does it silently otherwise."""
+        missed = int((gaps.reshape(len(gaps), -1).min(axis=1) >= self.range_mm).sum())
+        if missed:
+            log.warning("%s: %d of %d presses touched nothing (every taxel at the %g mm range): the object is %.3g mm "
+                        "across, the pad %g mm of %d x %d taxels; rescale it (load_object(..., size_mm=...))",
+                        model.name, missed, len(gaps), self.range_mm, model.size, self.side_mm, self.rows, self.cols)
 
     def reread(self, clean_frames, seed: int | np.random.Generator | None = None) -> np.ndarray:
         """The frames this sensor reads where a noise-free gap-mode sensor of the same grid and range read

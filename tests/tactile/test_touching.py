@@ -236,3 +236,26 @@ def test_reread_refuses_what_is_not_a_clean_gap_reading():
             sensor.reread(broken, 1)
     with pytest.raises(SensorSpecError):
         sensor.reread(frames, -3)
+
+
+def test_a_touch_that_meets_nothing_is_warned_about(caplog):
+    """A mug 0.5 mm across (a mesh in metres loaded without rescaling) under a 20 mm pad: no ray meets it, every frame
+    reads the range, and the user is told why instead of getting blank frames in silence."""
+    import logging
+
+    from perception.geometry import rescale
+    from perception.shapes import make_object
+    from tactile import touch
+
+    tiny = rescale(make_object("mug", seed=3), size_mm=0.5, name="tiny mug")
+    with caplog.at_level(logging.WARNING, logger="tactile.sensor"):
+        sequences = touch(tiny, "blind", 2, probes=5, seed=0)
+    assert all((s.frames == 10.0).all() for s in sequences)
+    (record,) = [r for r in caplog.records if "touched nothing" in r.getMessage()]
+    assert record.getMessage().startswith("tiny mug: 10 of 10 presses touched nothing") and "0.5 mm across" in \
+        record.getMessage()
+
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="tactile.sensor"):
+        touch(make_object("mug", seed=3), "blind", 2, probes=5, seed=0)
+    assert not [r for r in caplog.records if "touched nothing" in r.getMessage()]
