@@ -4,21 +4,30 @@ Every chunk file of an object's rows must exist and pass its checksum, and each 
 digest in the object's completion record (:func:`tactile.dataset.verify_store`). Exit code 0 when nothing is
 damaged, 1 when some objects are (they are listed; re-running ``generate`` with the store's command explores
 exactly them again), 2 when STORE is not a readable store.
+
+``--rerun N`` also explores N of its objects again from the store's settings and compares the bytes
+(:func:`tactile.dataset.rerun_objects`): rows edited or forged together with their checksums, or a store that this
+version of the code would not make, are told apart from the real thing. Exit code 1 when one differs.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from fusion.commands import print_json
+from fusion.commands import positive_int, print_json
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from tactile.dataset import verify_store
 
     report = verify_store(args.store)
+    rerun = None
+    if args.rerun:
+        from tactile.dataset import rerun_objects
+
+        rerun = rerun_objects(args.store, args.rerun, seed=args.seed, data=args.data, progress=not args.json)
     if args.json:
-        print_json(report.to_dict())
+        print_json(report.to_dict() | ({"rerun": rerun.to_dict()} if rerun else {}))
     else:
         state = "intact" if report.ok else f"{len(report.damaged)} damaged"
         print(f"{report.path}: {report.checked} complete objects checked in {report.seconds:.1f} s, {state}; "
@@ -27,12 +36,23 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
             print(f"damaged  {name}: {problem}")
         if not report.ok:
             print("re-run generate with the store's settings to explore the damaged objects again")
-    return 0 if report.ok else 1
+        if rerun:
+            print(f"explored again in {rerun.seconds:.1f} s: {len(rerun.same)} the same, {len(rerun.differ)} "
+                  f"different, {len(rerun.skipped)} skipped")
+            for name, arrays in rerun.differ.items():
+                print(f"differs  {name}: {arrays}")
+            for name, why in rerun.skipped.items():
+                print(f"skipped  {name}: {why}")
+    return 0 if report.ok and (rerun is None or rerun.ok) else 1
 
 
 def register(sub) -> None:
     p = sub.add_parser("verify", help="check a dataset store for missing or damaged chunks (checksums, digests)",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("store", help="dataset store written by `visuotactile generate`")
+    p.add_argument("--rerun", type=positive_int, metavar="N",
+                   help="also explore N objects again from the store's settings and compare the bytes")
+    p.add_argument("--seed", type=int, default=0, help="which objects --rerun draws (default 0)")
+    p.add_argument("--data", metavar="FOLDER", help="mesh folder for --rerun, for a store made on another machine")
     p.add_argument("--json", action="store_true", help="print a JSON report on stdout")
     p.set_defaults(func=run)

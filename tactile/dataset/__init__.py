@@ -8,6 +8,7 @@
     batch = ds.load(train)                 # a SequenceBatch (float32 frames in memory)
     items = ds.torch_dataset(test)         # a torch Dataset reading one sequence chunk per item
     verify_store("out/small.zarr").damaged # {object: what is wrong}; generate re-explores those
+    rerun_objects("out/small.zarr", 2).differ  # objects explored again whose bytes differ (forged, other code)
 
 Sequence k of strategy s of object o is what ``explore_object(model, s, 1, sensor, probes,
 seed=contour_seed(seed, o, s, k))`` gives (a guided strategy: with ``planes=[Toucher(model, s).pair_order(
@@ -20,12 +21,14 @@ from tactile.dataset.generate import EXECUTORS, GenerationReport, generate
 from tactile.dataset.integrity import VerifyReport, verify_store
 from tactile.dataset.objects import ObjectSpec, object_specs
 from tactile.dataset.reader import TactileDataset, open_dataset
+from tactile.dataset.rerun import RerunReport, rerun_objects
 from tactile.dataset.store import contour_seed, frame_encoding, pair_order_seed
 
 __all__ = [
     "EXECUTORS",
     "GenerationReport",
     "ObjectSpec",
+    "RerunReport",
     "TactileDataset",
     "VerifyReport",
     "contour_seed",
@@ -34,5 +37,6 @@ __all__ = [
     "object_specs",
     "open_dataset",
     "pair_order_seed",
+    "rerun_objects",
     "verify_store",
 ]
