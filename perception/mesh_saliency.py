@@ -6,7 +6,8 @@ Mesh saliency averages over every vertex's neighbours within 7.2 % of the object
 the square of the vertex count (80,000 vertices: 33 million pairs). The neighbours are therefore found and used a
 block of vertices at a time (:func:`neighbourhood_sums`), each block holding at most :data:`BLOCK_PAIRS` pairs
 (fewer when the memory limit ``VISUOTACTILE_MAX_MEMORY_MB`` is lower), so the memory it takes is bounded
-whatever the mesh; a mesh one of whose vertices alone has more neighbours than the limit allows is refused.
+whatever the mesh; a mesh one of whose vertices alone has more neighbours than the limit allows is refused. A
+progress bar over the blocks appears when the sums run long (:data:`PROGRESS_DELAY_S`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from scipy.spatial import cKDTree
 from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
 from perception.limits import check_bytes, limit
+from perception.runtime import progress_bar
 
 #: Lee et al.'s scales: sigma_i = i * epsilon, epsilon = 0.3 % of the object size (ObjectModel.size, pose-free).
 LEE_SCALES = (2, 3, 4, 5, 6)
@@ -30,6 +32,8 @@ ISS_SPREAD_FRACTION = 0.02
 PAIR_BYTES = 96
 #: Neighbour pairs per block at most (64 MiB of pairs); fewer when the ``memory_mb`` limit is lower.
 BLOCK_PAIRS = (64 << 20) // PAIR_BYTES
+#: Seconds the neighbourhood sums run before their progress bar appears: a short run prints nothing.
+PROGRESS_DELAY_S = 5.0
 
 
 def _local_maxima(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -98,6 +102,7 @@ def neighbourhood_sums(
     *,
     where: str = "mesh",
     plan: tuple[cKDTree, list[np.ndarray]] | None = None,
+    progress: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian sums over each vertex's neighbourhood, for several sigmas (mm), in bounded memory.
 
@@ -107,6 +112,9 @@ def neighbourhood_sums(
     of vertices at a time (``plan``, default :func:`plan_blocks`). Each vertex's terms are added in a fixed order
     (by cut-off, then by neighbour index), so the sums do not depend on the blocks, to the bit. Returns two
     (len(sigmas), V) float64 arrays, rows in the order of ``sigmas``.
+
+    ``progress``: a bar over the blocks (:func:`perception.runtime.progress_bar`), which appears only once the
+    sums have taken :data:`PROGRESS_DELAY_S` seconds (a large mesh), so that short runs print nothing.
 
     Raises:
         InvalidArgumentError: sigmas not positive and finite, mismatched shapes, or sums or one vertex's
@@ -128,7 +136,8 @@ def neighbourhood_sums(
     tree, blocks = plan if plan is not None else plan_blocks(vertices, cutoffs[-1], where=where)
     num = np.tile(values, (len(sigmas), 1))  # the vertex itself, weight 1
     den = np.ones((len(sigmas), n))
-    for block in blocks:
+    for block in progress_bar(blocks, enabled=progress, desc=f"mesh saliency {where}", unit="block",
+                              delay=PROGRESS_DELAY_S):
         found = cKDTree(vertices[block]).sparse_distance_matrix(tree, cutoffs[-1], output_type="ndarray")
         local, j, dist = found["i"], found["j"], found["v"]
         del found
@@ -163,7 +172,7 @@ def neighbourhood_sums(
 
 
 def mesh_saliency(
-    model: ObjectModel, scales=LEE_SCALES, epsilon_fraction: float = LEE_EPSILON_FRACTION
+    model: ObjectModel, scales=LEE_SCALES, epsilon_fraction: float = LEE_EPSILON_FRACTION, *, progress: bool = True
 ) -> np.ndarray:
     """Lee, Varshney & Jacobs (2005) mesh saliency per vertex, in [0, 1].
 
@@ -171,7 +180,8 @@ def mesh_saliency(
     the centre-surround difference |G(H, sigma) - G(H, 2 sigma)| of the Gaussian-weighted mean curvature H
     (neighbours within 2 sigma, Euclidean, from a KD-tree), then the non-linear normalisation, summed over
     scales and scaled to [0, 1]. Uses ``model.curvature.mean``. The neighbourhoods are summed a block of
-    vertices at a time (:func:`neighbourhood_sums`): memory stays bounded whatever the vertex count.
+    vertices at a time (:func:`neighbourhood_sums`): memory stays bounded whatever the vertex count. ``progress``:
+    their bar, shown once they have run :data:`PROGRESS_DELAY_S` seconds (500,000 triangles take minutes).
 
     Raises:
         InvalidArgumentError: a mesh so dense that one vertex's neighbourhood alone does not fit the memory limit
@@ -185,7 +195,8 @@ def mesh_saliency(
     # Planned, and refused if need be, before the curvature: the slow part on a large mesh.
     plan = plan_blocks(model.vertices, 2 * max(sigmas), where=model.name)
     curvature = model.curvature.mean.astype(np.float64)
-    num, den = neighbourhood_sums(curvature, model.vertices, sigmas, where=model.name, plan=plan)
+    num, den = neighbourhood_sums(curvature, model.vertices, sigmas, where=model.name, plan=plan,
+                                  progress=progress)
     means = dict(zip(sigmas, num / den, strict=True))
     total = np.zeros(model.n_vertices)
     for i in scales:

@@ -1,20 +1,24 @@
 """Mesh saliency (Lee et al. 2005) in bounded memory: the neighbour sums are made a block of vertices at a time.
 
-Checked: the block sums against a dense distance matrix (an independent method); the scores against the former
-all-pairs implementation (``query_pairs`` over the whole mesh, reproduced below); the scores do not depend on the
-blocks (memory limit) to the bit; memory stays near the limit; a mesh whose single vertex's neighbourhood does
-not fit the limit is refused, naming it, before its curvature is computed.
+Checked: the block sums against a dense distance matrix (an independent method), distances exactly on a cut-off
+included; the scores against the former all-pairs implementation (``query_pairs`` over the whole mesh, reproduced
+below) and against Lee et al.'s formulas computed by brute force (all V^2 distances, loops); the scores do not
+depend on the blocks (memory limit) to the bit; memory stays near the limit; a
+mesh whose single vertex's neighbourhood does not fit the limit is refused, naming it, before its curvature is
+computed; the progress bar shows when asked and the run is long, and not otherwise.
 """
 
 from __future__ import annotations
 
 import tracemalloc
+from collections import defaultdict
 
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from perception import primitives
+from perception import mesh_saliency as mesh_saliency_module
+from perception import primitives, runtime
 from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
 from perception.mesh_saliency import (
@@ -29,6 +33,38 @@ from perception.saliency import saliency
 from perception.shapes import make_object
 
 MEMORY_ENV = "VISUOTACTILE_MAX_MEMORY_MB"
+
+
+def brute_force_mesh_saliency(model: ObjectModel, epsilon_fraction: float = LEE_EPSILON_FRACTION) -> np.ndarray:
+    """Lee, Varshney & Jacobs (2005) from the paper's formulas, by brute force: all V^2 distances, a row at a time,
+    G(H, s)_i = sum_{|v_i - v_j| < 2s} H_j exp(-d_ij^2 / 2s^2) / sum_{|v_i - v_j| < 2s} exp(-d_ij^2 / 2s^2), the
+    saliency |G(H, s) - G(H, 2s)| at s = 2..6 epsilon, each scaled to [0, 1] and multiplied by (1 - m)^2, m the mean
+    of its local maxima (1-ring, on the values rounded to 1e-4 as the module does) other than the global one, then
+    summed (a scale that is 0 everywhere adds nothing) and scaled to [0, 1]. Written with loops over the vertices,
+    independent of the module's blocks."""
+    curvature = model.curvature.mean.astype(np.float64)
+    ring = defaultdict(set)
+    for a, b in model.edges:
+        ring[a].add(b)
+        ring[b].add(a)
+    epsilon = epsilon_fraction * model.size
+    sigmas = sorted({i * epsilon for i in LEE_SCALES} | {2 * i * epsilon for i in LEE_SCALES})
+    mean = {sigma: np.zeros(model.n_vertices) for sigma in sigmas}
+    for v, point in enumerate(model.vertices):  # one row of the V x V distance matrix at a time
+        d = np.linalg.norm(model.vertices - point, axis=1)
+        for sigma in sigmas:
+            w = np.where(d < 2 * sigma, np.exp(-d**2 / (2 * sigma**2)), 0.0)
+            mean[sigma][v] = (w @ curvature) / w.sum()
+    total = np.zeros(model.n_vertices)
+    for i in LEE_SCALES:
+        s = np.abs(mean[i * epsilon] - mean[2 * i * epsilon])
+        if s.max() == 0:  # no vertex has a neighbour at this scale: nothing to add
+            continue
+        s = s / s.max()
+        key = np.round(s, 4)
+        maxima = sorted(s[v] for v in range(len(s)) if all(key[v] >= key[u] for u in ring[v]))[:-1]
+        total += s * (1 - (np.mean(maxima) if maxima else 0.0)) ** 2
+    return total / total.max()
 
 
 def gaussian_means(values: np.ndarray, pairs: np.ndarray, dist: np.ndarray, sigma: float) -> np.ndarray:
@@ -108,6 +144,19 @@ class TestNeighbourhoodSums:
                 assert np.all(np.abs(num[k] - w @ values) <= 1e-12 * (w @ np.abs(values)))  # terms of both signs
         assert den[1, 3] >= 2.0 and den[1, 7] >= 2.0  # each of the coincident pair counts the other at weight 1
 
+    def test_distances_on_a_cut_off_are_left_out(self):
+        """A unit grid: many distances fall exactly on a cut-off 2 s (2, 4, 5 mm) or a rounding error from one
+        (2 sqrt 2); the neighbourhood is |v_i - v_j| < 2 s, strictly, as the dense matrix has it."""
+        points = np.stack(np.meshgrid(np.arange(25.0), np.arange(25.0), [0.0, 1.0], indexing="ij"), -1).reshape(-1, 3)
+        values = np.random.default_rng(5).normal(size=len(points))
+        sigmas = [1.0, 2.0, 2.5, np.sqrt(2.0)]
+        dense = np.linalg.norm(points[:, None] - points[None], axis=2)
+        num, den = neighbourhood_sums(values, points, sigmas)
+        for k, sigma in enumerate(sigmas):
+            w = np.where(dense < 2 * sigma, np.exp(-(dense**2) / (2 * sigma**2)), 0.0)
+            np.testing.assert_allclose(den[k], w.sum(axis=1), rtol=1e-12)
+            assert np.all(np.abs(num[k] - w @ values) <= 1e-12 * (w @ np.abs(values)))
+
     def test_blocks_keep_to_the_memory_limit(self, monkeypatch):
         monkeypatch.setenv(MEMORY_ENV, "1")
         model = bumpy_sphere(4)
@@ -131,6 +180,19 @@ class TestMeshSaliency:
         equal but for rounding, and either implementation's choice is as good as the other."""
         model = make()
         np.testing.assert_allclose(mesh_saliency(model), all_pairs_mesh_saliency(model), rtol=0, atol=1e-9)
+
+    @pytest.mark.parametrize(("make", "epsilon_fraction"), [(lambda: bumpy_sphere(4), LEE_EPSILON_FRACTION),
+                                                            (lambda: bumpy_sphere(4), 0.01), (bumpy_torus, 0.015)],
+                             ids=["bumpy", "bumpy-wide", "torus-wide"])
+    def test_same_scores_as_the_formulas_by_brute_force(self, make, epsilon_fraction):
+        """Lee et al.'s formulas on all V^2 distances: the same to 1e-9 (summation order only, amplified by the
+        normalisation as above), the same most salient vertices. These meshes are coarse for Lee's epsilon (the
+        finest scales hold the vertex alone): wider scales give every vertex from a few to some 200 neighbours."""
+        model = make()
+        scores = mesh_saliency(model, epsilon_fraction=epsilon_fraction)
+        expected = brute_force_mesh_saliency(model, epsilon_fraction)
+        np.testing.assert_allclose(scores, expected, rtol=0, atol=1e-9)
+        assert np.array_equal(np.argsort(-scores, kind="stable")[:20], np.argsort(-expected, kind="stable")[:20])
 
     @pytest.mark.parametrize("name", ["box", "mug"])
     def test_scores_do_not_depend_on_the_memory_limit(self, name, monkeypatch):
@@ -182,3 +244,41 @@ def test_sums_do_not_depend_on_how_the_neighbours_are_listed():
         a = neighbourhood_sums(values, model.vertices, sigmas, plan=(cKDTree(model.vertices), blocks))
         b = neighbourhood_sums(values, model.vertices, sigmas, plan=(other, blocks))
         assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True)), name
+
+
+class TestProgress:
+    @pytest.fixture(autouse=True)
+    def bars_allowed(self, monkeypatch):
+        """Bars on, as on a terminal session: the environment and the process switch allow them."""
+        monkeypatch.setenv(runtime.PROGRESS_ENV, "1")
+        monkeypatch.setattr(runtime, "_progress", None)
+
+    def test_a_short_run_shows_no_bar(self, capsys):
+        """The default asks for a bar, which appears only once the sums have run PROGRESS_DELAY_S seconds."""
+        model = bumpy_sphere(3)
+        mesh_saliency(model)
+        assert capsys.readouterr().err == ""
+
+    def test_a_bar_over_the_blocks_when_asked_and_long(self, monkeypatch, capsys):
+        """With no delay (every run counts as long) the bar counts the blocks, named after the mesh; progress=False
+        shows none; the scores are the same either way."""
+        model = bumpy_sphere(4)
+        monkeypatch.setenv(MEMORY_ENV, "1")
+        monkeypatch.setattr(mesh_saliency_module, "PROGRESS_DELAY_S", 0.0)
+        blocks = len(plan_blocks(model.vertices, 4 * max(LEE_SCALES) * LEE_EPSILON_FRACTION * model.size)[1])
+        assert blocks > 1
+        quiet = mesh_saliency(model, progress=False)
+        assert capsys.readouterr().err == ""
+        shown = mesh_saliency(model, progress=True)
+        err = capsys.readouterr().err
+        assert "mesh saliency bumpy-sphere" in err and f"{blocks}/{blocks}" in err
+        np.testing.assert_array_equal(shown, quiet)
+
+    def test_the_process_switch_turns_the_bar_off(self, monkeypatch, capsys):
+        monkeypatch.setattr(mesh_saliency_module, "PROGRESS_DELAY_S", 0.0)
+        runtime.set_progress(False)
+        try:
+            mesh_saliency(bumpy_sphere(3), progress=True)
+        finally:
+            runtime.set_progress(None)
+        assert capsys.readouterr().err == ""
