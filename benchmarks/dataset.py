@@ -12,7 +12,9 @@ One run measures, on the same objects and cores:
     starts. Limit = sequences x workers / (sum of cast seconds). Ratio = generation rate / limit. Guided
     contours repeat (pairs of 10 interest points), and generation presses a repeated contour once, so the
     ratio can pass 1; the table also gives the raw time of the distinct contours alone and the ratio of
-    that to the generation time (the share of generation that is the unavoidable ray casting).
+    that to the generation time (the share of generation that is the unavoidable ray casting), and the raw time
+    of every ray the generation cast (each object's record counts them: the adaptive pad's survey, shrink and
+    settle passes too), the floor of the algorithm as it is.
 (c) Writing: the seconds the workers spent writing rows (encode, checksum, write the files) beside Blosc with
     the store's settings encoding the same bytes chunk by chunk and nothing else (both summed over workers,
     / workers).
@@ -216,6 +218,21 @@ def storage(store: Path, n: int = 400) -> dict:
     }
 
 
+def rays_cast(store: Path, raw: dict, sequences: int, wall: float, workers: int) -> dict:
+    """Every ray the generation cast (the objects' records, ``rays``: the survey, shrink and settle passes of the
+    adaptive pad included) and how long they take at the raw rate measured in the same run: the casting floor of
+    the algorithm as it is, beside the floor of the distinct contours' final pads above."""
+    from tactile.dataset import open_dataset
+    from tactile.dataset.store import read_records
+
+    ds = open_dataset(store)
+    rays = sum(int(r.get("rays", 0)) for r in read_records(store, len(ds.object_names)).values())
+    floor = rays / (raw["mrays_per_s"] * 1e6)
+    probes = raw["distinct_sequences"] * ds.probes
+    return {"rays": rays, "per_distinct_probe": rays / probes if probes else None, "floor_seconds": floor,
+            "ratio": floor / wall if wall > 0 else None}
+
+
 def writing(store: Path, workers: int) -> dict:
     """The generation's writing stage beside its limit: the seconds the workers spent writing rows
     (each object's record, ``write_seconds``; summed, / workers) and Blosc with the store's settings encoding
@@ -350,6 +367,7 @@ def run(mode: str, workers: int, out: Path | None, keep: bool, repeats: int) -> 
         # The work that has to be done: the distinct contours' rays, cast on the same cores.
         raw_distinct_wall = result["raw"]["distinct_cast_seconds_sum"] / workers
         result["ratio_to_raw_distinct"] = raw_distinct_wall / wall
+        result["rays_cast"] = rays_cast(store, result["raw"], result["generation"]["sequences"], wall, workers)
         result["storage"] = storage(store)
         result["writing"] = writing(store, workers)
         result["reading"] = reading(store)
@@ -374,6 +392,9 @@ def _print(result: dict) -> None:
     print(f"  ratio to raw    {result['ratio_to_raw']:.2f}")
     print(f"  distinct        {raw['distinct_sequences']} sequences (a repeated contour is pressed once): raw "
           f"{raw['distinct_cast_seconds_sum'] / result['workers']:.1f} s, ratio {result['ratio_to_raw_distinct']:.2f}")
+    c = result["rays_cast"]
+    print(f"  all rays cast   {c['rays'] / 1e6:.1f} M ({c['per_distinct_probe']:.0f} per distinct probe: survey, shrink "
+          f"and settle passes too): raw {c['floor_seconds']:.1f} s, ratio {c['ratio']:.2f}")
     w = result["writing"]
     ratio = "n/a" if w["ratio"] is None else f"{w['ratio']:.2f}"
     print(f"  writing         {w['write_seconds']:8.2f} s  raw Blosc of the same {w['raw_bytes'] / 1e6:.0f} MB "

@@ -34,6 +34,13 @@ log = logging.getLogger(__name__)
 
 #: Upper bound on rays per ``cast_rays`` call (bounds memory; 2**20 rays is 24 MiB of float32 input).
 MAX_RAYS_PER_CAST = 1 << 20
+_rays_cast = 0  # by this process's sensors, survey, shrink and settle casts included (:func:`rays_cast`)
+
+
+def rays_cast() -> int:
+    """Rays this process's sensors have cast so far, every pass of the adaptive pad included: the ray-casting work
+    that generation does, against which ``benchmarks.dataset`` sets its raw ``cast_rays`` rate."""
+    return _rays_cast
 
 MODES = ("gap", "contact")
 #: Lengths (mm) of a spec lie below MAX_LENGTH_MM: beyond 10 m float32 ray casting loses the micrometres the
@@ -256,6 +263,7 @@ class FSRSensor:
     def _gaps(self, model, positions, normals, tangents, sides_mm, taxels=None) -> np.ndarray:
         """:meth:`measure_gaps` on checked poses; with ``taxels`` (T,) indices into the taxel grid,
         only those taxels are cast and the result is (N, T)."""
+        global _rays_cast
         grid = self._unit_grid if taxels is None else self._unit_grid[taxels]
         grid = np.concatenate([grid, np.ones((len(grid), 1))], axis=1).astype(np.float32)
         n_probes, n_taxels = len(positions), len(grid)
@@ -287,6 +295,7 @@ class FSRSensor:
             signed_zero = np.flatnonzero((np.signbit(inward) & (inward == 0)).any(axis=1))
             rays[signed_zero, :, 3:] = inward[signed_zero, None, :]
             hits = model.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
+            _rays_cast += len(inward) * n_taxels
             gap = hits["t_hit"].numpy().reshape(len(inward), n_taxels)
             gap -= standoff
             if backface_is_inside:
@@ -608,4 +617,4 @@ def _tame(vectors: np.ndarray) -> np.ndarray:
     return vectors
 
 
-__all__ = ["MAX_RAYS_PER_CAST", "MODES", "FSRSensor", "unit_taxel_grid"]
+__all__ = ["MAX_RAYS_PER_CAST", "MODES", "FSRSensor", "rays_cast", "unit_taxel_grid"]

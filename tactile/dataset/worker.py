@@ -44,7 +44,7 @@ from tactile.dataset.store import (
     write_record,
     write_rows,
 )
-from tactile.sensor import FSRSensor
+from tactile.sensor import FSRSensor, rays_cast
 from tactile.touching import Toucher
 
 log = logging.getLogger(__name__)
@@ -95,7 +95,7 @@ def explore_into_store(
     Raises:
         whatever loading, saliency or exploring the object raises (the caller records it as failed).
     """
-    start = time.perf_counter()
+    start, rays_before = time.perf_counter(), rays_cast()
     layout = layout_of(settings)
     probes, seed = int(settings["probes"]), int(settings["seed"])
     label = settings["class_names"].index(spec.label)
@@ -187,6 +187,7 @@ def explore_into_store(
         "settings_sha256": settings_digest(settings),
         "seconds": round(time.perf_counter() - start, 3),
         "write_seconds": round(write_seconds, 4),
+        "rays": rays_cast() - rays_before,  # every ray its pads cast (benchmarks.dataset's casting floor)
     }
     write_record(store, index, record)
     return record

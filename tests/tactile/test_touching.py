@@ -259,3 +259,28 @@ def test_a_touch_that_meets_nothing_is_warned_about(caplog):
     with caplog.at_level(logging.WARNING, logger="tactile.sensor"):
         touch(make_object("mug", seed=3), "blind", 2, probes=5, seed=0)
     assert not [r for r in caplog.records if "touched nothing" in r.getMessage()]
+
+
+def test_rays_are_counted_and_recorded(tmp_path):
+    """``rays_cast`` counts one ray per taxel of every pad cast (12 pads of 8 x 6 taxels: 576); a store's record
+    holds its object's rays, at least one full pad per stored probe (blind contours are all distinct) and more where
+    the adaptive pad surveys, shrinks or settles."""
+    import json
+
+    from perception.shapes import make_object
+    from tactile.dataset import generate
+    from tactile.sensor import FSRSensor, rays_cast
+
+    box = make_object("box", seed=0)
+    sensor = FSRSensor(rows=8, cols=6)
+    positions = box.center + np.array([[0.0, 0.0, 200.0]]) * np.ones((12, 1))
+    normals = np.tile([0.0, 0.0, 1.0], (12, 1))
+    tangents = np.tile([1.0, 0.0, 0.0], (12, 1))
+    before = rays_cast()
+    sensor.measure_gaps(box, positions, normals, tangents, np.full(12, 10.0))
+    assert rays_cast() - before == 12 * 8 * 6
+
+    generate([("box", 0)], tmp_path / "s.zarr", strategies=("blind",), contours_per_object=4, probes=5,
+             sensor=sensor, workers=1, progress=False)
+    record = json.loads((tmp_path / "s.zarr" / "records" / "00000.json").read_text())
+    assert record["rays"] > 4 * 5 * 8 * 6, record["rays"]  # the survey pass comes first
