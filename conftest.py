@@ -7,6 +7,6 @@ import pytest
 
 
 @pytest.fixture(autouse=True)
-def _doctest_tmpdir(request, tmp_path, monkeypatch):
-    if isinstance(request.node, pytest.DoctestItem):
-        monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+def _doctest_tmpdir(request, monkeypatch):
+    if isinstance(request.node, pytest.DoctestItem):  # tmp_path only for doctests: not a folder for every test
+        monkeypatch.setattr(tempfile, "tempdir", str(request.getfixturevalue("tmp_path")))

@@ -3,7 +3,9 @@
 :func:`~tactile.dataset.integrity.verify_store` proves that a store's rows are those its records describe; it
 cannot tell rows forged or edited together with their checksums and digests, nor a store made by code that
 explores differently. Since a store's bytes follow from its settings alone (same seed, same bytes, whatever the
-workers), exploring an object again and comparing the digests of its rows does: :func:`rerun_objects`.
+workers), exploring an object again and comparing the digests of its rows does: :func:`rerun_objects`. It compares
+with the digests the records hold; :func:`~tactile.dataset.integrity.verify_store` checks the rows against those
+digests (``visuotactile verify --rerun`` runs both): together they prove the rows.
 
 Only objects a store names by a mesh file or a catalogue entry are explored again. An object made by a loader
 function is skipped: the store names that function, and calling a function a file names would run code the
@@ -12,6 +14,7 @@ file chose.
 
 from __future__ import annotations
 
+import reprlib
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -60,15 +63,22 @@ def _spec(entry: dict, data: Path | None) -> tuple[ObjectSpec | None, str]:
     ``<its folder's name>/<its file name>`` (a store made on another machine names that machine's paths)."""
     name, label, rotation = str(entry["name"]), str(entry["label"]), entry.get("rotation_seed")
     if "catalogue" in entry:
-        kind, seed = entry["catalogue"]
-        return ObjectSpec(name, label, catalogue=(str(kind), int(seed)), rotation_seed=rotation), ""
+        catalogue = entry["catalogue"]
+        if not (isinstance(catalogue, list) and len(catalogue) == 2 and isinstance(catalogue[0], str)
+                and isinstance(catalogue[1], int) and not isinstance(catalogue[1], bool) and catalogue[1] >= 0):
+            return None, (f"its entry in the settings is malformed (catalogue must be [class, seed >= 0], got "
+                          f"{reprlib.repr(catalogue)})")
+        return ObjectSpec(name, label, catalogue=(catalogue[0], catalogue[1]), rotation_seed=rotation), ""
     if "path" in entry:
-        path = Path(str(entry["path"]))
+        if not isinstance(entry["path"], str):
+            return None, f"its entry in the settings is malformed (path must be text, got {reprlib.repr(entry['path'])})"
+        path = Path(entry["path"])
         if data is not None and (data / path.parent.name / path.name).is_file():
             path = data / path.parent.name / path.name
         if not path.is_file():
             where = f" nor under {data}" if data is not None else "; give the mesh folder (data=...)"
-            return None, f"its mesh {str(path)!r} is not found{where}"
+            state = "is not a regular file" if path.exists() else "is not found"
+            return None, f"its mesh {str(path)!r} {state}{where}"
         return ObjectSpec(name, label, path=str(path), rotation_seed=rotation), ""
     return None, f"made by a loader function ({entry.get('loader', '?')}), which is never called from a store"
 
@@ -90,6 +100,8 @@ def rerun_objects(path: str | Path, objects: int = 1, *, seed: int = 0, data: st
         raise InvalidArgumentError(f"rerun_objects: objects must be an integer >= 1, got {objects!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InvalidArgumentError(f"rerun_objects: seed must be a non-negative integer, got {seed!r}")
+    if data is not None and not isinstance(data, (str, Path)):
+        raise InvalidArgumentError(f"rerun_objects: data must be a folder path (str or Path), got {type(data).__name__}")
     if data is not None and not Path(data).is_dir():
         raise InvalidArgumentError(f"rerun_objects: data {str(data)!r} is not a folder")
     path = Path(path)
@@ -100,7 +112,10 @@ def rerun_objects(path: str | Path, objects: int = 1, *, seed: int = 0, data: st
     complete = sorted(i for i, r in records.items() if r.get("status") == "complete")
     rng = np.random.default_rng(int(seed))
     chosen = sorted(rng.choice(complete, size=min(int(objects), len(complete)), replace=False).tolist())
-    sensor = FSRSensor.from_spec(settings["sensor"])
+    try:
+        sensor = FSRSensor.from_spec(settings["sensor"])
+    except InvalidArgumentError as exc:  # SensorSpecError: name the store, as every other problem of its settings
+        raise DatasetError(f"{path}/zarr.json: malformed store settings: sensor: {exc}") from None
     report = RerunReport(path)
     with tempfile.TemporaryDirectory(prefix="visuotactile-rerun-") as tmp:
         again = Path(tmp) / "store"
@@ -120,7 +135,9 @@ def rerun_objects(path: str | Path, objects: int = 1, *, seed: int = 0, data: st
                 report.skipped[name] = f"exploring it failed: {type(exc).__name__}: {exc}"
                 continue
             stored = records[index]
-            differ = sorted(k for k, v in record["digests"].items() if stored.get("digests", {}).get(k) != v)
+            digests = stored.get("digests")
+            digests = digests if isinstance(digests, dict) else {}  # a record edited by hand: nothing agrees
+            differ = sorted(k for k, v in record["digests"].items() if digests.get(k) != v)
             if record["interest_points"] != stored.get("interest_points"):
                 differ.append("interest points")
             if differ:

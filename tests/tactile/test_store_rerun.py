@@ -95,3 +95,136 @@ def test_meshes_are_found_in_a_moved_folder(tmp_path):
 def test_bad_arguments_are_refused(store, kwargs, message):
     with pytest.raises(InvalidArgumentError, match=message):
         rerun_objects(store, **{"objects": 1, **kwargs})
+
+
+# --- added in review: what the tests above left free (each kills a mutation that survived them) -------------------
+
+def _edited(store: Path, folder: Path, settings_edit=None, record_edit=None) -> Path:
+    """A copy of ``store`` with its settings and/or records edited by hand (the checksums made to agree)."""
+    copy = Path(shutil.copytree(store, folder))
+    meta = json.loads((copy / "zarr.json").read_text())
+    settings = meta["attributes"][ATTRS_KEY]["settings"]
+    if settings_edit:
+        settings_edit(settings)
+        (copy / "zarr.json").write_text(json.dumps(meta))
+    for file in sorted((copy / "records").glob("*.json")):
+        content = json.loads(file.read_text())
+        content["settings_sha256"] = settings_digest(settings)
+        if record_edit:
+            record_edit(content)
+        file.write_text(json.dumps(content))
+    return copy
+
+
+def test_every_array_that_a_forged_seed_changes_is_named(store, tmp_path):
+    forged = _edited(store, tmp_path / "forged.zarr", settings_edit=lambda s: s.update(seed=7))
+    # every array drawn from the seed; the planes pass through the object's centre whatever the seed, and the
+    # interest points are drawn with saliency seed 0
+    drawn = "contour_seeds, frames, noise_seeds, normals, pad_sides_mm, plane_normals, positions, tangents"
+    assert rerun_objects(forged, 3).differ == {"box/0": drawn, "mug/1": drawn, "can/2": drawn}
+
+
+def test_edited_interest_points_differ(store, tmp_path):
+    def shift(record):
+        points = record["interest_points"]["guided"]
+        points[0][0] += 1.0
+
+    edited = _edited(store, tmp_path / "points.zarr", record_edit=shift)
+    report = rerun_objects(edited, 3)
+    assert set(report.differ.values()) == {"interest points"}
+
+
+@pytest.mark.parametrize("digests", [None, ["x"], "abc", 3])
+def test_a_record_with_malformed_digests_differs_and_does_not_crash(store, tmp_path, digests):
+    edited = _edited(store, tmp_path / "digests.zarr", record_edit=lambda r: r.update(digests=digests))
+    report = rerun_objects(edited, 1)
+    assert len(report.differ) == 1 and "frames" in next(iter(report.differ.values()))
+
+
+@pytest.mark.parametrize("catalogue", ["ab", ["box", float("inf")], ["box", float("nan")], ["box", -1], ["box", 1.0],
+                                       ["box"], None, {"box": 0}, ["zzz", 0]])
+def test_a_malformed_catalogue_entry_is_skipped_saying_why(store, tmp_path, catalogue):
+    def edit(settings):
+        settings["objects"][0]["catalogue"] = catalogue
+        settings["objects"][1]["rotation_seed"] = -1  # refused by ObjectSpec
+
+    report = rerun_objects(_edited(store, tmp_path / "cat.zarr", settings_edit=edit), 3)
+    assert report.same == ["can/2"] and sorted(report.skipped) == ["box/0", "mug/1"]
+    assert "malformed" in report.skipped["box/0"] or "unknown object class" in report.skipped["box/0"]
+    assert "malformed" in report.skipped["mug/1"] and "rotation_seed" in report.skipped["mug/1"]
+
+
+def test_objects_that_are_not_complete_are_not_drawn(store, tmp_path):
+    copy = Path(shutil.copytree(store, tmp_path / "partial.zarr"))
+    record = json.loads((copy / "records" / "00001.json").read_text())
+    (copy / "records" / "00001.json").write_text(json.dumps(record | {"status": "failed"}))
+    (copy / "records" / "00002.json").unlink()
+    assert rerun_objects(copy, 5).same == ["box/0"]
+
+
+def test_the_temporary_store_is_removed_on_every_path(store, tmp_path, monkeypatch):
+    import tempfile
+
+    import tactile.dataset.rerun as rerun_module
+
+    folder = tmp_path / "tmp"
+    folder.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(folder))
+    rerun_objects(store, 1)
+    assert not any(folder.iterdir())
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rerun_module, "explore_into_store", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        rerun_objects(store, 1)
+    assert not any(folder.iterdir())
+
+
+def test_the_cli_passes_seed_and_data(store, tmp_path, capsys):
+    seeds = {seed: rerun_objects(store, 1, seed=seed).same for seed in range(6)}
+    seed = next(s for s, same in seeds.items() if same != seeds[0])
+    assert main(["verify", str(store), "--rerun", "1", "--seed", str(seed), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["rerun"]["same"] == seeds[seed]
+    assert main(["verify", str(store), "--rerun", "1", "--data", str(tmp_path / "none")]) == 2
+    assert "is not a folder" in capsys.readouterr().err
+
+
+def test_a_store_whose_objects_all_skip_is_not_verified(store, tmp_path, capsys):
+    """Seed forged together with the digests, and every entry made a loader (or a mesh nowhere): nothing can be
+    explored again, which must not read as verified."""
+    def forge(settings):
+        settings["seed"] = 7
+        for entry in settings["objects"]:
+            del entry["catalogue"]
+            entry["loader"] = "perception.shapes.make_object"
+
+    forged = _edited(store, tmp_path / "skipped.zarr", settings_edit=forge)
+    assert verify_store(forged).ok
+    assert main(["verify", str(forged), "--rerun", "3"]) == 1
+    assert "skipped  " in capsys.readouterr().out
+
+
+def test_bad_sensor_settings_name_the_store(store, tmp_path):
+    from perception.errors import DatasetError
+
+    edited = _edited(store, tmp_path / "sensor.zarr", settings_edit=lambda s: s["sensor"].update(range_mm=-1.0))
+    with pytest.raises(DatasetError, match=r"sensor\.zarr/zarr\.json: malformed store settings: sensor"):
+        rerun_objects(edited, 1)
+
+
+@pytest.mark.parametrize("data", [b"/tmp", 3])
+def test_a_data_that_is_not_a_path_is_refused(store, data):
+    with pytest.raises(InvalidArgumentError, match="data must be a folder path"):
+        rerun_objects(store, 1, data=data)
+
+
+def test_the_cli_refuses_seed_or_data_without_rerun_and_its_json_ok_is_the_verdict(store, tmp_path, capsys):
+    for extra in (["--seed", "3"], ["--data", str(tmp_path)]):
+        assert main(["verify", str(store), *extra]) == 2
+        assert "give --rerun N" in capsys.readouterr().err
+    forged = _edited(store, tmp_path / "forged.zarr", settings_edit=lambda s: s.update(seed=7))
+    assert main(["verify", str(forged), "--rerun", "1", "--json"]) == 1
+    out = json.loads(capsys.readouterr().out)
+    assert out["ok"] is False and out["rerun"]["ok"] is False and out["damaged"] == {}
