@@ -239,7 +239,7 @@ def test_workers_do_not_change_the_bytes(blind_store, tmp_path):
     assert store_files(tmp_path / "w2") == store_files(blind_store)
 
 
-def test_sigkill_part_way_then_resume_equals_an_uninterrupted_run(blind_store, tmp_path):
+def test_sigkill_part_way_then_resume_equals_an_uninterrupted_run(blind_store, tmp_path, child_tmpdir):
     out = tmp_path / "killed"
     script = (
         "from tactile.dataset import generate; from tactile.sensor import FSRSensor; "
@@ -248,7 +248,9 @@ def test_sigkill_part_way_then_resume_equals_an_uninterrupted_run(blind_store, t
     )
     # A script without a main guard: workers must not run it again (forkserver would re-import __main__).
     (tmp_path / "run.py").write_text(script.replace("; ", "\n"))
-    proc = subprocess.Popen([sys.executable, str(tmp_path / "run.py")], cwd=ROOT)
+    # its temporary files in a folder of the test's: a killed process cannot remove them
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "run.py")], cwd=ROOT,
+                            env={**os.environ, "TMPDIR": child_tmpdir})
     deadline = time.monotonic() + 120
     while not list((out / "records").glob("*.json")) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
