@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import shutil
+import tempfile
+
 import pytest
 
 from tactile.dataset import ObjectSpec, generate, open_dataset
@@ -12,10 +15,13 @@ ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'visu
 
 @pytest.fixture(scope="module")
 def local_ray():
-    """One small Ray instance for the module (start-up takes seconds)."""
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    """One small Ray instance for the module (start-up takes seconds). Its session folder (logs, sockets) goes in a
+    short temporary folder removed after, not in /tmp/ray where every run left one."""
+    folder = tempfile.mkdtemp(prefix="vt-ray-")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False, _temp_dir=folder)
     yield
     ray.shutdown()
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 def test_ray_store_equals_local_store(local_ray, tmp_path):
