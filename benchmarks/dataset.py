@@ -218,7 +218,7 @@ def storage(store: Path, n: int = 400) -> dict:
     }
 
 
-def rays_cast(store: Path, raw: dict, sequences: int, wall: float, workers: int) -> dict:
+def rays_cast(store: Path, raw: dict, wall: float) -> dict:
     """Every ray the generation cast (the objects' records, ``rays``: the survey, shrink and settle passes of the
     adaptive pad included) and how long they take at the raw rate measured in the same run: the casting floor of
     the algorithm as it is, beside the floor of the distinct contours' final pads above."""
@@ -367,7 +367,7 @@ def run(mode: str, workers: int, out: Path | None, keep: bool, repeats: int) -> 
         # The work that has to be done: the distinct contours' rays, cast on the same cores.
         raw_distinct_wall = result["raw"]["distinct_cast_seconds_sum"] / workers
         result["ratio_to_raw_distinct"] = raw_distinct_wall / wall
-        result["rays_cast"] = rays_cast(store, result["raw"], result["generation"]["sequences"], wall, workers)
+        result["rays_cast"] = rays_cast(store, result["raw"], wall)
         result["storage"] = storage(store)
         result["writing"] = writing(store, workers)
         result["reading"] = reading(store)

@@ -22,9 +22,9 @@ from perception.errors import InvalidArgumentError
 def run(args: argparse.Namespace, rest: list[str]) -> int:
     from tactile.dataset import verify_store
 
-    report = verify_store(args.store)
-    if not args.rerun and (args.seed is not None or args.data is not None):
+    if not args.rerun and (args.seed is not None or args.data is not None):  # before a long verification
         raise InvalidArgumentError("verify: --seed and --data choose and find the objects of --rerun; give --rerun N")
+    report = verify_store(args.store)
     rerun = None
     if args.rerun:
         from tactile.dataset import rerun_objects

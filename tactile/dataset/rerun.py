@@ -24,6 +24,7 @@ import numpy as np
 
 from perception.errors import DatasetError, InvalidArgumentError
 from perception.runtime import progress_bar
+from perception.validate import check_count, check_seed
 from tactile.dataset.objects import ObjectSpec
 from tactile.dataset.store import create_store, read_attrs, read_records
 from tactile.dataset.worker import explore_into_store
@@ -97,10 +98,8 @@ def rerun_objects(path: str | Path, objects: int = 1, *, seed: int = 0, data: st
         DatasetError: ``path`` is not a readable store. InvalidArgumentError: bad ``objects``, ``seed`` or ``data``.
     """
     start = time.perf_counter()
-    if isinstance(objects, bool) or not isinstance(objects, (int, np.integer)) or objects < 1:
-        raise InvalidArgumentError(f"rerun_objects: objects must be an integer >= 1, got {objects!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InvalidArgumentError(f"rerun_objects: seed must be a non-negative integer, got {seed!r}")
+    objects = check_count(objects, "objects", "rerun_objects")
+    seed = check_seed(seed, "rerun_objects", allow_none=False)
     if data is not None and not isinstance(data, (str, Path)):
         raise InvalidArgumentError(f"rerun_objects: data must be a folder path (str or Path), got {type(data).__name__}")
     if data is not None and not Path(data).is_dir():
@@ -111,8 +110,8 @@ def rerun_objects(path: str | Path, objects: int = 1, *, seed: int = 0, data: st
     entries = settings["objects"]
     records = read_records(path, len(entries))
     complete = sorted(i for i, r in records.items() if r.get("status") == "complete")
-    rng = np.random.default_rng(int(seed))
-    chosen = sorted(rng.choice(complete, size=min(int(objects), len(complete)), replace=False).tolist())
+    rng = np.random.default_rng(seed)
+    chosen = sorted(rng.choice(complete, size=min(objects, len(complete)), replace=False).tolist())
     try:
         sensor = FSRSensor.from_spec(settings["sensor"])
     except InvalidArgumentError as exc:  # SensorSpecError: name the store, as every other problem of its settings

@@ -738,7 +738,7 @@ def test_the_benchmark_times_the_repeats_that_do_not_sample_memory(tmp_path, mon
     for stage in ("storage", "loader_epoch", "reading"):
         monkeypatch.setattr(bench, stage, lambda store, *a: {})
     monkeypatch.setattr(bench, "writing", lambda store, workers: {})
-    monkeypatch.setattr(bench, "rays_cast", lambda store, raw, sequences, wall, workers: {})
+    monkeypatch.setattr(bench, "rays_cast", lambda store, raw, wall: {})
     result = bench.run("quick", 2, tmp_path / "out", False, 4)
     generation = result["generation"]
     assert sampled == [True] and generation["peak_bytes"] == 123
