@@ -284,3 +284,11 @@ def test_rays_are_counted_and_recorded(tmp_path):
              sensor=sensor, workers=1, progress=False)
     record = json.loads((tmp_path / "s.zarr" / "records" / "00000.json").read_text())
     assert record["rays"] > 4 * 5 * 8 * 6, record["rays"]  # the survey pass comes first
+
+    # each record counts its own object's rays: the can after the box in one worker, as the can alone
+    settings = {"strategies": ("blind",), "contours_per_object": 4, "probes": 5, "sensor": sensor, "workers": 1,
+                "progress": False}
+    generate([("box", 0), ("can", 0)], tmp_path / "two.zarr", **settings)
+    generate([("can", 0)], tmp_path / "can.zarr", **settings)
+    after_box = json.loads((tmp_path / "two.zarr" / "records" / "00001.json").read_text())["rays"]
+    assert after_box == json.loads((tmp_path / "can.zarr" / "records" / "00000.json").read_text())["rays"]
