@@ -468,10 +468,13 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     import sys
 
+    from fusion.experiments import active as package_module
     from perception.errors import VisuotactileError
 
     try:
-        main()
+        # The package's copy of this module, not __main__: jobs built from its classes pickle by their package
+        # name, so the run's worker processes can take them (jobs naming __main__ run one by one in this process).
+        package_module.main()
     except VisuotactileError as exc:  # refused input: one line, as the visuotactile CLI says it
         print(f"python -m fusion.experiments.active: error: {exc}", file=sys.stderr)
         sys.exit(2)

@@ -397,3 +397,18 @@ def test_module_runner_refuses_bad_input_in_one_line(tmp_path):
     expected = (f"python -m fusion.experiments.active: error: {tmp_path / 'none'}: not a folder "
                 "(expected <root>/<Class>/<instance>.<ext>)")
     assert done.stderr.strip().splitlines() == [expected]
+
+
+# runpy warns that the module is imported already: it is, by this test process (``python -m`` starts without it)
+@pytest.mark.filterwarnings("ignore:.*found in sys.modules after import:RuntimeWarning")
+def test_module_runner_runs_the_package_module(monkeypatch):
+    """``python -m fusion.experiments.active`` runs the package's copy of the module: jobs built from ``__main__``'s
+    classes cannot go to worker processes, and its episodes would run one object after another in one process."""
+    import runpy
+
+    from fusion.experiments import active
+
+    calls = []
+    monkeypatch.setattr(active, "main", lambda argv=None: calls.append(argv))
+    runpy.run_module("fusion.experiments.active", run_name="__main__")
+    assert calls == [None]
