@@ -197,6 +197,29 @@ class EpisodeJob:
         return f"active episodes on {self.spec.name}"
 
 
+def _check_options(policies, candidates, variants, noise_mm, per_fold) -> None:
+    """Refuse bad options of :func:`active_episodes` before its stores and fits (InvalidArgumentError)."""
+    from fusion.active.policies import POLICIES
+
+    if isinstance(policies, str) or not isinstance(policies, (tuple, list)) or not policies:
+        raise InvalidArgumentError(f"active: policies must be a non-empty list of names ({', '.join(POLICIES)}), "
+                                   f"got {policies!r}")
+    for name in policies:
+        if name not in POLICIES:
+            raise InvalidArgumentError(f"active: unknown touch policy {name!r}; choose from {', '.join(POLICIES)}")
+    if len(set(policies)) != len(policies):
+        raise InvalidArgumentError(f"active: a policy is named twice in {list(policies)}")
+    if "information" in policies:
+        InformationPolicy(0, candidates=candidates, variants=variants)  # its own checks of the budget
+    if (isinstance(noise_mm, bool) or not isinstance(noise_mm, (int, float, np.integer, np.floating))
+            or not np.isfinite(noise_mm) or noise_mm < 0):
+        raise InvalidArgumentError(f"active: noise_mm must be a finite number >= 0, got {noise_mm!r}")
+    if per_fold is not None and (isinstance(per_fold, bool) or not isinstance(per_fold, (int, np.integer))
+                                 or per_fold < 1):
+        raise InvalidArgumentError(f"active: per_fold must be an integer >= 1 or None (every test object), "
+                                   f"got {per_fold!r}")
+
+
 def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("random", "saliency", "information"),
                     max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
                     visual: str = "noisy", per_fold: int | None = None, train_on_captures: bool = False,
@@ -219,6 +242,7 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
         raise InvalidArgumentError(f"active: max_touches must be an integer >= 1, got {max_touches!r}")
     check_count("touches", int(episodes) * int(max_touches),
                 f"active: {episodes} episodes x {max_touches} touches per object and policy")
+    _check_options(policies, candidates, variants, noise_mm, per_fold)
     from fusion.experiments.data import any_pose
     from tactile.dataset import object_specs
 
@@ -286,6 +310,9 @@ def summarize(result: dict, seed: int = 0) -> dict:
     """Accuracy against K (bootstrap over objects), paired differences against random, touches to reach
     :data:`TARGET`, stopping-rule rows and per-step timings of :func:`active_episodes`' result."""
     rows = result["objects"]
+    if not rows:
+        raise DatasetError("active: no test object was run (none asked for, or every capture failed): nothing to "
+                           "summarize")
     policies = list(rows[0]["policies"])
     ks = range(1, result["max_touches"] + 1)
     groups = np.arange(len(rows))
@@ -467,14 +494,14 @@ def main(argv=None) -> dict:
 
 if __name__ == "__main__":
     import sys
+    from importlib import import_module
 
-    from fusion.experiments import active as package_module
     from perception.errors import VisuotactileError
 
     try:
         # The package's copy of this module, not __main__: jobs built from its classes pickle by their package
         # name, so the run's worker processes can take them (jobs naming __main__ run one by one in this process).
-        package_module.main()
+        import_module("fusion.experiments.active").main()
     except VisuotactileError as exc:  # refused input: one line, as the visuotactile CLI says it
         print(f"python -m fusion.experiments.active: error: {exc}", file=sys.stderr)
         sys.exit(2)

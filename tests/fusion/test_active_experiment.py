@@ -278,6 +278,32 @@ def test_active_episodes_refuses_bad_episodes_before_any_work(bad):
         active.active_episodes(None, [], episodes=bad)
 
 
+@pytest.mark.parametrize("options, match", [
+    ({"per_fold": 0}, "per_fold"), ({"per_fold": -1}, "per_fold"), ({"per_fold": 1.5}, "per_fold"),
+    ({"per_fold": True}, "per_fold"),
+    ({"candidates": 0}, "candidates"), ({"variants": 0}, "variants"), ({"candidates": 2.5}, "candidates"),
+    ({"noise_mm": -1.0}, "noise_mm"), ({"noise_mm": float("nan")}, "noise_mm"), ({"noise_mm": "1"}, "noise_mm"),
+    ({"policies": ()}, "policies"), ({"policies": ("random", "greedy")}, "greedy"),
+    ({"policies": ("random", "random")}, "twice"), ({"policies": "random"}, "policies"),
+])
+def test_active_episodes_refuses_bad_options_before_any_work(options, match):
+    """Every option is checked before the store is made or a model fitted (ctx=None would fail otherwise): a
+    negative per_fold silently dropped each fold's last object, and a bad candidate count or policy name surfaced
+    only in the first episode, after the stores and fits."""
+    from fusion.experiments import active
+
+    with pytest.raises(InvalidArgumentError, match=match):
+        active.active_episodes(None, [], **options)
+
+
+def test_summary_of_no_objects_says_so():
+    from fusion.experiments import active
+    from perception.errors import DatasetError
+
+    with pytest.raises(DatasetError, match="no test object"):
+        active.summarize({**episodes(), "objects": []})
+
+
 def test_active_episodes_refuses_captures_without_the_camera():
     from fusion.experiments import active
 
