@@ -285,6 +285,7 @@ def test_active_episodes_refuses_bad_episodes_before_any_work(bad):
     ({"noise_mm": -1.0}, "noise_mm"), ({"noise_mm": float("nan")}, "noise_mm"), ({"noise_mm": "1"}, "noise_mm"),
     ({"policies": ()}, "policies"), ({"policies": ("random", "greedy")}, "greedy"),
     ({"policies": ("random", "random")}, "twice"), ({"policies": "random"}, "policies"),
+    ({"policies": {"random"}}, "policies"), ({"policies": 5}, "policies"), ({"noise_mm": True}, "noise_mm"),
 ])
 def test_active_episodes_refuses_bad_options_before_any_work(options, match):
     """Every option is checked before the store is made or a model fitted (ctx=None would fail otherwise): a
@@ -293,6 +294,19 @@ def test_active_episodes_refuses_bad_options_before_any_work(options, match):
     from fusion.experiments import active
 
     with pytest.raises(InvalidArgumentError, match=match):
+        active.active_episodes(None, [], **options)
+
+
+@pytest.mark.parametrize("options", [
+    {"noise_mm": 0}, {"noise_mm": np.float32(0.0)}, {"per_fold": 1}, {"per_fold": np.int64(2)},
+    {"policies": ["random"]}, {"candidates": np.int64(1), "variants": 1},
+])
+def test_active_options_at_their_bounds_pass_the_checks(options):
+    """The lowest values allowed (no noise, one object per fold, one candidate) and numpy scalars get past the
+    checks: the run then fails only on ctx=None, at the store."""
+    from fusion.experiments import active
+
+    with pytest.raises(AttributeError):
         active.active_episodes(None, [], **options)
 
 
