@@ -64,6 +64,8 @@ def paired_over_objects(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict:
 
 #: Views of the virtual OAK-D orbit when the camera is in the loop (``visual="camera"``).
 CAMERA_VIEWS = 4
+#: The largest ``--seed`` with the camera in the loop: the capture seeds Open3D, whose seed is a C int.
+CAMERA_SEED_MAX = 2**31 - 1
 
 
 def fold_order(names, specs) -> list[str]:
@@ -197,8 +199,10 @@ class EpisodeJob:
         return f"active episodes on {self.spec.name}"
 
 
-def _check_options(policies, candidates, variants, noise_mm, per_fold) -> None:
-    """Refuse bad options of :func:`active_episodes` before its stores and fits (InvalidArgumentError)."""
+def _check_options(policies, candidates, variants, noise_mm, per_fold) -> tuple:
+    """Refuse bad options of :func:`active_episodes` before its stores and fits (InvalidArgumentError);
+    returns them as plain Python values (policies a tuple of str, candidates, variants, noise_mm a float,
+    per_fold): numpy's integers and float32 would go to the JSON result as strings."""
     from fusion.active.policies import POLICIES
 
     if isinstance(policies, str) or not isinstance(policies, (tuple, list)) or not policies:
@@ -209,15 +213,21 @@ def _check_options(policies, candidates, variants, noise_mm, per_fold) -> None:
             raise InvalidArgumentError(f"active: unknown touch policy {name!r}; choose from {', '.join(POLICIES)}")
     if len(set(policies)) != len(policies):
         raise InvalidArgumentError(f"active: a policy is named twice in {list(policies)}")
-    if "information" in policies:
-        InformationPolicy(0, candidates=candidates, variants=variants)  # its own checks of the budget
+    # its own checks of the budget, whichever policies run: the result and the report name the budget
+    InformationPolicy(0, candidates=candidates, variants=variants)
+    try:  # (a Python int too large for a float is no noise either)
+        finite = np.isfinite(float(noise_mm))
+    except (TypeError, ValueError, OverflowError):
+        finite = False
     if (isinstance(noise_mm, bool) or not isinstance(noise_mm, (int, float, np.integer, np.floating))
-            or not np.isfinite(noise_mm) or noise_mm < 0):
+            or not finite or noise_mm < 0):
         raise InvalidArgumentError(f"active: noise_mm must be a finite number >= 0, got {noise_mm!r}")
     if per_fold is not None and (isinstance(per_fold, bool) or not isinstance(per_fold, (int, np.integer))
                                  or per_fold < 1):
         raise InvalidArgumentError(f"active: per_fold must be an integer >= 1 or None (every test object), "
                                    f"got {per_fold!r}")
+    return (tuple(str(name) for name in policies), int(candidates), int(variants), float(noise_mm),
+            None if per_fold is None else int(per_fold))
 
 
 def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("random", "saliency", "information"),
@@ -242,7 +252,8 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
         raise InvalidArgumentError(f"active: max_touches must be an integer >= 1, got {max_touches!r}")
     check_count("touches", int(episodes) * int(max_touches),
                 f"active: {episodes} episodes x {max_touches} touches per object and policy")
-    _check_options(policies, candidates, variants, noise_mm, per_fold)
+    policies, candidates, variants, noise_mm, per_fold = _check_options(policies, candidates, variants,
+                                                                        noise_mm, per_fold)
     from fusion.experiments.data import any_pose
     from tactile.dataset import object_specs
 
@@ -252,10 +263,10 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
         raise InvalidArgumentError("active: train_on_captures needs the camera in the loop (visual='camera')")
 
     sizes = ctx.sizes
-    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
     if classifier is None:  # the SVM when the run has one, else its first unseen-objects classifier
         classifier = "svm" if "svm" in ctx.classifiers else ctx.sizes.unseen_classifiers[0]
-    factory = pick(ctx.classifiers, [classifier])[classifier]
+    factory = pick(ctx.classifiers, [classifier])[classifier]  # an unknown name: refused before the store
+    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
     specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
     folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)
     rows, failures, touched = [], [], {}
@@ -314,6 +325,9 @@ def summarize(result: dict, seed: int = 0) -> dict:
         raise DatasetError("active: no test object was run (none asked for, or every capture failed): nothing to "
                            "summarize")
     policies = list(rows[0]["policies"])
+    if len(rows) < 2 and "random" in policies and len(policies) > 1:
+        raise DatasetError(f"active: {len(rows)} test object was run ({len(result.get('capture_failures', []))} "
+                           "left out, their captures failed): the paired differences against random need at least 2")
     ks = range(1, result["max_touches"] + 1)
     groups = np.arange(len(rows))
     curve, differences, reach, stopping, timing, accs_by_policy = [], [], {}, [], [], {}
@@ -439,10 +453,10 @@ def main(argv=None) -> dict:
     """``python -m fusion.experiments.active --data FOLDER --out FOLDER [--quick] [--visual camera]``: the part on
     its own; writes ``results.json`` and ``report.md`` (``results_camera.json``, ``report_camera.md``) to ``--out``
     (stores, models, captures and episodes cached there)."""
-    import argparse
     import json
     from pathlib import Path
 
+    from fusion.cli import SEED_MAX, _Parser
     from fusion.experiments.config import FULL, QUICK
     from fusion.experiments.context import Context
     from fusion.experiments.data import folder_objects
@@ -450,12 +464,14 @@ def main(argv=None) -> dict:
     from perception.atomic import write_text
     from perception.runtime import machine_line
 
-    parser = argparse.ArgumentParser(prog="python -m fusion.experiments.active", description=__doc__.split("\n")[0])
+    # one-line errors, as the visuotactile command line's (argparse's own print the whole usage first)
+    parser = _Parser(prog="python -m fusion.experiments.active", description=__doc__.split("\n")[0])
     parser.add_argument("--data", required=True)
     parser.add_argument("--out", required=True)
     parser.add_argument("--quick", action="store_true", help="QUICK sizes (4 objects per class, 16 contours)")
     parser.add_argument("--classifier", default=None, help="svm, knn or cnn (default: svm)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0,
+                        help=f"0 to {SEED_MAX} (0 to {CAMERA_SEED_MAX} with --visual camera)")
     parser.add_argument("--max-touches", type=int, default=8)
     parser.add_argument("--noise-mm", type=float, default=1.0)
     parser.add_argument("--candidates", type=int, default=24)
@@ -472,6 +488,12 @@ def main(argv=None) -> dict:
                         help="with --visual camera: the classifier also learns from touches on the training objects' "
                              "reconstructions")
     args = parser.parse_args(argv)
+    # NumPy's legacy seeding and scikit-learn take 32 bits, Open3D's capture 31: refused here, not in a fit
+    most = CAMERA_SEED_MAX if args.visual == "camera" else SEED_MAX
+    if not 0 <= args.seed <= most:
+        camera = " with --visual camera" if args.visual == "camera" else ""
+        raise InvalidArgumentError(f"--seed must be a non-negative integer, at most {most} "
+                                   f"(2**{most.bit_length()} - 1){camera}, got {args.seed}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sizes = QUICK if args.quick else FULL
     ctx = Context(Path(args.out), args.seed, sizes, default_classifiers(args.seed, sizes.epochs), progress=False)

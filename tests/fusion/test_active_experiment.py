@@ -286,6 +286,10 @@ def test_active_episodes_refuses_bad_episodes_before_any_work(bad):
     ({"policies": ()}, "policies"), ({"policies": ("random", "greedy")}, "greedy"),
     ({"policies": ("random", "random")}, "twice"), ({"policies": "random"}, "policies"),
     ({"policies": {"random"}}, "policies"), ({"policies": 5}, "policies"), ({"noise_mm": True}, "noise_mm"),
+    ({"noise_mm": 10**400}, "noise_mm"),
+    # the budget is recorded with the result and named in the report, whichever policies run
+    ({"policies": ("random",), "candidates": 0}, "candidates"),
+    ({"policies": ("random",), "variants": "2"}, "variants"),
 ])
 def test_active_episodes_refuses_bad_options_before_any_work(options, match):
     """Every option is checked before the store is made or a model fitted (ctx=None would fail otherwise): a
@@ -310,12 +314,50 @@ def test_active_options_at_their_bounds_pass_the_checks(options):
         active.active_episodes(None, [], **options)
 
 
+def test_active_options_come_back_as_plain_python_values():
+    """numpy scalars pass the checks but go on as Python numbers: the result is written as JSON, where numpy's
+    integers and float32 would be written as strings."""
+    from fusion.experiments.active import _check_options
+
+    checked = _check_options(["random"], np.int64(3), np.int32(1), np.float32(0.5), np.int64(2))
+    assert checked == (("random",), 3, 1, 0.5, 2)
+    assert [type(x) for x in checked] == [tuple, int, int, float, int]
+    assert _check_options(("random",), 3, 1, 1, None)[3:] == (1.0, None)
+
+
+def test_active_episodes_refuses_an_unknown_classifier_before_the_store():
+    """--classifier bogus was refused only after the store had been generated."""
+    from types import SimpleNamespace
+
+    from fusion.experiments import active
+    from tests.fusion.test_experiments import STANDINS, TINY
+
+    def store(*args, **kwargs):
+        raise AssertionError("the store was asked for")
+
+    ctx = SimpleNamespace(sizes=TINY, classifiers=STANDINS, store=store)
+    with pytest.raises(InvalidArgumentError, match="bogus"):
+        active.active_episodes(ctx, [], classifier="bogus")
+
+
 def test_summary_of_no_objects_says_so():
     from fusion.experiments import active
     from perception.errors import DatasetError
 
     with pytest.raises(DatasetError, match="no test object"):
         active.summarize({**episodes(), "objects": []})
+
+
+def test_summary_of_one_object_says_why_it_cannot_pair_it():
+    """One object (every other capture failed) cannot be paired against random: said so (a DatasetError naming
+    the count), not paired_over_objects' bare refusal of its arrays; random alone is summarized."""
+    from perception.errors import DatasetError
+
+    one = {**episodes(), "objects": episodes()["objects"][:1]}
+    with pytest.raises(DatasetError, match="1 test object"):
+        summarize(one)
+    alone = {**one, "objects": [{**r, "policies": {"random": r["policies"]["random"]}} for r in one["objects"]]}
+    assert summarize(alone)["n_objects"] == 1
 
 
 def test_active_episodes_refuses_captures_without_the_camera():
@@ -437,6 +479,29 @@ def test_module_runner_refuses_bad_input_in_one_line(tmp_path):
     expected = (f"python -m fusion.experiments.active: error: {tmp_path / 'none'}: not a folder "
                 "(expected <root>/<Class>/<instance>.<ext>)")
     assert done.stderr.strip().splitlines() == [expected]
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--candidates", "abc"], "--candidates"), (["--noise-mm", "x"], "--noise-mm"),
+    (["--visual", "lidar"], "--visual"),
+    (["--seed", "-1"], "--seed"), (["--seed", str(2**32)], "--seed"),
+    (["--seed", str(2**31), "--visual", "camera"], "--seed"),
+])
+def test_module_runner_refuses_bad_options_in_one_line(tmp_path, argv, named):
+    """A value argparse refuses is one line (not the 13-line usage); a seed outside what NumPy's legacy
+    seeding and scikit-learn take (32 bits; 31 with the camera, Open3D's C int) is refused before the store is
+    generated (2**32 failed in the first fit with a traceback)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "fusion.experiments.active", "--data", str(tmp_path),
+                           "--out", str(tmp_path / "out"), *argv], check=False, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("python -m fusion.experiments.active: error:")
+    assert named in lines[0]
+    assert not (tmp_path / "out").exists()
 
 
 # runpy warns that the module is imported already: it is, by this test process (``python -m`` starts without it)
