@@ -41,6 +41,7 @@ import numpy as np
 from fusion.decide import PROBA_FLOOR, fuse_touches
 from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
+from perception.limits import check_count
 from tactile import sampling
 from tactile.contours import Plane
 from tactile.explore import SequenceBatch, TactileSequence
@@ -281,6 +282,9 @@ class InformationPolicy(Policy):
         if isinstance(jitter_mm, bool) or not np.isfinite(jitter_mm) or jitter_mm < 0:
             raise InvalidArgumentError(f"information policy: jitter_mm must be a finite number >= 0, got {jitter_mm!r}")
         self.candidates, self.variants, self.jitter_mm = int(candidates), int(variants), float(jitter_mm)
+        # simulated touches per visual model, refused here rather than after minutes of drawing planes
+        check_count("contours", self.candidates * self.variants,
+                    f"information policy: {self.candidates} candidates x {self.variants} variants")
         self.smooth_iterations = int(smooth_iterations)
         if isinstance(visual_weight, bool) or not np.isfinite(visual_weight) or visual_weight < 0:
             raise InvalidArgumentError(f"information policy: visual_weight must be a finite number >= 0, "

@@ -170,6 +170,14 @@ class TestEpisode:
         with pytest.raises(InvalidArgumentError):
             run_episode(mug, visual, ConstantClassifier(), make_policy("random"), **kwargs)
 
+    @pytest.mark.parametrize("kwargs", [{"candidates": 10**6}, {"candidates": 50_001, "variants": 2}])
+    def test_candidate_budget_within_the_contour_limit(self, kwargs):
+        """A budget beyond the contour limit (100,000 simulated touches per visual model) is refused when the policy
+        is made, not after drawing its planes."""
+        with pytest.raises(InvalidArgumentError, match="above the limit"):
+            InformationPolicy(0, **kwargs)
+        assert InformationPolicy(0, candidates=50_000, variants=2).candidates == 50_000
+
     def test_bad_policies(self):
         with pytest.raises(InvalidArgumentError, match="unknown touch policy"):
             make_policy("greedy")
