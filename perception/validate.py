@@ -3,7 +3,7 @@ object and the problem (numpy's own errors, e.g. for a negative seed, name neith
 
 from __future__ import annotations
 
-from numbers import Integral
+from numbers import Integral, Real
 
 import numpy as np
 
@@ -39,6 +39,22 @@ def check_count(
     if not ok or int(value) < minimum:
         raise error(f"{where}: {name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def check_length(value, name: str, where: str, error: type[VisuotactileError] = InvalidArgumentError) -> float:
+    """``value`` as a float if it is a finite real number >= 0 (a length in mm; bools, strings and integers too
+    large for a float are refused).
+
+    Raises:
+        error: anything else, naming ``where`` and ``name``.
+    """
+    try:
+        ok = isinstance(value, Real) and not isinstance(value, bool) and np.isfinite(float(value)) and value >= 0
+    except OverflowError:  # a Python integer beyond the float range
+        ok = False
+    if not ok:
+        raise error(f"{where}: {name} must be a finite number >= 0 mm, got {value!r}")
+    return float(value)
 
 
 def check_object_model(model, what: str):

@@ -42,6 +42,7 @@ from fusion.decide import PROBA_FLOOR, fuse_touches
 from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
 from perception.limits import check_count
+from perception.validate import check_length
 from tactile import sampling
 from tactile.contours import Plane
 from tactile.explore import SequenceBatch, TactileSequence
@@ -381,8 +382,7 @@ def noisy_copy(model: ObjectModel, noise_mm: float = 1.0, seed: int = 0, *, name
     Raises:
         InvalidArgumentError: a negative or non-finite noise, or a bad seed.
     """
-    if isinstance(noise_mm, bool) or not np.isfinite(noise_mm) or noise_mm < 0:
-        raise InvalidArgumentError(f"noisy_copy: noise_mm must be a finite number >= 0, got {noise_mm!r}")
+    noise_mm = check_length(noise_mm, "noise_mm", "noisy_copy")
     rng = np.random.default_rng(_check_seed(seed))
     shift = rng.normal(0.0, float(noise_mm), model.n_vertices)[:, None] * model.vertex_normals
     return ObjectModel(model.vertices + shift, model.triangles, name=name or f"{model.name}@visual", label=None)

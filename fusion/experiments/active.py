@@ -24,13 +24,14 @@ from pathlib import Path
 import numpy as np
 
 from fusion.active import ActiveState, make_policy, noisy_copy, run_episode
-from fusion.active.policies import SMOOTH_ITERATIONS, InformationPolicy, smoothed, visual_belief
+from fusion.active.policies import POLICIES, SMOOTH_ITERATIONS, InformationPolicy, smoothed, visual_belief
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
 from perception.atomic import atomic_path
 from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
 from perception.geometry import ObjectModel
 from perception.limits import check_count
+from perception.validate import check_length
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
 from tactile.touching import touch
@@ -64,8 +65,6 @@ def paired_over_objects(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict:
 
 #: Views of the virtual OAK-D orbit when the camera is in the loop (``visual="camera"``).
 CAMERA_VIEWS = 4
-#: The largest ``--seed`` with the camera in the loop: the capture seeds Open3D, whose seed is a C int.
-CAMERA_SEED_MAX = 2**31 - 1
 
 
 def fold_order(names, specs) -> list[str]:
@@ -203,8 +202,6 @@ def _check_options(policies, candidates, variants, noise_mm, per_fold) -> tuple:
     """Refuse bad options of :func:`active_episodes` before its stores and fits (InvalidArgumentError);
     returns them as plain Python values (policies a tuple of str, candidates, variants, noise_mm a float,
     per_fold): numpy's integers and float32 would go to the JSON result as strings."""
-    from fusion.active.policies import POLICIES
-
     if isinstance(policies, str) or not isinstance(policies, (tuple, list)) or not policies:
         raise InvalidArgumentError(f"active: policies must be a non-empty list of names ({', '.join(POLICIES)}), "
                                    f"got {policies!r}")
@@ -215,18 +212,12 @@ def _check_options(policies, candidates, variants, noise_mm, per_fold) -> tuple:
         raise InvalidArgumentError(f"active: a policy is named twice in {list(policies)}")
     # its own checks of the budget, whichever policies run: the result and the report name the budget
     InformationPolicy(0, candidates=candidates, variants=variants)
-    try:  # (a Python int too large for a float is no noise either)
-        finite = np.isfinite(float(noise_mm))
-    except (TypeError, ValueError, OverflowError):
-        finite = False
-    if (isinstance(noise_mm, bool) or not isinstance(noise_mm, (int, float, np.integer, np.floating))
-            or not finite or noise_mm < 0):
-        raise InvalidArgumentError(f"active: noise_mm must be a finite number >= 0, got {noise_mm!r}")
+    noise_mm = check_length(noise_mm, "noise_mm", "active")
     if per_fold is not None and (isinstance(per_fold, bool) or not isinstance(per_fold, (int, np.integer))
                                  or per_fold < 1):
         raise InvalidArgumentError(f"active: per_fold must be an integer >= 1 or None (every test object), "
                                    f"got {per_fold!r}")
-    return (tuple(str(name) for name in policies), int(candidates), int(variants), float(noise_mm),
+    return (tuple(str(name) for name in policies), int(candidates), int(variants), noise_mm,
             None if per_fold is None else int(per_fold))
 
 
@@ -456,7 +447,8 @@ def main(argv=None) -> dict:
     import json
     from pathlib import Path
 
-    from fusion.cli import SEED_MAX, _Parser
+    from fusion.cli import SEED_MAX, _Parser, check_common
+    from fusion.commands.camera import SEED_MAX as CAMERA_SEED_MAX
     from fusion.experiments.config import FULL, QUICK
     from fusion.experiments.context import Context
     from fusion.experiments.data import folder_objects
@@ -488,12 +480,9 @@ def main(argv=None) -> dict:
                         help="with --visual camera: the classifier also learns from touches on the training objects' "
                              "reconstructions")
     args = parser.parse_args(argv)
-    # NumPy's legacy seeding and scikit-learn take 32 bits, Open3D's capture 31: refused here, not in a fit
-    most = CAMERA_SEED_MAX if args.visual == "camera" else SEED_MAX
-    if not 0 <= args.seed <= most:
-        camera = " with --visual camera" if args.visual == "camera" else ""
-        raise InvalidArgumentError(f"--seed must be a non-negative integer, at most {most} "
-                                   f"(2**{most.bit_length()} - 1){camera}, got {args.seed}")
+    # checked as the visuotactile command line checks it (32 bits; 31 where the camera's capture seeds Open3D)
+    args.seed_max = CAMERA_SEED_MAX if args.visual == "camera" else SEED_MAX
+    check_common(args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sizes = QUICK if args.quick else FULL
     ctx = Context(Path(args.out), args.seed, sizes, default_classifiers(args.seed, sizes.epochs), progress=False)

@@ -1,0 +1,22 @@
+"""The shared argument checks: what each accepts, returned as plain Python values, and what it refuses by name."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from perception.errors import InvalidArgumentError
+from perception.validate import check_length
+
+
+@pytest.mark.parametrize("value, expected", [(0, 0.0), (1.5, 1.5), (np.float32(0.25), 0.25), (np.int64(3), 3.0)])
+def test_check_length_accepts_finite_non_negative_numbers(value, expected):
+    out = check_length(value, "noise_mm", "here")
+    assert out == expected and type(out) is float
+
+
+@pytest.mark.parametrize("value", [-1e-12, float("nan"), float("inf"), np.float32("nan"), True, "1", None,
+                                   10**400, [1.0]])
+def test_check_length_refuses_the_rest_naming_where_and_what(value):
+    with pytest.raises(InvalidArgumentError, match=r"^here: noise_mm must be a finite number >= 0 mm"):
+        check_length(value, "noise_mm", "here")
