@@ -3,6 +3,7 @@ object and the problem (numpy's own errors, e.g. for a negative seed, name neith
 
 from __future__ import annotations
 
+import math
 from numbers import Integral, Real
 
 import numpy as np
@@ -41,19 +42,22 @@ def check_count(
     return int(value)
 
 
-def check_length(value, name: str, where: str, error: type[VisuotactileError] = InvalidArgumentError) -> float:
-    """``value`` as a float if it is a finite real number >= 0 (a length in mm; bools, strings and integers too
-    large for a float are refused).
+def check_length(value, name: str, where: str, error: type[VisuotactileError] = InvalidArgumentError, *,
+                 maximum: float = math.inf) -> float:
+    """``value`` as a float if it is a finite real number >= 0 and <= ``maximum`` (a length in mm; bools, strings
+    and integers too large for a float are refused).
 
     Raises:
         error: anything else, naming ``where`` and ``name``.
     """
     try:
-        ok = isinstance(value, Real) and not isinstance(value, bool) and np.isfinite(float(value)) and value >= 0
+        ok = (isinstance(value, Real) and not isinstance(value, bool) and np.isfinite(float(value))
+              and 0 <= value <= maximum)
     except OverflowError:  # a Python integer beyond the float range
         ok = False
     if not ok:
-        raise error(f"{where}: {name} must be a finite number >= 0 mm, got {value!r}")
+        bound = ">= 0" if maximum == math.inf else f"in [0, {maximum:g}]"
+        raise error(f"{where}: {name} must be a finite number {bound} mm, got {value!r}")
     return float(value)
 
 

@@ -235,6 +235,17 @@ class Toucher:
             raise found
         return found
 
+    def along(self, planes, seed: int | np.random.Generator | None) -> Iterator[Planned]:
+        """The contours of ``planes`` in order, lazily, each with a noise seed drawn from ``seed`` in turn (the
+        noise draws of the "stream" scheme; :func:`touch` with ``planes``).
+
+        Raises:
+            ContourError: a plane misses the object.
+        """
+        noise_rng = np.random.default_rng(seed)
+        for plane in planes:
+            yield Planned(self.cut(plane), int(noise_rng.integers(2**31 - 1)))
+
     def draw(self, rng: np.random.Generator) -> Contour:
         """One contour through two candidate points drawn with ``rng``; planes that miss the object are re-drawn.
 
@@ -383,8 +394,7 @@ def touch(
     if planes is not None:
         if len(planes) != n_contours:
             raise InvalidArgumentError(f"{model.name}: {len(planes)} planes given for n_contours={n_contours}")
-        noise_rng = np.random.default_rng(seed)
-        planned = (Planned(toucher.cut(plane), int(noise_rng.integers(2**31 - 1))) for plane in planes)
+        planned = toucher.along(planes, seed)
         jitter_rng = None
     elif seeding == "object":
         planned, jitter_rng = toucher.by_object(n_contours, seed)
@@ -420,9 +430,52 @@ def touch(
     return sequences
 
 
+def touch_variants(toucher: Toucher, planes: list[Plane], sensor: FSRSensor, variants) -> list[list[TactileSequence]]:
+    """Touch ``toucher``'s object along ``planes`` once per variant: for each (seed, jitter_mm) of ``variants``,
+    the sequences ``touch(toucher.model, toucher.strategy, len(planes), sensor, toucher.probes, seed,
+    planes=planes, jitter_mm=jitter_mm)`` gives, bit for bit. The planes are cut once (by ``toucher``) and every
+    variant is pressed in one adaptive pass (a touch policy simulating its candidates several ways).
+
+    Raises:
+        InvalidArgumentError: no planes or variants, a variant that is not (integer seed >= 0, jitter >= 0), a
+            sensor that is not an FSRSensor, or sequences beyond the contour or memory limits.
+        ContourError: a plane that misses the object.
+    """
+    if not isinstance(toucher, Toucher):
+        raise InvalidArgumentError(f"touch_variants: toucher must be a Toucher, got {type(toucher).__name__}")
+    model = toucher.model
+    if not isinstance(sensor, FSRSensor):
+        raise InvalidArgumentError(f"{model.name}: sensor must be a tactile.FSRSensor, got {type(sensor).__name__}")
+    planes, variants = list(planes), list(variants)
+    if not planes or not variants:
+        raise InvalidArgumentError(f"{model.name}: touch_variants needs at least one plane and one variant, got "
+                                   f"{len(planes)} and {len(variants)}")
+    checked = []
+    for variant in variants:
+        if not isinstance(variant, (tuple, list)) or len(variant) != 2:
+            raise InvalidArgumentError(f"{model.name}: a variant must be (seed, jitter_mm), got {variant!r}")
+        seed = check_seed(variant[0], model.name, allow_none=False)
+        if not isinstance(seed, int):
+            raise InvalidArgumentError(f"{model.name}: a variant's seed must be an integer, got {variant[0]!r}")
+        checked.append((seed, _check_jitter(variant[1], model.name)))
+    total = _check_contours(len(planes) * len(checked), model.name)
+    check_bytes(total * sequence_nbytes(toucher.probes, sensor.rows, sensor.cols),
+                f"{model.name}: touching {total} contours ({toucher.probes} probes, {sensor.rows} x {sensor.cols} "
+                "taxels)")
+    todo: list[tuple[Contour, Contour, int]] = []  # (planned, as pressed, noise seed), variant by variant
+    for seed, jitter_mm in checked:
+        jitter_rng = _stream_jitter_rng(seed) if jitter_mm > 0 else None
+        for item in toucher.along(planes, seed):
+            todo.append((item.contour, jitter_contour(item.contour, jitter_mm, jitter_rng), item.noise_seed))
+    reads = sensor.press_contours(model, [pressed for _, pressed, _ in todo], [noise for _, _, noise in todo])
+    sequences = [TactileSequence.of_contour(model, contour, *read, seed=noise, strategy=toucher.strategy)
+                 for (contour, _, noise), read in zip(todo, reads)]
+    return [sequences[i:i + len(planes)] for i in range(0, len(sequences), len(planes))]
+
+
 #: :func:`touch` under the name the first scripts used (its defaults: the "stream" seed scheme of the stores).
 explore_object = touch
 
 
 __all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher",
-           "check_strategy", "explore_object", "jitter_contour", "object_seed", "touch"]
+           "check_strategy", "explore_object", "jitter_contour", "object_seed", "touch", "touch_variants"]

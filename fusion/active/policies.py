@@ -47,11 +47,14 @@ from tactile import sampling
 from tactile.contours import Plane
 from tactile.explore import SequenceBatch, TactileSequence
 from tactile.sensor import FSRSensor
-from tactile.touching import Toucher, touch
+from tactile.touching import Toucher, touch_variants
 
 log = logging.getLogger(__name__)
 
 POLICIES = ("random", "saliency", "information")
+#: Most vertex noise (mm, standard deviation) of :func:`noisy_copy`: a depth camera errs by millimetres, and objects
+#: load 150 mm across; beyond a metre the copy is no view of the object at all.
+MAX_NOISE_MM = 1000.0
 #: Taubin steps the information policy smooths its visual model with before simulating touches (:func:`smoothed`).
 SMOOTH_ITERATIONS = 10
 
@@ -177,6 +180,12 @@ def visual_key(model: ObjectModel) -> str:
 def same_plane(a: Plane, b: Plane) -> bool:
     """Whether two planes are the same (same point, normal equal up to sign)."""
     return bool(np.allclose(a.point, b.point, atol=1e-9) and abs(abs(float(a.normal @ b.normal)) - 1.0) < 1e-12)
+
+
+def _same_as_any(plane: Plane, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(N,) :func:`same_plane` of ``plane`` and each of N planes given as (N, 3) points and normals, in one pass."""
+    close = np.all(np.abs(plane.point - points) <= 1e-9 + 1e-5 * np.abs(points), axis=1)  # np.allclose's test
+    return close & (np.abs(np.abs(normals @ plane.normal) - 1.0) < 1e-12)
 
 
 def _check_seed(seed) -> int:
@@ -305,23 +314,25 @@ class InformationPolicy(Policy):
         toucher = entry["toucher"]
         rng = np.random.default_rng([self.seed, int(entry["key"][:16], 16) % 2**32, 2**31])
         planes: list[Plane] = []
+        points, normals = np.empty((self.candidates, 3)), np.empty((self.candidates, 3))  # of the planes so far
         for _ in range(self.candidates * sampling.MAX_DRAWS):
             if len(planes) == self.candidates:
                 break
             plane = toucher.draw(rng).plane
-            if not any(same_plane(plane, p) for p in planes):
+            if not _same_as_any(plane, points[:len(planes)], normals[:len(planes)]).any():
+                points[len(planes)], normals[len(planes)] = plane.point, plane.normal
                 planes.append(plane)
         if not planes:
             raise ContourError(f"{state.visual.name}: no candidate plane cuts the visual model")
-        sensor, probes = state.sensor(), state.probes
-        surface = smoothed(state.visual, self.smooth_iterations)
-        outcomes = []
-        for v in range(self.variants):
-            sequences = touch(surface, "blind", len(planes), sensor, probes, seed=self.seed + v,
-                              planes=planes, jitter_mm=self.jitter_mm if v else 0.0)
-            batch = SequenceBatch.from_sequences(sequences, class_names=state.classes, sensor_spec=sensor.spec())
-            outcomes.append(np.asarray(state.classifier.predict_proba(batch), dtype=np.float64))
-        outcomes = np.stack(outcomes, axis=1)
+        sensor = state.sensor()
+        surface = Toucher(smoothed(state.visual, self.smooth_iterations), "blind", probes=state.probes)
+        # the first variant as planned, the others jittered; the planes cut once, every variant pressed in one pass
+        variants = touch_variants(surface, planes, sensor,
+                                  [(self.seed + v, self.jitter_mm if v else 0.0) for v in range(self.variants)])
+        batch = SequenceBatch.from_sequences([s for sequences in variants for s in sequences],
+                                             class_names=state.classes, sensor_spec=sensor.spec())
+        proba = np.asarray(state.classifier.predict_proba(batch), dtype=np.float64)
+        outcomes = proba.reshape(self.variants, len(planes), -1).transpose(1, 0, 2)
         entry["planes"], entry["outcomes"] = planes, (state.classifier, outcomes)
         self.simulation_seconds.append(time.perf_counter() - start)
         return planes, outcomes
@@ -330,7 +341,11 @@ class InformationPolicy(Policy):
         """(M,) each candidate's score under the current state (:func:`plan_scores`); touched candidates score
         -inf."""
         planes, outcomes = self.simulated(state)
-        touched = np.array([any(same_plane(c, p) for p in state.planes) for c in planes])
+        touched = np.zeros(len(planes), dtype=bool)
+        if state.planes:
+            points = np.array([p.point for p in state.planes])
+            normals = np.array([p.normal for p in state.planes])
+            touched = np.array([_same_as_any(c, points, normals).any() for c in planes])
         return plan_scores(state.probabilities, outcomes, touched, visual_weight=self.visual_weight)
 
     def _propose(self, state: ActiveState) -> Plane:
@@ -380,14 +395,14 @@ def noisy_copy(model: ObjectModel, noise_mm: float = 1.0, seed: int = 0, *, name
     mm (seeded), same frame and triangles, no label (a robot's camera does not know the class).
 
     Raises:
-        InvalidArgumentError: a negative or non-finite noise, or a bad seed.
+        InvalidArgumentError: a noise that is negative, not finite or above ``MAX_NOISE_MM``, or a bad seed.
     """
-    noise_mm = check_length(noise_mm, "noise_mm", "noisy_copy")
+    noise_mm = check_length(noise_mm, "noise_mm", "noisy_copy", maximum=MAX_NOISE_MM)
     rng = np.random.default_rng(_check_seed(seed))
     shift = rng.normal(0.0, float(noise_mm), model.n_vertices)[:, None] * model.vertex_normals
     return ObjectModel(model.vertices + shift, model.triangles, name=name or f"{model.name}@visual", label=None)
 
 
-__all__ = ["POLICIES", "SMOOTH_ITERATIONS", "ActiveState", "InformationPolicy", "Policy", "RandomPolicy",
+__all__ = ["MAX_NOISE_MM", "POLICIES", "SMOOTH_ITERATIONS", "ActiveState", "InformationPolicy", "Policy", "RandomPolicy",
            "SaliencyPolicy", "information_gain", "make_policy", "noisy_copy", "plan_scores", "same_plane", "smoothed",
            "visual_belief", "visual_key"]

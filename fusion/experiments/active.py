@@ -24,7 +24,14 @@ from pathlib import Path
 import numpy as np
 
 from fusion.active import ActiveState, make_policy, noisy_copy, run_episode
-from fusion.active.policies import POLICIES, SMOOTH_ITERATIONS, InformationPolicy, smoothed, visual_belief
+from fusion.active.policies import (
+    MAX_NOISE_MM,
+    POLICIES,
+    SMOOTH_ITERATIONS,
+    InformationPolicy,
+    smoothed,
+    visual_belief,
+)
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
 from perception.atomic import atomic_path
@@ -212,7 +219,7 @@ def _check_options(policies, candidates, variants, noise_mm, per_fold) -> tuple:
         raise InvalidArgumentError(f"active: a policy is named twice in {list(policies)}")
     # its own checks of the budget, whichever policies run: the result and the report name the budget
     InformationPolicy(0, candidates=candidates, variants=variants)
-    noise_mm = check_length(noise_mm, "noise_mm", "active")
+    noise_mm = check_length(noise_mm, "noise_mm", "active", maximum=MAX_NOISE_MM)
     if per_fold is not None and (isinstance(per_fold, bool) or not isinstance(per_fold, (int, np.integer))
                                  or per_fold < 1):
         raise InvalidArgumentError(f"active: per_fold must be an integer >= 1 or None (every test object), "

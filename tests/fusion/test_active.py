@@ -16,12 +16,15 @@ from fusion.active import (
     plan_scores,
     run_episode,
     same_plane,
+    smoothed,
     stopped,
     visual_belief,
 )
 from perception.errors import InvalidArgumentError
 from perception.shapes import make_object
+from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
+from tactile.touching import touch
 
 CLASSES = np.array(["a", "b", "c"], dtype=object)
 
@@ -116,6 +119,56 @@ class TestContract:
         assert abs(policy.propose(sure_b).normal[2]) <= np.sqrt(0.5)
 
 
+class FrameClassifier(ConstantClassifier):
+    """Reads the frames: each sequence's mean gap (mm) decides between "a" and "b", so any change of a frame shows."""
+
+    def predict_proba(self, batch):
+        logit = batch.frames.reshape(len(batch), -1).mean(axis=1).astype(np.float64)
+        e = np.exp(np.stack([logit, -logit, np.zeros_like(logit)], axis=1))
+        return e / e.sum(axis=1, keepdims=True)
+
+
+def test_simulated_outcomes_are_those_of_touching_each_variant(objects):
+    """The candidates' outcomes (M, variants, C) are the classifier's answers to touch() on the smoothed visual
+    model, variant v seeded with seed + v and jittered from the second on: the planes cut once and the variants
+    pressed together give exactly what touching variant by variant gives."""
+    _, _, visual = objects
+    clf = FrameClassifier()
+    policy = InformationPolicy(5, candidates=6, variants=3, jitter_mm=0.7)
+    planes, outcomes = policy.simulated(ActiveState(visual, clf))
+    assert outcomes.shape == (len(planes), 3, 3)
+    surface = smoothed(visual, policy.smooth_iterations)
+    for v in range(3):
+        sequences = touch(surface, "blind", len(planes), clf.sensor(), clf.probes, seed=5 + v, planes=planes,
+                          jitter_mm=0.7 if v else 0.0)
+        batch = SequenceBatch.from_sequences(sequences, class_names=list(CLASSES), sensor_spec=clf.sensor().spec())
+        np.testing.assert_array_equal(outcomes[:, v], clf.predict_proba(batch))
+    assert not np.array_equal(outcomes[:, 0], outcomes[:, 1])  # the jittered variant reads other frames
+
+
+def test_same_as_any_is_same_plane_for_each():
+    """The vectorised test the information policy draws its candidates with answers as same_plane does, plane by
+    plane: equal planes, flipped normals, points and normals a hair apart on either side of the tolerances."""
+    from fusion.active.policies import _same_as_any
+    from tactile.contours import Plane
+
+    rng = np.random.default_rng(0)
+    base = [Plane(rng.normal(size=3) * 50, n / np.linalg.norm(n)) for n in rng.normal(size=(4, 3))]
+    others = []
+    for p in base:
+        others += [p, Plane(p.point, -p.normal), Plane(p.point + 1e-10, p.normal), Plane(p.point + 1e-3, p.normal),
+                   Plane(p.point * (1 + 2e-6), p.normal)]
+        for tilt in (1e-7, 1e-5):  # 1 - cos: about 5e-15 (the same plane) and 5e-11 (another)
+            normal = p.normal + np.array([tilt, 0.0, 0.0])
+            others.append(Plane(p.point, normal / np.linalg.norm(normal)))
+    points = np.array([o.point for o in others])
+    normals = np.array([o.normal for o in others])
+    for p in base + others:
+        expected = [same_plane(p, o) for o in others]
+        assert _same_as_any(p, points, normals).tolist() == expected
+    assert 0 < sum(same_plane(base[0], o) for o in others) < len(others)  # both answers occur
+
+
 class TestPlanScores:
     def test_hand_computed(self):
         # Nothing touched, visual weight 1: belief = the normalised geometric mean of the candidates' outcomes;
@@ -201,9 +254,15 @@ class TestNoisyCopy:
         assert along.std() == pytest.approx(2.0, rel=0.1)
         assert noisy_copy(mug, 2.0, seed=4).label is None  # the camera does not know the class
 
-    def test_bad_noise(self, objects):
-        with pytest.raises(InvalidArgumentError):
-            noisy_copy(objects[0], -1.0)
+    @pytest.mark.parametrize("noise", [-1.0, float("nan"), 1000.001, 1e300])
+    def test_bad_noise(self, objects, noise):
+        """Beyond MAX_NOISE_MM (1 m) the copy is no view of the object: refused by name, as is what is no noise."""
+        with pytest.raises(InvalidArgumentError, match=r"noisy_copy: noise_mm must be a finite number in \[0, 1000\]"):
+            noisy_copy(objects[0], noise)
+
+    def test_noise_up_to_the_limit_is_kept_finite(self, objects):
+        far = noisy_copy(objects[0], 1000.0, seed=2)
+        assert np.isfinite(far.vertices).all()
 
 
 def test_episode_figure(objects, tmp_path):

@@ -286,7 +286,7 @@ def test_active_episodes_refuses_bad_episodes_before_any_work(bad):
     ({"policies": ()}, "policies"), ({"policies": ("random", "greedy")}, "greedy"),
     ({"policies": ("random", "random")}, "twice"), ({"policies": "random"}, "policies"),
     ({"policies": {"random"}}, "policies"), ({"policies": 5}, "policies"), ({"noise_mm": True}, "noise_mm"),
-    ({"noise_mm": 10**400}, "noise_mm"),
+    ({"noise_mm": 10**400}, "noise_mm"), ({"noise_mm": 1e300}, r"noise_mm must be a finite number in \[0, 1000\]"),
     # the budget is recorded with the result and named in the report, whichever policies run
     ({"policies": ("random",), "candidates": 0}, "candidates"),
     ({"policies": ("random",), "variants": "2"}, "variants"),
@@ -302,7 +302,7 @@ def test_active_episodes_refuses_bad_options_before_any_work(options, match):
 
 
 @pytest.mark.parametrize("options", [
-    {"noise_mm": 0}, {"noise_mm": np.float32(0.0)}, {"per_fold": 1}, {"per_fold": np.int64(2)},
+    {"noise_mm": 0}, {"noise_mm": np.float32(0.0)}, {"noise_mm": 1000}, {"per_fold": 1}, {"per_fold": np.int64(2)},
     {"policies": ["random"]}, {"candidates": np.int64(1), "variants": 1},
 ])
 def test_active_options_at_their_bounds_pass_the_checks(options):

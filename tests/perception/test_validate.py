@@ -20,3 +20,9 @@ def test_check_length_accepts_finite_non_negative_numbers(value, expected):
 def test_check_length_refuses_the_rest_naming_where_and_what(value):
     with pytest.raises(InvalidArgumentError, match=r"^here: noise_mm must be a finite number >= 0 mm"):
         check_length(value, "noise_mm", "here")
+
+
+def test_check_length_refuses_beyond_its_maximum_and_says_the_range():
+    assert check_length(2.0, "side", "here", maximum=2.0) == 2.0  # the bound itself is allowed
+    with pytest.raises(InvalidArgumentError, match=r"^here: side must be a finite number in \[0, 2\] mm, got 2.5"):
+        check_length(2.5, "side", "here", maximum=2.0)

@@ -14,7 +14,7 @@ from perception.shapes import make_object
 from tactile.contours import make_contour, plane_through
 from tactile.explore import explore
 from tactile.sensor import FSRSensor
-from tactile.touching import SPARE_PLANES, Toucher, TouchTiming, explore_object, touch
+from tactile.touching import SPARE_PLANES, Toucher, TouchTiming, explore_object, touch, touch_variants
 
 SENSOR = FSRSensor(rows=8, cols=8)
 NOISY = FSRSensor(rows=8, cols=8, noise_std=0.05, dead_taxel_rate=0.05)
@@ -168,6 +168,66 @@ class TestGivenPlanes:
         plane = plane_through(box.center, box.vertices[0], box.vertices[5])
         with pytest.raises(InvalidArgumentError, match="1 planes given for n_contours=2"):
             touch(box, "blind", 2, SENSOR, 10, 3, planes=[plane])
+
+
+class TestVariants:
+    """touch_variants: several (seed, jitter) touches of the same planes, cut once and pressed in one pass."""
+
+    @pytest.mark.parametrize("sensor", [SENSOR, NOISY], ids=["clean", "noisy"])
+    def test_each_variant_is_what_touch_gives(self, box, sensor):
+        planes = [plane_through(box.center, box.vertices[0], box.vertices[v]) for v in (5, 40, 77)]
+        variants = [(3, 0.0), (4, 1.0), (9, 2.5)]
+        got = touch_variants(Toucher(box, "blind", probes=10), planes, sensor, variants)
+        assert [len(g) for g in got] == [3, 3, 3]
+        for (seed, jitter), sequences in zip(variants, got):
+            expected = touch(box, "blind", 3, sensor, 10, seed, planes=planes, jitter_mm=jitter)
+            for a, b in zip(sequences, expected, strict=True):
+                np.testing.assert_array_equal(a.frames, b.frames)
+                np.testing.assert_array_equal(a.pad_sides_mm, b.pad_sides_mm)
+                np.testing.assert_array_equal(a.positions, b.positions)  # the planned poses, jitter or not
+                assert (a.seed, a.strategy, a.object_name) == (b.seed, b.strategy, b.object_name)
+        # jitter moves the presses: the jittered variants read other frames than the planned one
+        assert not np.array_equal(got[0][0].frames, got[1][0].frames)
+
+    def test_planes_are_cut_once(self, box, monkeypatch):
+        from tactile import touching
+
+        cuts = []
+        real = touching.make_contour
+        monkeypatch.setattr(touching, "make_contour", lambda *a, **k: cuts.append(1) or real(*a, **k))
+        planes = [plane_through(box.center, box.vertices[0], box.vertices[v]) for v in (5, 40)]
+        touch_variants(Toucher(box, "blind", probes=10), planes, SENSOR, [(0, 0.0), (1, 1.0), (2, 1.0)])
+        assert len(cuts) == 2
+
+    @pytest.mark.parametrize("variants, match", [
+        ([], "at least one plane and one variant"),
+        ([(0,)], "a variant must be"),
+        ([3], "a variant must be"),
+        ([(-1, 0.0)], "seed"),
+        ([(1.5, 0.0)], "seed"),
+        ([(np.random.default_rng(0), 0.0)], "must be an integer"),
+        ([(0, -1.0)], "jitter"),
+        ([(0, float("nan"))], "jitter"),
+    ])
+    def test_bad_variants_are_refused(self, box, variants, match):
+        plane = plane_through(box.center, box.vertices[0], box.vertices[5])
+        with pytest.raises(InvalidArgumentError, match=match):
+            touch_variants(Toucher(box, "blind", probes=10), [plane], SENSOR, variants)
+
+    def test_bad_arguments_are_refused(self, box):
+        plane = plane_through(box.center, box.vertices[0], box.vertices[5])
+        with pytest.raises(InvalidArgumentError, match="Toucher"):
+            touch_variants(box, [plane], SENSOR, [(0, 0.0)])
+        with pytest.raises(InvalidArgumentError, match="FSRSensor"):
+            touch_variants(Toucher(box, "blind", probes=10), [plane], "sensor", [(0, 0.0)])
+        with pytest.raises(InvalidArgumentError, match="at least one plane"):
+            touch_variants(Toucher(box, "blind", probes=10), [], SENSOR, [(0, 0.0)])
+
+    def test_more_than_the_contour_limit_is_refused_before_cutting(self, box, monkeypatch):
+        monkeypatch.setenv("VISUOTACTILE_MAX_CONTOURS", "5")
+        plane = plane_through(box.center, box.vertices[0], box.vertices[5])
+        with pytest.raises(InvalidArgumentError, match="contours"):
+            touch_variants(Toucher(box, "blind", probes=10), [plane] * 3, SENSOR, [(0, 0.0), (1, 0.0)])
 
 
 @pytest.mark.parametrize("sensor", [FSRSensor(rows=16, cols=16, noise_std=0.05, dead_taxel_rate=0.1),
