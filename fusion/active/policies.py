@@ -329,10 +329,11 @@ class InformationPolicy(Policy):
         # the first variant as planned, the others jittered; the planes cut once, every variant pressed in one pass
         variants = touch_variants(surface, planes, sensor,
                                   [(self.seed + v, self.jitter_mm if v else 0.0) for v in range(self.variants)])
-        batch = SequenceBatch.from_sequences([s for sequences in variants for s in sequences],
-                                             class_names=state.classes, sensor_spec=sensor.spec())
-        proba = np.asarray(state.classifier.predict_proba(batch), dtype=np.float64)
-        outcomes = proba.reshape(self.variants, len(planes), -1).transpose(1, 0, 2)
+        # classified variant by variant: a classifier's arithmetic may depend on the batch (BLAS picks its kernels by
+        # the matrix shapes), and a last bit moved can change which near-tied candidate is chosen
+        outcomes = np.stack([np.asarray(state.classifier.predict_proba(SequenceBatch.from_sequences(
+            sequences, class_names=state.classes, sensor_spec=sensor.spec())), dtype=np.float64)
+            for sequences in variants], axis=1)
         entry["planes"], entry["outcomes"] = planes, (state.classifier, outcomes)
         self.simulation_seconds.append(time.perf_counter() - start)
         return planes, outcomes
