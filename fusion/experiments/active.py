@@ -452,6 +452,7 @@ def main(argv=None) -> dict:
     its own; writes ``results.json`` and ``report.md`` (``results_camera.json``, ``report_camera.md``) to ``--out``
     (stores, models, captures and episodes cached there)."""
     import json
+    import re
     from pathlib import Path
 
     from fusion.cli import SEED_MAX, _Parser, check_common
@@ -490,6 +491,11 @@ def main(argv=None) -> dict:
     # checked as the visuotactile command line checks it (32 bits; 31 where the camera's capture seeds Open3D)
     args.seed_max = CAMERA_SEED_MAX if args.visual == "camera" else SEED_MAX
     check_common(args)
+    policies = tuple(p for p in args.policies.split(",") if p)
+    try:  # the options' own checks, before the data is read, in one line naming the flag
+        _check_options(policies, args.candidates, args.variants, args.noise_mm, args.per_fold)
+    except InvalidArgumentError as exc:
+        parser.error(re.sub(r"\b(noise_mm|per_fold)\b", lambda m: "--" + m.group(1).replace("_", "-"), str(exc)))
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     sizes = QUICK if args.quick else FULL
     ctx = Context(Path(args.out), args.seed, sizes, default_classifiers(args.seed, sizes.epochs), progress=False)
@@ -497,7 +503,7 @@ def main(argv=None) -> dict:
     start = time.perf_counter()
     summary = active_part(ctx, objects, classifier=args.classifier, max_touches=args.max_touches,
                           noise_mm=args.noise_mm, candidates=args.candidates, variants=args.variants,
-                          policies=tuple(p for p in args.policies.split(",") if p), visual=args.visual,
+                          policies=policies, visual=args.visual,
                           per_fold=args.per_fold, train_on_captures=args.train_on_captures,
                           episodes=args.episodes)
     summary |= {"command": "python -m fusion.experiments.active " + " ".join(argv if argv is not None else

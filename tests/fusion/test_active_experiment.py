@@ -486,6 +486,10 @@ def test_module_runner_refuses_bad_input_in_one_line(tmp_path):
     (["--visual", "lidar"], "--visual"),
     (["--seed", "-1"], "--seed"), (["--seed", str(2**32)], "--seed"),
     (["--seed", str(2**31), "--visual", "camera"], "--seed"),
+    # the options' own checks name the flag, and come before the (here empty) data folder is read
+    (["--noise-mm", "1e300"], "--noise-mm must be a finite number in [0, 1000] mm"),
+    (["--noise-mm", "-1"], "--noise-mm must be"), (["--per-fold", "0"], "--per-fold must be"),
+    (["--candidates", "0"], "candidates must be"), (["--policies", "random,random"], "named twice"),
 ])
 def test_module_runner_refuses_bad_options_in_one_line(tmp_path, argv, named):
     """A value argparse refuses is one line (not the 13-line usage); a seed outside what NumPy's legacy
