@@ -6,7 +6,7 @@ from tactile.dead_taxels import find_dead_taxels, repair_dead_taxels
 from tactile.explore import SequenceBatch, TactileSequence, explore
 from tactile.sampling import sample_planes
 from tactile.sensor import FSRSensor
-from tactile.touching import Toucher, TouchTiming, explore_object, touch
+from tactile.touching import Toucher, TouchTiming, explore_object, touch, touch_variants
 
 __all__ = [
     "Contour",
@@ -28,4 +28,5 @@ __all__ = [
     "sample_planes",
     "section",
     "touch",
+    "touch_variants",
 ]
