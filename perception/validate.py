@@ -45,7 +45,8 @@ def check_count(
 def check_length(value, name: str, where: str, error: type[VisuotactileError] = InvalidArgumentError, *,
                  maximum: float = math.inf) -> float:
     """``value`` as a float if it is a finite real number >= 0 and <= ``maximum`` (a length in mm; bools, strings
-    and integers too large for a float are refused).
+    and integers too large for a float are refused). -0.0 comes back as 0.0: NumPy's samplers refuse a negative
+    zero scale ("scale < 0").
 
     Raises:
         error: anything else, naming ``where`` and ``name``.
@@ -58,7 +59,7 @@ def check_length(value, name: str, where: str, error: type[VisuotactileError] = 
     if not ok:
         bound = ">= 0" if maximum == math.inf else f"in [0, {maximum:g}]"
         raise error(f"{where}: {name} must be a finite number {bound} mm, got {value!r}")
-    return float(value)
+    return float(value) + 0.0  # -0.0 + 0.0 is 0.0
 
 
 def check_object_model(model, what: str):

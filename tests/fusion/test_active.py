@@ -260,6 +260,12 @@ class TestNoisyCopy:
         with pytest.raises(InvalidArgumentError, match=r"noisy_copy: noise_mm must be a finite number in \[0, 1000\]"):
             noisy_copy(objects[0], noise)
 
+    def test_negative_zero_noise_is_no_noise(self, objects):
+        """-0.0 mm (what ``--noise-mm -0.0`` parses to) is no noise: it raised numpy's "scale < 0" ValueError, after
+        the active run had generated its stores."""
+        mug = objects[0]
+        np.testing.assert_array_equal(noisy_copy(mug, -0.0, seed=3).vertices, mug.vertices)
+
     def test_noise_up_to_the_limit_is_kept_finite(self, objects):
         far = noisy_copy(objects[0], 1000.0, seed=2)
         assert np.isfinite(far.vertices).all()

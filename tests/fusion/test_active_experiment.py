@@ -323,6 +323,8 @@ def test_active_options_come_back_as_plain_python_values():
     assert checked == (("random",), 3, 1, 0.5, 2)
     assert [type(x) for x in checked] == [tuple, int, int, float, int]
     assert _check_options(("random",), 3, 1, 1, None)[3:] == (1.0, None)
+    noise = _check_options(("random",), 3, 1, -0.0, None)[3]  # --noise-mm -0.0: recorded and used as 0.0
+    assert noise == 0.0 and np.copysign(1.0, noise) == 1.0
 
 
 def test_active_episodes_refuses_an_unknown_classifier_before_the_store():

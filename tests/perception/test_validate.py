@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -20,6 +22,14 @@ def test_check_length_accepts_finite_non_negative_numbers(value, expected):
 def test_check_length_refuses_the_rest_naming_where_and_what(value):
     with pytest.raises(InvalidArgumentError, match=r"^here: noise_mm must be a finite number >= 0 mm"):
         check_length(value, "noise_mm", "here")
+
+
+@pytest.mark.parametrize("value", [-0.0, np.float64(-0.0), np.float32(-0.0)])
+def test_check_length_gives_a_negative_zero_as_zero(value):
+    """-0.0 passes (it is >= 0) and comes back as +0.0: numpy.random's normal(0, -0.0) raises "scale < 0"."""
+    out = check_length(value, "noise_mm", "here")
+    assert out == 0.0 and math.copysign(1.0, out) == 1.0 and type(out) is float
+    np.random.default_rng(0).normal(0.0, out, 3)  # numpy takes it as a scale
 
 
 def test_check_length_refuses_beyond_its_maximum_and_says_the_range():
