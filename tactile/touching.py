@@ -80,18 +80,41 @@ def check_strategy(strategy: str) -> None:
 
 
 def _check_jitter(jitter_mm, name: str | None = None) -> float:
-    """``jitter_mm`` as a float if it is a finite real number >= 0 (mm)."""
-    ok = isinstance(jitter_mm, Real) and not isinstance(jitter_mm, bool)
-    if not ok or not np.isfinite(jitter_mm) or jitter_mm < 0:
+    """``jitter_mm`` as a float if it is a finite real number >= 0 (mm; a Fraction too, an integer beyond the float
+    range not)."""
+    try:
+        ok = (isinstance(jitter_mm, Real) and not isinstance(jitter_mm, bool) and np.isfinite(float(jitter_mm))
+              and jitter_mm >= 0)
+    except OverflowError:  # a Python integer beyond the float range
+        ok = False
+    if not ok:
         where = f"{name}: " if name else ""
         raise InvalidArgumentError(f"{where}pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
-    return float(jitter_mm)
+    return float(jitter_mm) + 0.0  # -0.0 as 0.0
 
 
 def _check_probes(probes, name: str) -> int:
     """``probes`` as an int: an integer >= 2 and within the probes-per-contour limit (:mod:`perception.limits`)."""
     probes = check_count(probes, "probes", name, minimum=2)
     return check_limit("probes", probes, f"{name}: probes")
+
+
+def _check_planes(planes, name: str) -> list[Plane]:
+    """``planes`` as a list if it is an iterable of :class:`~tactile.contours.Plane` (a list, tuple or generator).
+
+    Raises:
+        InvalidArgumentError: not iterable, or an item that is not a Plane (None, a (point, normal) pair...).
+    """
+    try:
+        planes = list(planes)
+    except TypeError:
+        raise InvalidArgumentError(f"{name}: planes must be an iterable of tactile.contours.Plane, got "
+                                   f"{type(planes).__name__}") from None
+    for k, plane in enumerate(planes):
+        if not isinstance(plane, Plane):
+            raise InvalidArgumentError(f"{name}: plane {k} must be a tactile.contours.Plane, got "
+                                       f"{type(plane).__name__}")
+    return planes
 
 
 def _check_contours(n, name: str) -> int:
@@ -389,11 +412,13 @@ def touch(
     # The sequences are returned together: refuse, before any saliency or touch, what memory cannot hold.
     check_bytes(n_contours * sequence_nbytes(probes, sensor.rows, sensor.cols),
                 f"{model.name}: touching {n_contours} contours ({probes} probes, {sensor.rows} x {sensor.cols} taxels)")
+    if planes is not None:
+        planes = _check_planes(planes, model.name)
+        if len(planes) != n_contours:
+            raise InvalidArgumentError(f"{model.name}: {len(planes)} planes given for n_contours={n_contours}")
     toucher = Toucher(model, strategy, probes=probes, saliency=saliency,
                       saliency_seed=seed if seeding == "object" else 0, timing=timing)
     if planes is not None:
-        if len(planes) != n_contours:
-            raise InvalidArgumentError(f"{model.name}: {len(planes)} planes given for n_contours={n_contours}")
         planned = toucher.along(planes, seed)
         jitter_rng = None
     elif seeding == "object":
@@ -437,8 +462,9 @@ def touch_variants(toucher: Toucher, planes: list[Plane], sensor: FSRSensor, var
     variant is pressed in one adaptive pass (a touch policy simulating its candidates several ways).
 
     Raises:
-        InvalidArgumentError: no planes or variants, a variant that is not (integer seed >= 0, jitter >= 0), a
-            sensor that is not an FSRSensor, or sequences beyond the contour or memory limits.
+        InvalidArgumentError: planes that are not an iterable of Plane, no planes or variants, a variant that is not
+            (integer seed >= 0, jitter >= 0), a sensor that is not an FSRSensor, or sequences beyond the contour or
+            memory limits.
         ContourError: a plane that misses the object.
     """
     if not isinstance(toucher, Toucher):
@@ -446,7 +472,12 @@ def touch_variants(toucher: Toucher, planes: list[Plane], sensor: FSRSensor, var
     model = toucher.model
     if not isinstance(sensor, FSRSensor):
         raise InvalidArgumentError(f"{model.name}: sensor must be a tactile.FSRSensor, got {type(sensor).__name__}")
-    planes, variants = list(planes), list(variants)
+    planes = _check_planes(planes, model.name)
+    try:
+        variants = list(variants)
+    except TypeError:
+        raise InvalidArgumentError(f"{model.name}: variants must be an iterable of (seed, jitter_mm), got "
+                                   f"{type(variants).__name__}") from None
     if not planes or not variants:
         raise InvalidArgumentError(f"{model.name}: touch_variants needs at least one plane and one variant, got "
                                    f"{len(planes)} and {len(variants)}")

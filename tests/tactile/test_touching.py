@@ -4,6 +4,7 @@ definitions say, whoever calls them (explore_object, touch_object, recognize, th
 from __future__ import annotations
 
 import zlib
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -169,6 +170,16 @@ class TestGivenPlanes:
         with pytest.raises(InvalidArgumentError, match="1 planes given for n_contours=2"):
             touch(box, "blind", 2, SENSOR, 10, 3, planes=[plane])
 
+    def test_what_is_not_a_plane_is_refused_before_the_saliency(self, box, monkeypatch):
+        """touch(planes=[None]) raised AttributeError, after the guided strategy's saliency."""
+        from perception import saliency
+
+        monkeypatch.setattr(saliency, "saliency", lambda *a, **k: pytest.fail("saliency computed"))
+        with pytest.raises(InvalidArgumentError, match=f"^{box.name}: plane 0 must be a tactile.contours.Plane"):
+            touch(box, "guided", 1, SENSOR, 10, 3, planes=[None])
+        with pytest.raises(InvalidArgumentError, match=f"^{box.name}: planes must be an iterable"):
+            touch(box, "guided", 1, SENSOR, 10, 3, planes=7)
+
 
 class TestVariants:
     """touch_variants: several (seed, jitter) touches of the same planes, cut once and pressed in one pass."""
@@ -222,6 +233,47 @@ class TestVariants:
             touch_variants(Toucher(box, "blind", probes=10), [plane], "sensor", [(0, 0.0)])
         with pytest.raises(InvalidArgumentError, match="at least one plane"):
             touch_variants(Toucher(box, "blind", probes=10), [], SENSOR, [(0, 0.0)])
+
+    @pytest.mark.parametrize("planes, variants, match", [
+        (None, [(0, 0.0)], "planes must be an iterable of tactile.contours.Plane, got NoneType"),
+        ([None], [(0, 0.0)], "plane 0 must be a tactile.contours.Plane, got NoneType"),
+        ("plane", [(0, 0.0)], "plane 0 must be a tactile.contours.Plane, got str"),
+        ("good+pair", [(0, 0.0)], "plane 1 must be a tactile.contours.Plane, got tuple"),
+        ("good", None, "variants must be an iterable of .seed, jitter_mm., got NoneType"),
+        ("good", 5, "variants must be an iterable"),
+    ])
+    def test_what_is_not_planes_or_variants_is_refused_by_name(self, box, planes, variants, match):
+        """None, a (point, normal) pair or a non-iterable raised AttributeError or TypeError."""
+        good = plane_through(box.center, box.vertices[0], box.vertices[5])
+        named = {"good": [good], "good+pair": [good, (good.point, good.normal)]}
+        planes = named.get(planes, planes) if isinstance(planes, str) else planes
+        with pytest.raises(InvalidArgumentError, match=f"^{box.name}: {match}"):
+            touch_variants(Toucher(box, "blind", probes=10), planes, SENSOR, variants)
+
+    @pytest.mark.parametrize("jitter", [10**400, Fraction(-1, 2), "1", True, float("inf")])
+    def test_jitter_that_is_no_length_is_refused_by_name(self, box, jitter):
+        """An integer beyond the float range raised numpy's TypeError from isfinite."""
+        plane = plane_through(box.center, box.vertices[0], box.vertices[5])
+        with pytest.raises(InvalidArgumentError, match=f"^{box.name}: pose jitter must be a finite number >= 0 mm"):
+            touch_variants(Toucher(box, "blind", probes=10), [plane], SENSOR, [(0, jitter)])
+        with pytest.raises(InvalidArgumentError, match=f"^{box.name}: pose jitter must be a finite number >= 0 mm"):
+            touch(box, "blind", 1, SENSOR, 10, 0, planes=[plane], jitter_mm=jitter)
+
+    def test_a_fraction_of_a_millimetre_is_a_jitter(self, box):
+        plane = plane_through(box.center, box.vertices[0], box.vertices[5])
+        (got,) = touch_variants(Toucher(box, "blind", probes=10), [plane], SENSOR, [(2, Fraction(1, 2))])
+        (expected,) = touch(box, "blind", 1, SENSOR, 10, 2, planes=[plane], jitter_mm=0.5)
+        np.testing.assert_array_equal(got[0].frames, expected.frames)
+
+    def test_planes_from_a_generator(self, box):
+        """Planes may come from any iterable: a generator is read once, and touch() takes one too."""
+        planes = [plane_through(box.center, box.vertices[0], box.vertices[v]) for v in (5, 40)]
+        got = touch_variants(Toucher(box, "blind", probes=10), (p for p in planes), SENSOR, [(1, 0.0), (2, 1.0)])
+        assert [len(g) for g in got] == [2, 2]
+        for (seed, jitter), sequences in zip([(1, 0.0), (2, 1.0)], got):
+            expected = touch(box, "blind", 2, SENSOR, 10, seed, planes=iter(planes), jitter_mm=jitter)
+            for a, b in zip(sequences, expected, strict=True):
+                np.testing.assert_array_equal(a.frames, b.frames)
 
     def test_more_than_the_contour_limit_is_refused_before_cutting(self, box, monkeypatch):
         monkeypatch.setenv("VISUOTACTILE_MAX_CONTOURS", "5")
