@@ -231,6 +231,13 @@ class TestEpisode:
             InformationPolicy(0, **kwargs)
         assert InformationPolicy(0, candidates=50_000, variants=2).candidates == 50_000
 
+    @pytest.mark.parametrize("label", ["jitter_mm", "visual_weight"])
+    @pytest.mark.parametrize("value", ["1", 10**400, True, -0.5, float("nan"), None])
+    def test_information_settings_that_are_no_numbers_are_refused_by_name(self, label, value):
+        """A string or an integer beyond the float range raised numpy's TypeError from isfinite."""
+        with pytest.raises(InvalidArgumentError, match=f"^information policy: {label} must be a finite number >= 0"):
+            InformationPolicy(0, **{label: value})
+
     def test_bad_policies(self):
         with pytest.raises(InvalidArgumentError, match="unknown touch policy"):
             make_policy("greedy")
