@@ -169,6 +169,51 @@ def test_same_as_any_is_same_plane_for_each():
     assert 0 < sum(same_plane(base[0], o) for o in others) < len(others)  # both answers occur
 
 
+def test_same_as_any_at_the_tolerances():
+    """At np.allclose's bounds exactly, and where its relative tolerance (taken on the second plane's point) decides
+    by itself: a point 1e-9 mm from the origin is 'close' to it (|a - b| <= atol), and 100 mm against
+    100 - 9.99995e-4 mm is close one way round only."""
+    from fusion.active.policies import _same_as_any
+    from tactile.contours import Plane
+
+    normal = np.array([0.0, 0.6, 0.8])
+    pairs = [(Plane(np.array([1e-9, 0.0, 0.0]), normal), Plane(np.zeros(3), normal)),
+             (Plane(np.array([100.0 - 9.99995e-4, 5.0, 0.0]), normal), Plane(np.array([100.0, 5.0, 0.0]), normal))]
+    answers = []
+    for a, b in pairs:
+        for p, q in ((a, b), (b, a)):
+            expected = same_plane(p, q)
+            assert _same_as_any(p, q.point[None], q.normal[None]).tolist() == [expected]
+            answers.append(expected)
+    assert answers == [True, True, True, False]  # the cases are at the bounds: both answers occur
+
+
+def test_candidates_are_the_distinct_planes_in_the_order_drawn():
+    """A box of 8 vertices cut through its centre gives few planes, drawn again and again: the candidates are the
+    first draws that are not same_plane as one kept before (the one just kept included), in the order drawn."""
+    import open3d as o3d
+
+    from perception.geometry import ObjectModel
+    from tactile.touching import Toucher
+
+    mesh = o3d.geometry.TriangleMesh.create_box(60.0, 40.0, 50.0)
+    cube = ObjectModel(np.asarray(mesh.vertices) - [30.0, 20.0, 25.0], np.asarray(mesh.triangles), name="cube")
+    policy = InformationPolicy(0, candidates=5, variants=1)
+    state = ActiveState(cube, ConstantClassifier())
+    planes, _ = policy.simulated(state)
+    rng = policy._rng(policy._entry(state), 2**31)  # the draws of the candidates, replayed on a Toucher of our own
+    toucher, kept, again, just_kept = Toucher(cube, "blind", probes=state.probes), [], 0, 0
+    while len(kept) < 5:
+        plane = toucher.draw(rng).plane
+        if any(same_plane(plane, k) for k in kept):
+            again, just_kept = again + 1, just_kept + same_plane(plane, kept[-1])
+        else:
+            kept.append(plane)
+    assert again > 0 and just_kept > 0  # planes were drawn again, some just after being kept
+    assert len(planes) == 5 and all(same_plane(p, k) for p, k in zip(planes, kept))
+    assert not any(same_plane(p, q) for i, p in enumerate(planes) for q in planes[i + 1:])
+
+
 class TestPlanScores:
     def test_hand_computed(self):
         # Nothing touched, visual weight 1: belief = the normalised geometric mean of the candidates' outcomes;

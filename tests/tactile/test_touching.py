@@ -165,6 +165,18 @@ class TestGivenPlanes:
             np.testing.assert_array_equal(sequence.frames, expected.frames)
             np.testing.assert_array_equal(sequence.plane.normal, plane.normal)
 
+    def test_noise_seeds_come_from_the_seed_in_turn(self, box):
+        """Each contour's noise seed is the next integer below 2**31 - 1 drawn from the seed's generator: recorded
+        with the sequence and giving a noisy sensor's frames."""
+        planes = [plane_through(box.center, box.vertices[0], box.vertices[v]) for v in (5, 40, 77)]
+        sequences = touch(box, "blind", 3, NOISY, 10, 11, planes=planes)
+        rng = np.random.default_rng(11)
+        for sequence, plane in zip(sequences, planes, strict=True):
+            noise = int(rng.integers(2**31 - 1))
+            assert sequence.seed == noise
+            np.testing.assert_array_equal(sequence.frames, explore(box, make_contour(box, plane, 10), NOISY,
+                                                                   seed=noise).frames)
+
     def test_count_must_match(self, box):
         plane = plane_through(box.center, box.vertices[0], box.vertices[5])
         with pytest.raises(InvalidArgumentError, match="1 planes given for n_contours=2"):
@@ -200,6 +212,27 @@ class TestVariants:
         # jitter moves the presses: the jittered variants read other frames than the planned one
         assert not np.array_equal(got[0][0].frames, got[1][0].frames)
 
+    def test_a_guided_toucher_gives_what_touch_gives_for_its_strategy(self, box):
+        planes = [plane_through(box.center, box.vertices[0], box.vertices[v]) for v in (5, 40)]
+        variants = [(0, 0.0), (6, 1.5)]
+        got = touch_variants(Toucher(box, "guided", probes=10), planes, NOISY, variants)
+        for (seed, jitter), sequences in zip(variants, got, strict=True):
+            expected = touch(box, "guided", 2, NOISY, 10, seed, planes=planes, jitter_mm=jitter)
+            for a, b in zip(sequences, expected, strict=True):
+                np.testing.assert_array_equal(a.frames, b.frames)
+                assert (a.seed, a.strategy) == (b.seed, "guided")
+
+    def test_more_than_memory_holds_is_refused_before_cutting(self, box, monkeypatch):
+        """355 sequences of 10 probes on 8 x 8 taxels (2,960 B each: 1,050,800 B) are above a 1 MB limit; the
+        variants count, not only the planes."""
+        from tactile import touching
+
+        monkeypatch.setenv("VISUOTACTILE_MAX_MEMORY_MB", "1")
+        monkeypatch.setattr(touching, "make_contour", lambda *a, **k: pytest.fail("a plane was cut"))
+        plane = plane_through(box.center, box.vertices[0], box.vertices[5])
+        with pytest.raises(InvalidArgumentError, match=r"^box/1: touching 355 contours .*limit of 1 MB"):
+            touch_variants(Toucher(box, "blind", probes=10), [plane] * 5, SENSOR, [(k, 0.0) for k in range(71)])
+
     def test_planes_are_cut_once(self, box, monkeypatch):
         from tactile import touching
 
@@ -217,6 +250,7 @@ class TestVariants:
         ([(-1, 0.0)], "seed"),
         ([(1.5, 0.0)], "seed"),
         ([(np.random.default_rng(0), 0.0)], "must be an integer"),
+        ([(0, 0.0, 1)], "a variant must be"),
         ([(0, -1.0)], "jitter"),
         ([(0, float("nan"))], "jitter"),
     ])
