@@ -43,10 +43,10 @@ def check_count(
 
 
 def check_length(value, name: str, where: str, error: type[VisuotactileError] = InvalidArgumentError, *,
-                 maximum: float = math.inf) -> float:
-    """``value`` as a float if it is a finite real number >= 0 and <= ``maximum`` (a length in mm; bools, strings
-    and integers too large for a float are refused). -0.0 comes back as 0.0: NumPy's samplers refuse a negative
-    zero scale ("scale < 0").
+                 maximum: float = math.inf, unit: str = "mm") -> float:
+    """``value`` as a float if it is a finite real number >= 0 and <= ``maximum`` (a length in ``unit``, or any
+    non-negative amount with ``unit=""``; bools, strings and integers too large for a float are refused). -0.0 comes
+    back as 0.0: NumPy's samplers refuse a negative zero scale ("scale < 0").
 
     Raises:
         error: anything else, naming ``where`` and ``name``.
@@ -58,7 +58,7 @@ def check_length(value, name: str, where: str, error: type[VisuotactileError] = 
         ok = False
     if not ok:
         bound = ">= 0" if maximum == math.inf else f"in [0, {maximum:g}]"
-        raise error(f"{where}: {name} must be a finite number {bound} mm, got {value!r}")
+        raise error(f"{where}: {name} must be a finite number {bound}{' ' + unit if unit else ''}, got {value!r}")
     return float(value) + 0.0  # -0.0 + 0.0 is 0.0
 
 

@@ -29,7 +29,6 @@ import time
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from numbers import Real
 
 import numpy as np
 
@@ -39,7 +38,7 @@ from perception.geometry import ObjectModel
 from perception.limits import check_bytes
 from perception.limits import check_count as check_limit
 from perception.runtime import progress_bar
-from perception.validate import check_count, check_object_model, check_seed
+from perception.validate import check_count, check_length, check_object_model, check_seed
 from tactile import sampling
 from tactile.contours import Contour, Plane, make_contour
 from tactile.explore import TactileSequence, sequence_nbytes
@@ -80,17 +79,8 @@ def check_strategy(strategy: str) -> None:
 
 
 def _check_jitter(jitter_mm, name: str | None = None) -> float:
-    """``jitter_mm`` as a float if it is a finite real number >= 0 (mm; a Fraction too, an integer beyond the float
-    range not)."""
-    try:
-        ok = (isinstance(jitter_mm, Real) and not isinstance(jitter_mm, bool) and np.isfinite(float(jitter_mm))
-              and jitter_mm >= 0)
-    except OverflowError:  # a Python integer beyond the float range
-        ok = False
-    if not ok:
-        where = f"{name}: " if name else ""
-        raise InvalidArgumentError(f"{where}pose jitter must be a finite number >= 0 mm, got {jitter_mm!r}")
-    return float(jitter_mm) + 0.0  # -0.0 as 0.0
+    """``jitter_mm`` as a float if it is a finite real number >= 0 (mm), refused by ``name`` otherwise."""
+    return check_length(jitter_mm, "pose jitter", name or "jitter_contour")
 
 
 def _check_probes(probes, name: str) -> int:

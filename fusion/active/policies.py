@@ -35,7 +35,6 @@ import logging
 import time
 import weakref
 from dataclasses import dataclass, field
-from numbers import Real
 
 import numpy as np
 
@@ -189,18 +188,6 @@ def _same_as_any(plane: Plane, points: np.ndarray, normals: np.ndarray) -> np.nd
     return close & (np.abs(np.abs(normals @ plane.normal) - 1.0) < 1e-12)
 
 
-def _check_setting(value, label: str) -> float:
-    """An information policy's ``value`` as a float if it is a finite real number >= 0 (strings, bools and integers
-    beyond the float range refused by name, not by numpy's TypeError)."""
-    try:
-        ok = isinstance(value, Real) and not isinstance(value, bool) and np.isfinite(float(value)) and value >= 0
-    except OverflowError:  # a Python integer beyond the float range
-        ok = False
-    if not ok:
-        raise InvalidArgumentError(f"information policy: {label} must be a finite number >= 0, got {value!r}")
-    return float(value) + 0.0  # -0.0 as 0.0
-
-
 def _check_seed(seed) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InvalidArgumentError(f"policy seed must be an integer >= 0, got {seed!r}")
@@ -302,13 +289,13 @@ class InformationPolicy(Policy):
                                   ("smooth_iterations", smooth_iterations, 0)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise InvalidArgumentError(f"information policy: {label} must be an integer >= {low}, got {value!r}")
-        jitter_mm = _check_setting(jitter_mm, "jitter_mm")
+        jitter_mm = check_length(jitter_mm, "jitter_mm", "information policy")
         self.candidates, self.variants, self.jitter_mm = int(candidates), int(variants), jitter_mm
         # simulated touches per visual model, refused here rather than after minutes of drawing planes
         check_count("contours", self.candidates * self.variants,
                     f"information policy: {self.candidates} candidates x {self.variants} variants")
         self.smooth_iterations = int(smooth_iterations)
-        self.visual_weight = _check_setting(visual_weight, "visual_weight")
+        self.visual_weight = check_length(visual_weight, "visual_weight", "information policy", unit="")
         #: Seconds spent simulating candidates (once per visual model), per model.
         self.simulation_seconds: list[float] = []
 

@@ -36,3 +36,8 @@ def test_check_length_refuses_beyond_its_maximum_and_says_the_range():
     assert check_length(2.0, "side", "here", maximum=2.0) == 2.0  # the bound itself is allowed
     with pytest.raises(InvalidArgumentError, match=r"^here: side must be a finite number in \[0, 2\] mm, got 2.5"):
         check_length(2.5, "side", "here", maximum=2.0)
+
+
+def test_check_length_of_a_unitless_amount_names_no_unit():
+    with pytest.raises(InvalidArgumentError, match=r"^here: weight must be a finite number >= 0, got -1$"):
+        check_length(-1, "weight", "here", unit="")
