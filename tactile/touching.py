@@ -52,6 +52,9 @@ SEEDINGS = ("stream", "object")
 SPARE_PLANES = 20
 #: Pose jitter: normal tilt std (degrees) per mm of position jitter std.
 TILT_DEG_PER_MM = 2.5
+#: Most pose jitter (mm, standard deviation): a finger lands millimetres from its plan; beyond a metre it is not
+#: touching the object (and far beyond, probe positions overflow).
+MAX_JITTER_MM = 1000.0
 
 
 @dataclass
@@ -79,8 +82,9 @@ def check_strategy(strategy: str) -> None:
 
 
 def _check_jitter(jitter_mm, name: str | None = None) -> float:
-    """``jitter_mm`` as a float if it is a finite real number >= 0 (mm), refused by ``name`` otherwise."""
-    return check_length(jitter_mm, "pose jitter", name or "jitter_contour")
+    """``jitter_mm`` as a float if it is a finite real number in [0, ``MAX_JITTER_MM``] (mm), refused by ``name``
+    otherwise."""
+    return check_length(jitter_mm, "pose jitter", name or "jitter_contour", maximum=MAX_JITTER_MM)
 
 
 def _check_probes(probes, name: str) -> int:
@@ -498,5 +502,5 @@ def touch_variants(toucher: Toucher, planes: list[Plane], sensor: FSRSensor, var
 explore_object = touch
 
 
-__all__ = ["SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher",
+__all__ = ["MAX_JITTER_MM", "SEEDINGS", "SPARE_PLANES", "TILT_DEG_PER_MM", "Planned", "TouchTiming", "Toucher",
            "check_strategy", "explore_object", "jitter_contour", "object_seed", "touch", "touch_variants"]

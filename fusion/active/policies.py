@@ -47,7 +47,7 @@ from tactile import sampling
 from tactile.contours import Plane
 from tactile.explore import SequenceBatch, TactileSequence
 from tactile.sensor import FSRSensor
-from tactile.touching import Toucher, touch_variants
+from tactile.touching import MAX_JITTER_MM, Toucher, touch_variants
 
 log = logging.getLogger(__name__)
 
@@ -289,7 +289,7 @@ class InformationPolicy(Policy):
                                   ("smooth_iterations", smooth_iterations, 0)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise InvalidArgumentError(f"information policy: {label} must be an integer >= {low}, got {value!r}")
-        jitter_mm = check_length(jitter_mm, "jitter_mm", "information policy")
+        jitter_mm = check_length(jitter_mm, "jitter_mm", "information policy", maximum=MAX_JITTER_MM)
         self.candidates, self.variants, self.jitter_mm = int(candidates), int(variants), jitter_mm
         # simulated touches per visual model, refused here rather than after minutes of drawing planes
         check_count("contours", self.candidates * self.variants,

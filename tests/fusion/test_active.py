@@ -280,8 +280,13 @@ class TestEpisode:
     @pytest.mark.parametrize("value", ["1", 10**400, True, -0.5, float("nan"), None])
     def test_information_settings_that_are_no_numbers_are_refused_by_name(self, label, value):
         """A string or an integer beyond the float range raised numpy's TypeError from isfinite."""
-        with pytest.raises(InvalidArgumentError, match=f"^information policy: {label} must be a finite number >= 0"):
+        with pytest.raises(InvalidArgumentError, match=f"^information policy: {label} must be a finite number"):
             InformationPolicy(0, **{label: value})
+
+    def test_jitter_beyond_a_metre_is_refused(self):
+        with pytest.raises(InvalidArgumentError, match=r"jitter_mm must be a finite number in \[0, 1000\] mm"):
+            InformationPolicy(0, jitter_mm=1e308)
+        assert InformationPolicy(0, jitter_mm=1000).jitter_mm == 1000.0
 
     def test_bad_policies(self):
         with pytest.raises(InvalidArgumentError, match="unknown touch policy"):
