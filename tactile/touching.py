@@ -339,6 +339,16 @@ def _stream_jitter_rng(seed: int | np.random.Generator | None) -> np.random.Gene
     return np.random.default_rng(None if seed is None else [int(seed), zlib.crc32(b"jitter")])
 
 
+def _press_planned(sensor: FSRSensor, model: ObjectModel, todo: list[tuple[Contour, Contour, int]],
+                   strategy: str) -> list[TactileSequence]:
+    """The sequences of ``todo``'s (planned, as pressed, noise seed) contours, pressed in one adaptive pass
+    (:meth:`FSRSensor.press_contours`: the frames of one press per contour). Each records the planned poses: the
+    robot does not know its jitter."""
+    reads = sensor.press_contours(model, [pressed for _, pressed, _ in todo], [noise for _, _, noise in todo])
+    return [TactileSequence.of_contour(model, contour, *read, seed=noise, strategy=strategy)
+            for (contour, _, noise), read in zip(todo, reads)]
+
+
 def touch(
     model: ObjectModel,
     strategy: str = "guided",
@@ -395,6 +405,10 @@ def touch(
     if seeding not in SEEDINGS:
         raise InvalidArgumentError(f"unknown seeding {seeding!r}; choose one of {', '.join(SEEDINGS)}")
     n_contours = _check_contours(n_contours, model.name)
+    if planes is not None:
+        planes = _check_planes(planes, model.name)
+        if len(planes) != n_contours:
+            raise InvalidArgumentError(f"{model.name}: {len(planes)} planes given for n_contours={n_contours}")
     seed = check_seed(seed, model.name)
     if seeding == "object" and not isinstance(seed, int):
         raise InvalidArgumentError(f"{model.name}: seeding 'object' needs an integer seed, got {seed!r}")
@@ -406,10 +420,6 @@ def touch(
     # The sequences are returned together: refuse, before any saliency or touch, what memory cannot hold.
     check_bytes(n_contours * sequence_nbytes(probes, sensor.rows, sensor.cols),
                 f"{model.name}: touching {n_contours} contours ({probes} probes, {sensor.rows} x {sensor.cols} taxels)")
-    if planes is not None:
-        planes = _check_planes(planes, model.name)
-        if len(planes) != n_contours:
-            raise InvalidArgumentError(f"{model.name}: {len(planes)} planes given for n_contours={n_contours}")
     toucher = Toucher(model, strategy, probes=probes, saliency=saliency,
                       saliency_seed=seed if seeding == "object" else 0, timing=timing)
     if planes is not None:
@@ -436,14 +446,10 @@ def touch(
         contour, pressed, noise = item.contour, jitter_contour(item.contour, jitter_mm, jitter_rng), item.noise_seed
         todo.append((contour, pressed, noise))
         if timing is not None:
-            (read,) = sensor.press_contours(model, [pressed], [noise])
-            sequences.append(TactileSequence.of_contour(model, contour, *read, seed=noise, strategy=strategy))
+            sequences += _press_planned(sensor, model, todo[-1:], strategy)
             timing.contour_seconds.append(time.perf_counter() - start)
     if timing is None:
-        reads = sensor.press_contours(model, [pressed for _, pressed, _ in todo], [noise for _, _, noise in todo])
-        # Each sequence records the planned poses (the robot does not know its jitter).
-        sequences = [TactileSequence.of_contour(model, contour, *read, seed=noise, strategy=strategy)
-                     for (contour, _, noise), read in zip(todo, reads)]
+        sequences = _press_planned(sensor, model, todo, strategy)
     if contours is not None:
         contours.extend(contour for contour, _, _ in todo)
     return sequences
@@ -492,9 +498,7 @@ def touch_variants(toucher: Toucher, planes: list[Plane], sensor: FSRSensor, var
         jitter_rng = _stream_jitter_rng(seed) if jitter_mm > 0 else None
         for item in toucher.along(planes, seed):
             todo.append((item.contour, jitter_contour(item.contour, jitter_mm, jitter_rng), item.noise_seed))
-    reads = sensor.press_contours(model, [pressed for _, pressed, _ in todo], [noise for _, _, noise in todo])
-    sequences = [TactileSequence.of_contour(model, contour, *read, seed=noise, strategy=toucher.strategy)
-                 for (contour, _, noise), read in zip(todo, reads)]
+    sequences = _press_planned(sensor, model, todo, toucher.strategy)
     return [sequences[i:i + len(planes)] for i in range(0, len(sequences), len(planes))]
 
 
