@@ -12,11 +12,15 @@ SYSTEM_LIBS := libusb-1.0.so.0:libusb-1.0-0 libGL.so.1:libgl1 libEGL.so.1:libegl
 demo: $(STAMP)
 	$(PY) -m fusion.cli demo --out out/demo
 
+# The tests run side by side in one process per core (pytest-xdist), at most four: many of them start worker
+# processes of their own, and each process holds its own copy of torch and Open3D.
+TEST_PROCESSES := -n auto --maxprocesses 4
+
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q $(TEST_PROCESSES)
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m slow
+	$(PY) -m pytest -q -m slow $(TEST_PROCESSES)
 
 bench: $(STAMP)
 	$(PY) -m fusion.cli bench geometry --quick

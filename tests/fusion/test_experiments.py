@@ -10,6 +10,7 @@ import functools
 import itertools
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -838,12 +839,31 @@ OPEN_SET_CLASSES = ("bottle", "bowl", "box", "can", "funnel", "mug", "ring", "wi
 OPEN_SET_SIZES = TINY.with_(unseen_contours=6, touches=(1, 2), openset_rotations=2, calibration_classifiers=("em",))
 
 
-def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
+@pytest.fixture(scope="module")
+def open_set_data(tmp_path_factory):
+    """``(meshes, stores)``: the 8 catalogue classes x 6 objects of the open-set tests, and the stores their parts
+    read, made once for the module (a store is named after its objects' paths, so every test reads these meshes).
+    Each test copies the stores into its report folder with :func:`with_stores`: what it checks is made anew."""
+    root = tmp_path_factory.mktemp("open_set")
+    meshes = mesh_folder(root / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
+    reproduce(meshes, root / "made", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+              parts=("openset",), workers=2, progress=False)
+    return meshes, root / "made" / "stores"
+
+
+def with_stores(report: Path, stores: Path) -> Path:
+    """``report``, a new report folder holding a copy of ``stores`` (the tests then generate nothing)."""
+    shutil.copytree(stores, report / "stores")
+    return report
+
+
+def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path, open_set_data):
     """The two parts end to end on 8 catalogue classes x 6 objects (blind, 6 contours, any pose): ECE rows before and
     after calibration for every K with intervals around them and one reliability figure; open-set rows for every
     score and K, AUROCs in [0, 1] over exactly the left-out objects, and shares at the training-chosen threshold."""
     classes = OPEN_SET_CLASSES
-    data = mesh_folder(tmp_path / "meshes", classes=classes, per_class=6)
+    data, stores = open_set_data
+    with_stores(tmp_path / "report", stores)
     fits = []
 
     class Recording(EmbeddingMean):
@@ -893,10 +913,11 @@ def test_calibration_and_open_set_parts_report_every_k_and_score(tmp_path):
         assert all(by[(k, "chosen")] == by[(k, name)] for k in (1, 2))
 
 
-def test_open_set_part_resumes_from_the_calibrations_it_saved(tmp_path, caplog):
+def test_open_set_part_resumes_from_the_calibrations_it_saved(tmp_path, caplog, open_set_data):
     """Each rotation's calibrated model is saved as it is made: a re-run of the part (its result file gone, as after an
     interrupt) loads them, fits nothing and reports the same rows; a damaged model file is calibrated again, alone."""
-    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
+    data, stores = open_set_data
+    with_stores(tmp_path / "report", stores)
     fits = []
 
     class Recording(EmbeddingMean):
@@ -945,7 +966,7 @@ def test_open_set_part_resumes_from_the_calibrations_it_saved(tmp_path, caplog):
     assert all(after[name] != stamp for name, stamp in before.items())
 
 
-def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
+def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch, open_set_data):
     """The shares kept and rejected use each K's own threshold: below every score at K = 1 (all kept, none
     rejected), above every score at K = 2 (none kept, all rejected)."""
     from fusion.experiments import openset as experiment
@@ -964,8 +985,9 @@ def test_open_set_shares_follow_the_threshold_of_each_k(tmp_path, monkeypatch):
 
     monkeypatch.setattr(experiment, "threshold_for", threshold)
     monkeypatch.setattr(experiment, "group_scores", tied)
-    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
-    results = reproduce(data, tmp_path / "report", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+    data, stores = open_set_data
+    results = reproduce(data, with_stores(tmp_path / "report", stores), sizes=OPEN_SET_SIZES,
+                        classifiers={"em": EmbeddingMean},
                         parts=("openset",), workers=2, progress=False)
     assert sorted(set(asked)) == [1, 2]
     shares = {r["k"]: (r["known_kept"], r["unknown_rejected"]) for r in results["openset"]["rows"]
@@ -1134,12 +1156,12 @@ def test_calibration_part_runs_on_two_training_objects_per_class(tmp_path):
         (k, v) for k in (1, 2) for v in ("before", "after")}
 
 
-def test_calibration_and_open_set_calibrate_in_one_pool(tmp_path, monkeypatch):
+def test_calibration_and_open_set_calibrate_in_one_pool(tmp_path, monkeypatch, open_set_data):
     """Both parts asked for: every calibration of both is made in one pool before either part runs (the parts then
     load them), and the rows are those of the two parts run one at a time."""
     from fusion.experiments.context import Context
 
-    data = mesh_folder(tmp_path / "meshes", classes=OPEN_SET_CLASSES, per_class=6)
+    data, stores = open_set_data
     pools = []
     real = Context.run_jobs
 
@@ -1154,13 +1176,15 @@ def test_calibration_and_open_set_calibrate_in_one_pool(tmp_path, monkeypatch):
     saved = {}
 
     monkeypatch.setattr(Context, "run_jobs", recording)
-    both = reproduce(data, tmp_path / "both", sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+    both = reproduce(data, with_stores(tmp_path / "both", stores), sizes=OPEN_SET_SIZES,
+                     classifiers={"em": EmbeddingMean},
                      parts=("calibration", "openset"), workers=2, progress=False)
     assert pools[0] == ["calibration", "openset"] and len(pools) == 3
     assert "calibrations" in both["seconds"]
     assert len(saved) == OPEN_SET_SIZES.unseen_folds + OPEN_SET_SIZES.openset_rotations  # one classifier
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "both").rglob("*.vtm")} == saved  # none made again
-    alone = {part: reproduce(data, tmp_path / part, sizes=OPEN_SET_SIZES, classifiers={"em": EmbeddingMean},
+    alone = {part: reproduce(data, with_stores(tmp_path / part, stores), sizes=OPEN_SET_SIZES,
+                             classifiers={"em": EmbeddingMean},
                              parts=(part,), workers=2, progress=False)[part] for part in ("calibration", "openset")}
     assert both["openset"]["rows"] == alone["openset"]["rows"]
     assert both["calibration"]["rows"] == alone["calibration"]["rows"]
