@@ -516,16 +516,25 @@ def main(argv=None) -> dict:
     return summary
 
 
-if __name__ == "__main__":
+def cli(argv=None) -> int:
+    """What ``python -m fusion.experiments.active`` runs: :func:`main`, refused input said in one line on stderr
+    (as the visuotactile command line says it); returns the exit status (argparse exits 2 itself)."""
     import sys
-    from importlib import import_module
 
     from perception.errors import VisuotactileError
 
     try:
-        # The package's copy of this module, not __main__: jobs built from its classes pickle by their package
-        # name, so the run's worker processes can take them (jobs naming __main__ run one by one in this process).
-        import_module("fusion.experiments.active").main()
-    except VisuotactileError as exc:  # refused input: one line, as the visuotactile CLI says it
+        main(argv)
+    except VisuotactileError as exc:
         print(f"python -m fusion.experiments.active: error: {exc}", file=sys.stderr)
-        sys.exit(2)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+    from importlib import import_module
+
+    # The package's copy of this module, not __main__: jobs built from its classes pickle by their package name,
+    # so the run's worker processes can take them (jobs naming __main__ run one by one in this process).
+    sys.exit(import_module("fusion.experiments.active").cli())
