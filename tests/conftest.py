@@ -1,14 +1,23 @@
-"""Shared fixtures: the real data folder (skipped, saying why, where absent), a TMPDIR for child processes."""
+"""Shared fixtures: the real data folder (skipped, saying why, where absent), a TMPDIR for child processes; Ctrl-C
+handled as Python does by default, whatever the shell that started the tests."""
 
 from __future__ import annotations
 
 import shutil
+import signal
 import tempfile
 from pathlib import Path
 
 import pytest
 
 from perception.data import DATA
+
+# A shell starts a background job (``&``, nohup) with SIGINT ignored, and every process inherits that: the child
+# processes the interrupt tests send SIGINT to never saw it, and those tests hung until their timeouts (6 of them,
+# 120 s each). A handler set here is reset to the default in every program this process starts, so each child's
+# Python installs its usual KeyboardInterrupt handler, as it does when the tests run from a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def data_folder(name: str) -> Path:
