@@ -291,7 +291,7 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
                            candidates, variants) for n, name in enumerate(names)]
         # the objects side by side on the run's workers (each policy's draws are seeded by the object's visual
         # model and the step, so an object's episodes do not depend on which objects came before it)
-        for name, row in zip(names, ctx.run_jobs(jobs) if jobs else []):
+        for name, row in zip(names, ctx.run_jobs(jobs, f"episodes, fold {i + 1}", "object") if jobs else []):
             if row is None:
                 failures.append(name)
                 continue

@@ -76,12 +76,13 @@ class Context:
 
         return raise_failures(run_tasks(tasks, self.workers, self.progress))
 
-    def run_jobs(self, jobs: list) -> list:
+    def run_jobs(self, jobs: list, desc: str = "fit", unit: str = "model") -> list:
         """What the jobs of :func:`fusion.experiments.parallel.run_jobs` (e.g. calibrations) return, in their
-        order, run side by side on the run's workers; the first failure is raised once all have run."""
+        order, run side by side on the run's workers (``desc`` and ``unit`` label the progress bar); the first failure
+        is raised once all have run."""
         from fusion.experiments.parallel import raise_failures, run_jobs
 
-        return raise_failures(run_jobs(jobs, self.workers, self.progress))
+        return raise_failures(run_jobs(jobs, self.workers, self.progress, desc=desc, unit=unit))
 
     def store(self, objects, *, strategies, contours: int) -> tuple:
         """(the opened dataset, its record) of ``objects`` with these settings and the run's seed, generated,

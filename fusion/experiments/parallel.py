@@ -238,9 +238,11 @@ def _collect(outcomes: dict[int, object], groups: list[list[int]], results: list
         outcomes.update({i: result[n] if together else result for n, i in enumerate(group)})
 
 
-def run_jobs(jobs: list, workers: int | None = None, progress: bool = True) -> list:
+def run_jobs(jobs: list, workers: int | None = None, progress: bool = True, *, desc: str = "fit",
+             unit: str = "model") -> list:
     """Run ``jobs`` (objects with ``run()`` and ``cost()``; e.g. :class:`FitTask`) and return, in their order, what
-    each ``run()`` returned or the exception it raised.
+    each ``run()`` returned or the exception it raised. ``desc`` and ``unit`` label the progress bar (one step per
+    job).
 
     They run in ``workers`` processes (None, or more than the usable cores: the usable cores), the most expensive
     first, each worker on ``usable cores / workers`` cores (a lone job too: a crash there leaves this process
@@ -254,7 +256,7 @@ def run_jobs(jobs: list, workers: int | None = None, progress: bool = True) -> l
     try:
         if jobs and workers > 1 and _picklable(jobs):
             order = sorted(range(len(jobs)), key=lambda i: -jobs[i].cost())
-            with progress_bar(total=len(jobs), enabled=progress, desc="fit", unit="model") as bar:
+            with progress_bar(total=len(jobs), enabled=progress, desc=desc, unit=unit) as bar:
                 done = _in_workers(jobs, order, workers, bar)
             return [done[i] for i in range(len(jobs))]
         return [_outcome(job) for job in jobs]

@@ -23,6 +23,7 @@ from fusion.experiments.parallel import (
     FitTask,
     StoreRows,
     raise_failures,
+    run_jobs,
     run_tasks,
     shared_workers,
 )
@@ -481,3 +482,27 @@ def test_an_interrupt_stops_the_workers_and_they_remove_what_they_were_writing(t
     assert list((tmp_path / "out").iterdir()) == []
     assert "started ['started-a', 'started-b']" in run.stdout, run.stdout
     assert float(run.stdout.split("interrupted after")[1].split()[0]) < 30  # not the 60 s the jobs would take
+
+
+class Square:
+    """A job that returns the square of its number."""
+
+    def __init__(self, n: int):
+        self.n = n
+
+    def cost(self) -> float:
+        return 1.0
+
+    def run(self) -> int:
+        return self.n * self.n
+
+
+@two_cores
+def test_the_progress_bar_says_what_the_jobs_are(capsys):
+    """The active part's episodes went by under the fit bar's words ("fit ... model"): the caller names them."""
+    assert run_jobs([Square(n) for n in range(3)], workers=2, desc="episodes, fold 1", unit="object") == [0, 1, 4]
+    err = capsys.readouterr().err
+    assert "episodes, fold 1" in err and "3/3" in err and "object" in err and "fit" not in err, err
+    assert run_jobs([Square(2)], workers=2) == [4]
+    err = capsys.readouterr().err
+    assert "fit" in err and "model" in err, err
