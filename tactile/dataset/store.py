@@ -733,13 +733,14 @@ def max_chunk_file_bytes(array) -> int:
     return raw + raw // 8 + (inner + 1) * CHUNK_OVERHEAD_BYTES
 
 
-def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.ndarray:
+def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str, out: np.ndarray | None = None) -> np.ndarray:
     """``array[lo:hi]``, rows of one object (``owner``, named in errors), with every chunk checked: its file
     present, a regular file, not empty and not larger than its rows can take (:func:`max_chunk_file_bytes`), the
     Blosc header of each chunk to decode declaring the raw size of that chunk (checked from a few bytes of the file
     before anything is decoded: a small chunk declaring gigabytes would be decompressed in full first), and its
     checksum matching (zarr's ``crc32c`` codec). The layouts :func:`create_store` makes are decoded here
-    (:func:`_decode_rows`, the same values as zarr reads); any other is read by zarr.
+    (:func:`_decode_rows`, the same values as zarr reads); any other is read by zarr. ``out``: where to put them (a
+    C-contiguous array of their shape and dtype, returned; by default a new one).
 
     Raises:
         DatasetError: a missing, empty, oversized or damaged chunk; an array whose codecs are not those
@@ -747,7 +748,10 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.
     """
     plan = _chunk_plan(path, name, array)
     per = plan.per
-    out = np.empty((hi - lo, *array.shape[1:]), dtype=array.dtype) if plan.direct else None
+    shape = (hi - lo, *array.shape[1:])
+    if out is not None and not (out.shape == shape and out.dtype == array.dtype and out.flags.c_contiguous):
+        raise ValueError(f"out must be a C-contiguous {array.dtype} array of shape {shape}")  # decoded into its buffer
+    target = (np.empty(shape, dtype=array.dtype) if out is None else out) if plan.direct else None
     for index, file in enumerate(chunk_files(path, name, array, lo, hi), start=lo // per):
 
         def damaged(problem: str, file=file) -> DatasetError:
@@ -771,24 +775,28 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str) -> np.
             problem = _header_problem(fd, size, plan, a, b)
             if problem:
                 raise damaged(problem)
-            if out is not None:
+            if target is not None:
                 try:
-                    _decode_rows(fd, size, plan, a, b, out[first + a - lo:first + b - lo])
+                    _decode_rows(fd, size, plan, a, b, target[first + a - lo:first + b - lo])
                 except _Unreadable as exc:
                     raise DatasetError(damage_message(path, owner, f"its {name} rows {lo}..{hi - 1} do not read back "
                                                       f"({exc})")) from None
         finally:
             if fd is not None:
                 os.close(fd)
-    if out is not None:
-        return out
+    if target is not None:
+        return target
     try:
-        return array[lo:hi]
+        values = array[lo:hi]
     except MemoryError:
         raise
     except Exception as exc:  # noqa: BLE001 -- zarr and its codecs raise several types for damaged chunks
         problem = f"its {name} rows {lo}..{hi - 1} do not read back ({type(exc).__name__}: {str(exc)[:160]})"
         raise DatasetError(damage_message(path, owner, problem)) from None
+    if out is None:
+        return values
+    out[...] = values
+    return out
 
 
 class _Unreadable(Exception):
@@ -817,9 +825,11 @@ def _decode_rows(fd: int, size: int, plan: _ChunkPlan, lo: int, hi: int, out: np
 
     blosc = compressor()
     if not plan.inner:
-        rows = np.empty((plan.per, *out.shape[1:]), dtype=out.dtype)
+        whole = lo == 0 and hi == plan.per  # the whole chunk: decoded in place, not through a copy
+        rows = out if whole else np.empty((plan.per, *out.shape[1:]), dtype=out.dtype)
         _decode_into(blosc, checked(os.pread(fd, size, 0), "chunk"), rows)
-        out[...] = rows[lo:hi]
+        if not whole:
+            out[...] = rows[lo:hi]
         return
     index_bytes = plan.inner * SHARD_ENTRY_BYTES + CRC_BYTES
     if size < index_bytes:
