@@ -11,6 +11,7 @@ digests is refused too, :func:`~tactile.dataset.store.value_problem`).
 from __future__ import annotations
 
 import logging
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +66,7 @@ def _read_rows(path: Path, name: str, array, rows: np.ndarray, owner) -> np.ndar
     files = sorted_rows // block
     bounds = [0, *(np.flatnonzero(files[1:] != files[:-1]) + 1).tolist(), len(rows)]
     with zarr.config.set(ZARR_READ):
-        for p, q in zip(bounds[:-1], bounds[1:]):
+        for p, q in pairwise(bounds):
             lo, hi = int(sorted_rows[p]), int(sorted_rows[q - 1]) + 1
             if increasing and hi - lo == q - p:  # rows lo..hi-1, in order: decoded where they go
                 read_rows(path, name, array, lo, hi, owner(lo), out=out[p:q])
