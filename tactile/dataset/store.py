@@ -75,7 +75,7 @@ import numpy as np
 
 from perception import untrusted
 from perception.atomic import atomic_path, write_text
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 
 log = logging.getLogger(__name__)
 
@@ -750,7 +750,7 @@ def read_rows(path: Path, name: str, array, lo: int, hi: int, owner: str, out: n
     per = plan.per
     shape = (hi - lo, *array.shape[1:])
     if out is not None and not (out.shape == shape and out.dtype == array.dtype and out.flags.c_contiguous):
-        raise ValueError(f"out must be a C-contiguous {array.dtype} array of shape {shape}")  # decoded into its buffer
+        raise InvalidArgumentError(f"read_rows: out must be a C-contiguous {array.dtype} array of shape {shape}")
     target = (np.empty(shape, dtype=array.dtype) if out is None else out) if plan.direct else None
     for index, file in enumerate(chunk_files(path, name, array, lo, hi), start=lo // per):
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import zarr
 
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from tactile.dataset import open_dataset
 from tactile.dataset.store import chunk_files, read_rows
 from tests._small_store import SETTINGS
@@ -68,7 +68,7 @@ def test_rows_decoded_into_a_given_array_are_those_zarr_reads(store, name):
         assert out.tobytes() == whole[lo:hi].tobytes()
     for bad in (np.empty((ROWS + 1, *array.shape[1:]), array.dtype), np.empty((ROWS, *array.shape[1:]), np.float64),
                 np.empty((2 * ROWS, *array.shape[1:]), array.dtype)[::2]):
-        with pytest.raises(ValueError, match="out must be"):
+        with pytest.raises(InvalidArgumentError, match="out must be"):
             read_rows(store, name, array, 0, ROWS, "x", out=bad)
 
 
