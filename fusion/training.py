@@ -78,13 +78,14 @@ def _copies_together(dataset, train: np.ndarray, test: np.ndarray) -> tuple[np.n
 
 def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = "invariant", split: str = "sequence",
                    test_fraction: float = 0.2, strategy: str | None = None, random_state: int = 0,
-                   calibrated: bool = False) -> dict:
+                   calibrated: bool = False, outliers: str | Path | None = None) -> dict:
     """Fit classifier ``kind`` (:func:`fusion.classifiers.make_classifier`) on ``store``'s training part, record
     the :class:`TrainingRecord` as ``model.training_``, save it to ``out`` and score the held-out part.
 
     With ``calibrated``, :func:`fusion.openset.calibrate` fits it instead: calibrated probabilities and, with at
     least three classes, the "unknown" answer (leave-classes-out folds: up to four), all on the training part
-    only; its inner folds train the classifier several more times.
+    only; its inner folds train the classifier several more times. ``outliers``: a store of touches of objects of no
+    class in ``store``, for the CNN's outlier exposure (:class:`fusion.cnn.CNNClassifier`'s ``outliers``).
 
     Returns:
         {"model", "cue", "out", "train_sequences", "fit_seconds"}, with ``calibrated`` also "calibration"
@@ -93,16 +94,25 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
         :class:`~fusion.evaluate.Accuracy`).
 
     Raises:
-        InvalidArgumentError: an unknown classifier, cue or split. DatasetError: an unreadable store; with
-            ``calibrated``, a class with fewer than three training objects.
+        InvalidArgumentError: an unknown classifier, cue or split; ``outliers`` for a classifier other than the CNN,
+            or naming ``store`` itself. DatasetError: an unreadable store; with ``calibrated``, a class with fewer than
+            three training objects.
     """
     from fusion.classifiers import make_classifier
     from fusion.evaluate import accuracy
     from tactile.dataset import open_dataset
 
+    options = {}
+    if outliers is not None:
+        if kind != "cnn":
+            raise InvalidArgumentError(f"outliers: only the cnn model trains with outlier touches, not {kind!r}")
+        if Path(outliers).resolve() == Path(store).resolve():
+            raise InvalidArgumentError(f"outliers: {outliers} is the training store itself; give a store of objects "
+                                       "of no class the model is to know")
+        options["outliers"] = str(outliers)
     dataset = open_dataset(store)
     train, test = split_indices(dataset, split, strategy, test_fraction, random_state)
-    model = make_classifier(kind, cue=cue, random_state=random_state)
+    model = make_classifier(kind, cue=cue, random_state=random_state, **options)
     start = time.perf_counter()
     training = dataset.load(train)
     if calibrated:

@@ -14,7 +14,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     check_output_file(args.out, "--out")  # before training, not after
     result = train_on_store(args.store, args.model, args.out, cue=args.cue, split=args.split,
                             test_fraction=args.test_fraction, strategy=args.strategy, random_state=args.seed,
-                            calibrated=args.calibrate)
+                            calibrated=args.calibrate, outliers=args.outliers)
     acc = result.pop("accuracy", None)
     if args.json:
         print_json(result)
@@ -51,6 +51,9 @@ def register(sub) -> None:
     p.add_argument("--calibrate", action="store_true",
                    help="also fit calibrated probabilities and an 'unknown' answer on the training objects (held-out "
                         "objects inside the training part; needs >= 3 objects per class; trains several more times)")
+    p.add_argument("--outliers", default=None, metavar="STORE",
+                   help="cnn only: a store of touches of objects of no class in --store; the nets learn to doubt "
+                        "what feels like none of the classes (outlier exposure)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print a JSON result on stdout")
     p.set_defaults(func=run)

@@ -147,3 +147,22 @@ def test_train_calibrate_needs_three_objects_per_class(store, tmp_path, capsys):
     assert len(err) == 1 and "--calibrate needs at least 3 training objects per class" in err[0]
     assert "{'box': 2, 'ring': 2, 'spoon': 2}" in err[0]
     assert not (tmp_path / "m.vtm").exists()
+
+
+def test_train_with_outliers_keeps_the_store_in_the_model(store, tmp_path, capsys):
+    """``--outliers``: the CNN trains with outlier exposure on a store of objects of no class of ``--store``; the SVM
+    and kNN have no such training, and the training store itself is no outlier store."""
+    outliers = tmp_path / "outliers.zarr"
+    generate([("bowl", 0), ("can", 0)], outliers, strategies=("blind",), contours_per_object=6,
+             sensor=FSRSensor(rows=8, cols=8), probes=10, seed=0, workers=1, progress=False)
+    model_path = tmp_path / "cnn.vtm"
+    assert main(["train", "--store", str(store), "--model", "cnn", "--outliers", str(outliers), "--out",
+                 str(model_path)]) == 0
+    capsys.readouterr()
+    model = load_model(model_path)
+    assert model.outliers == str(outliers) and list(model.classes_) == ["box", "ring", "spoon"]
+    for argv, words in ((["--model", "svm", "--outliers", str(outliers)], ("only the cnn", "svm")),
+                        (["--model", "cnn", "--outliers", str(store)], ("training store itself",))):
+        assert main(["train", "--store", str(store), "--out", str(tmp_path / "m.vtm"), *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and all(w in err[0] for w in words), err
