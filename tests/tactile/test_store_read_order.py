@@ -26,6 +26,8 @@ INDICES = {
     "reversed": np.arange(2 * ROWS)[::-1].copy(),
     "repeats": np.array([7, 1, 7, 0, 11, 6, 6, 2]),
     "an object shuffled, with repeats": np.array([5, 3, 0, 9, 4, 1, 2, 3, 0]),
+    # a whole object's rows spanning one stretch of the output, but not in order: hashed in store order all the same
+    "an object, two rows swapped": np.array([0, 2, 1, 3, 4, 5]),
     "sparse in order": np.array([0, 2, 3, 9, 10]),
     "one": np.array([5]),
     "none": np.zeros(0, dtype=np.int64),
@@ -103,3 +105,23 @@ def test_a_chunk_copied_from_another_object_is_refused_by_the_digest_whatever_th
     with pytest.raises(DatasetError, match=r"'box/0' is damaged: its frames rows differ from the digest"):
         open_dataset(copy).load(INDICES[case])
     assert open_dataset(copy).load(np.arange(ROWS, 2 * ROWS)).frames.any()
+
+
+@pytest.mark.parametrize("inner, endian", [((1, 3, 2), "little"), ((1, 3, 4), "big")])
+def test_rows_of_a_layout_left_to_zarr_land_in_the_given_array_too(tmp_path, inner, endian):
+    """Inner chunks splitting a row, or big-endian values, are read by zarr: what it reads is copied into ``out``."""
+    from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec, ShardingCodec
+
+    from tactile.dataset import store as store_module
+
+    values = np.arange(4 * 3 * 4, dtype=np.uint16).reshape(4, 3, 4) * 7
+    codecs = [BytesCodec(endian=endian), BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"), Crc32cCodec()]
+    sharding = ShardingCodec(chunk_shape=inner, codecs=codecs, index_codecs=[BytesCodec(endian="little"), Crc32cCodec()])
+    zarr.create_array(tmp_path / "a", shape=values.shape, chunks=(2, 3, 4), dtype="uint16", serializer=sharding,
+                      compressors=None, fill_value=0, config={"write_empty_chunks": True})[:] = values
+    array = zarr.open_array(tmp_path / "a", mode="r")
+    assert not store_module._chunk_plan(tmp_path, "a", array).direct
+    for lo, hi in ((0, 2), (2, 4), (1, 2)):
+        out = np.full((hi - lo, 3, 4), 9999, dtype=np.uint16)
+        assert read_rows(tmp_path, "a", array, lo, hi, "x", out=out) is out
+        np.testing.assert_array_equal(out, values[lo:hi])
