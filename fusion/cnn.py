@@ -387,7 +387,7 @@ class CNNClassifier(TactileClassifier):
             raise InvalidArgumentError(f"CNNClassifier: outliers must be None or the path of a store (a str), got "
                                        f"{type(self.outliers).__name__}")
         if (isinstance(self.outlier_weight, bool) or not isinstance(self.outlier_weight, (int, float, np.floating))
-                or not (np.isfinite(self.outlier_weight) and 0 <= self.outlier_weight <= MAX_OUTLIER_WEIGHT)):
+                or not 0 <= self.outlier_weight <= MAX_OUTLIER_WEIGHT):  # NaN fails it; isfinite refuses huge ints
             raise InvalidArgumentError(f"CNNClassifier: outlier_weight must be a number in [0, {MAX_OUTLIER_WEIGHT}], "
                                        f"got {self.outlier_weight!r}")
         if self.device not in ("auto", "cpu", "cuda"):

@@ -11,7 +11,7 @@ import pytest
 
 from fusion import cnn
 from fusion.cnn import CNNClassifier
-from perception.errors import DatasetError
+from perception.errors import DatasetError, InvalidArgumentError
 from tactile import FSRSensor
 from tactile.dataset import generate
 from tests.fusion.test_cnn_outliers import PROBES, SENSOR, known, outlier_store  # noqa: F401 -- fixtures
@@ -83,3 +83,10 @@ def test_outliers_of_a_sensor_with_other_settings_but_the_same_grid_are_refused(
              workers=1, progress=False)
     with pytest.raises(DatasetError, match="smaller-pad.zarr.*another sensor"):
         model(epochs=1, outliers=str(path)).fit(known)
+
+
+@pytest.mark.parametrize("weight", [10**20, 10**400, -(10**20)])
+def test_a_weight_too_large_for_a_float_is_an_argument_error(known, weight):  # noqa: F811
+    with pytest.raises(InvalidArgumentError, match="outlier_weight"):
+        model(outlier_weight=weight).fit(known)
+
