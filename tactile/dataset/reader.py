@@ -643,7 +643,11 @@ def open_dataset(path: str | Path) -> TactileDataset:
         ((2, 5, 8, 8), 6)
     """
     path = Path(path)
-    if not path.is_dir():
+    try:
+        is_dir = path.is_dir()
+    except OSError as exc:  # e.g. a name too long for the system: refused as any other bad path
+        raise DatasetError(f"{str(path)[:200]}: no such dataset store ({exc.strerror})") from None
+    if not is_dir:
         raise DatasetError(f"{path}: no such dataset store (a folder made by generate())")
     return TactileDataset(path)
 

@@ -90,3 +90,8 @@ def test_a_weight_too_large_for_a_float_is_an_argument_error(known, weight):  # 
     with pytest.raises(InvalidArgumentError, match="outlier_weight"):
         model(outlier_weight=weight).fit(known)
 
+
+def test_an_outlier_path_too_long_for_the_system_is_refused_by_name(known):  # noqa: F811
+    """The system's ENAMETOOLONG was an OSError out of open_dataset: now the DatasetError of any missing store."""
+    with pytest.raises(DatasetError, match=r"^x{200}: no such dataset store \(File name too long\)"):
+        model(outliers="x" * 5000).fit(known)
