@@ -100,7 +100,7 @@ from torch.nn import functional as F
 from fusion.base import TactileClassifier, renamed_seed
 from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
 from fusion.decide import PROBA_FLOOR
-from perception.errors import InvalidArgumentError
+from perception.errors import DatasetError, InvalidArgumentError
 from perception.runtime import progress_bar, usable_cores
 from tactile.explore import SequenceBatch
 
@@ -532,7 +532,6 @@ class CNNClassifier(TactileClassifier):
         """
         if self.outliers is None or self.outlier_weight == 0:
             return None
-        from perception.errors import DatasetError
         from tactile.dataset import open_dataset
 
         outliers = open_dataset(self.outliers).load()
