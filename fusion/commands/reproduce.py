@@ -4,8 +4,34 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from fusion.commands import positive_int
+
+
+def outlier_objects(paths) -> list[tuple[str, str]]:
+    """(mesh path, "outlier") for each mesh file given, and for each mesh file directly in a folder given, sorted.
+
+    Raises:
+        DatasetError: a path that is neither a mesh file nor a folder holding one.
+    """
+    from perception.errors import DatasetError
+    from perception.meshio import MESH_SUFFIXES
+
+    objects = []
+    for given in map(Path, paths):
+        if given.is_dir():
+            found = sorted(p for p in given.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
+            if not found:
+                raise DatasetError(f"--outliers {given}: the folder holds no mesh file "
+                                   f"({', '.join(sorted(MESH_SUFFIXES))})")
+            objects += [(str(p), "outlier") for p in found]
+        elif given.is_file() and given.suffix.lower() in MESH_SUFFIXES:
+            objects.append((str(given), "outlier"))
+        else:
+            raise DatasetError(f"--outliers {given}: not a mesh file ({', '.join(sorted(MESH_SUFFIXES))}) or a "
+                               "folder of them")
+    return objects
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
@@ -25,7 +51,8 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
         raise InvalidArgumentError(f"--classes {' '.join(args.classes)}: recognition needs at least two classes")
     results = reproduce(args.data, out, classes=args.classes, objects_per_class=args.objects_per_class,
                         quick=args.quick, seed=args.seed, parts=args.parts, workers=args.workers,
-                        command=" ".join(["visuotactile", *sys.argv[1:]]))
+                        command=" ".join(["visuotactile", *sys.argv[1:]]),
+                        outliers=outlier_objects(args.outliers) if args.outliers else None)
     if args.json:
         print_json(results)
         return 0
@@ -76,6 +103,9 @@ def register(sub) -> None:
     parser.add_argument("--workers", type=positive_int, default=None,
                         help="worker processes of data generation and of model fits (default: the cores; any count "
                              "gives the same stores and CNN models: each CNN trains on one thread)")
+    parser.add_argument("--outliers", nargs="+", metavar="PATH", default=None,
+                        help="meshes (files, or folders of them) of no class in --data: the calibration and openset "
+                             "parts' CNNs also learn to doubt their touches (outlier exposure)")
     parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout")
     parser.set_defaults(func=run, resumable=True)

@@ -29,6 +29,8 @@ class Context:
         timings: wall seconds of each part in this process (not cached: they say how long *this* run took).
         stores: the stores this run has generated or checked, by their record's digest (:meth:`store`): each is
             verified and opened once per run, however many parts read it.
+        outliers: objects of no class of the run ((mesh path, label) or (catalogue class, seed) pairs) whose touches
+            the calibration and open-set parts' CNNs train on with outlier exposure (None: none).
     """
 
     out: Path
@@ -39,6 +41,7 @@ class Context:
     workers: int | None = None
     timings: dict[str, float] = field(default_factory=dict)
     stores: dict[str, tuple] = field(default_factory=dict)
+    outliers: list | None = None
 
     def path(self, *parts: str) -> Path:
         return self.out.joinpath(*parts)

@@ -18,6 +18,7 @@ training data, plus the share of unknown rejected at the threshold that keeps 95
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import dataclass, replace
@@ -159,10 +160,27 @@ def _calibration_plan(ctx: Context, objects) -> tuple:
     return ds, test_ds, folds, factories, jobs
 
 
+def exposed(ctx: Context, factories: dict) -> dict:
+    """``factories`` with each CNN's trained with outlier exposure (:class:`fusion.cnn.CNNClassifier`'s ``outliers``)
+    on the touches of ``ctx.outliers`` (each in its seeded random pose, the part's strategy and contour count, in a
+    store of the report folder, whose name carries its record's digest); as they are without outliers."""
+    from fusion.cnn import CNNClassifier
+    from fusion.experiments.data import any_pose
+
+    cnns = [name for name, factory in factories.items() if isinstance(factory(), CNNClassifier)]
+    if not ctx.outliers or not cnns:  # no store is made that no model reads
+        return factories
+    sizes = ctx.sizes
+    store, _ = ctx.store(any_pose(ctx.outliers, ctx.seed), strategies=(sizes.calibration_strategy,),
+                         contours=sizes.unseen_contours)
+    return {name: functools.partial(factory, outliers=str(store.path)) if name in cnns else factory
+            for name, factory in factories.items()}
+
+
 def _jobs(ctx: Context, ds, record: dict, trains: list, part: str, label: str, **options) -> tuple:
     """(classifier factories, a :class:`CalibrationJob` per training rows and classifier, saved as
     ``<part>/<label><i>-<classifier>.vtm``) of a part on the store ``ds`` made with ``record``."""
-    factories = pick(ctx.classifiers, ctx.sizes.calibration_classifiers)
+    factories = exposed(ctx, pick(ctx.classifiers, ctx.sizes.calibration_classifiers))
     options |= {"max_touches": max(ctx.sizes.touches), "random_state": ctx.seed,
                 "cv": calibration_folds(ds, trains, part)}
     jobs = [CalibrationJob(factory, StoreRows(str(ds.path), train), options,

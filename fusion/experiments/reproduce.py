@@ -64,6 +64,7 @@ def reproduce(
     workers: int | None = None,
     progress: bool = True,
     command: str | None = None,
+    outliers=None,
 ) -> dict:
     """Run the experiments on the mesh set ``data`` and write the report folder ``out``; returns the results.
 
@@ -77,6 +78,8 @@ def reproduce(
             the CNN models are the same bytes with any count (each CNN trains on one thread); the paper's SVM may
             differ in the ninth decimal (its linear algebra runs on each worker's share of the cores).
         classifiers: name -> factory (default :func:`default_classifiers`).
+        outliers: objects of no class in ``data`` ((mesh path, label) or (catalogue class, seed) pairs): the
+            calibration and open-set parts' CNNs also train on their touches with outlier exposure (:class:`fusion.cnn.CNNClassifier`).
 
     Raises:
         DatasetError: a bad data folder, unknown class, or too few instances.
@@ -100,7 +103,7 @@ def reproduce(
     out = Path(out)
     ctx = Context(out, int(seed), sizes,
                   classifiers or default_classifiers(seed, sizes.epochs, progress=progress, threads=1),
-                  progress=progress, workers=workers)
+                  progress=progress, workers=workers, outliers=list(outliers) if outliers else None)
     # the paper's objects, for the parts that use them (a folder with fewer instances can still run the others)
     paper_objects = (folder_objects(data, classes, sizes.objects_per_class, max_classes=sizes.paper_classes)
                      if {"paper", "attention", "runtime"} & set(parts) else [])
@@ -194,6 +197,8 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
         unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
         record = {"objects": [str(p) for p, _ in unseen_list], "sizes": sizes.to_dict(), "seed": ctx.seed,
                   "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers]}
+        if ctx.outliers:  # a run without them keeps the record (and the cached parts) it had
+            record["outliers"] = [[str(x) for x in o] for o in ctx.outliers]
         todo = [part for part in calibrating if not ctx.has_part(part, record)]
         if len(todo) > 1:  # both parts' calibrations in one pool: they pack on the workers better than part by part
             try:
@@ -206,7 +211,8 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
             return ctx.cached_part(part, record, lambda: compute(ctx, objects))
 
         results[part] = timed(part, run_part)
-        results[part] |= {"n_objects": len(unseen_list), "contours": sizes.unseen_contours}
+        results[part] |= {"n_objects": len(unseen_list), "contours": sizes.unseen_contours,
+                          "outliers": len(ctx.outliers or [])}
         _write(out, results)
     if "active" in parts:
         from fusion.experiments.active import active_part
