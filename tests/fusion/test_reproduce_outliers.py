@@ -74,3 +74,21 @@ def test_the_report_names_the_outliers_and_a_bad_path_is_refused_in_one_line(tmp
                  "--outliers", str(tmp_path / "nothing.obj")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nothing.obj" in err[0] and "not a mesh file" in err[0], err
+
+
+def test_a_run_with_outliers_does_not_reuse_the_parts_of_a_run_without(tmp_path, open_set_data, monkeypatch):  # noqa: F811
+    """The parts' record names the outliers: parts cached without them are computed again with them."""
+    from fusion.experiments import openset, reproduce
+    from tests.fusion.test_experiments import EmbeddingMean, with_stores
+
+    data, stores = open_set_data
+    out = with_stores(tmp_path / "report", stores)
+    calls = []
+    real = openset.openset_part
+    monkeypatch.setattr(openset, "openset_part", lambda ctx, objects: calls.append(ctx.outliers) or real(ctx, objects))
+    run = {"sizes": OPEN_SET_SIZES, "classifiers": {"em": EmbeddingMean}, "parts": ("openset",), "workers": 2,
+           "progress": False}
+    reproduce(data, out, **run)
+    reproduce(data, out, **run)  # cached
+    reproduce(data, out, **run, outliers=[("spoon", 0)])
+    assert calls == [None, [("spoon", 0)]]
