@@ -191,6 +191,12 @@ def _rotation_matrix(rotation, where: str) -> np.ndarray:
     return _check_rotation(r, where)
 
 
+def mesh_files(folder: Path) -> list[Path]:
+    """The mesh files (:data:`~perception.meshio.MESH_SUFFIXES`) directly in ``folder``, sorted; hidden ones ignored."""
+    return sorted(p for p in Path(folder).iterdir()
+                  if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in meshio.MESH_SUFFIXES)
+
+
 def list_collection(folder: str | Path) -> list[tuple[Path, str]]:
     """List a class-per-subfolder mesh collection ``<root>/<Class>/<instance>.<ext>`` (what a tactile dataset
     store is generated from; "dataset" names the store only).
@@ -215,11 +221,7 @@ def list_collection(folder: str | Path) -> list[tuple[Path, str]]:
         raise DatasetError(f"{root}: no class subfolders (expected <root>/<Class>/<instance>.<ext>)")
     items: list[tuple[Path, str]] = []
     for class_dir in classes:
-        files = sorted(
-            p
-            for p in class_dir.iterdir()
-            if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in meshio.MESH_SUFFIXES
-        )
+        files = mesh_files(class_dir)
         if not files:
             raise DatasetError(
                 f"{class_dir}: class folder {class_dir.name!r} holds no mesh files "
@@ -233,4 +235,4 @@ def list_collection(folder: str | Path) -> list[tuple[Path, str]]:
 load_dataset = list_collection
 
 
-__all__ = ["list_collection", "load_dataset", "load_object"]
+__all__ = ["list_collection", "load_dataset", "load_object", "mesh_files"]

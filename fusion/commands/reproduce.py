@@ -10,18 +10,20 @@ from fusion.commands import positive_int
 
 
 def outlier_objects(paths) -> list[tuple[str, str]]:
-    """(mesh path, "outlier") for each mesh file given, and for each mesh file directly in a folder given, sorted.
+    """(mesh path, "outlier") for each mesh file given, and for each mesh file directly in a folder given
+    (:func:`perception.loading.mesh_files`: sorted, hidden ones ignored).
 
     Raises:
         DatasetError: a path that is neither a mesh file nor a folder holding one.
     """
     from perception.errors import DatasetError
+    from perception.loading import mesh_files
     from perception.meshio import MESH_SUFFIXES
 
     objects = []
     for given in map(Path, paths):
         if given.is_dir():
-            found = sorted(p for p in given.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
+            found = mesh_files(given)
             if not found:
                 raise DatasetError(f"--outliers {given}: the folder holds no mesh file "
                                    f"({', '.join(sorted(MESH_SUFFIXES))})")
