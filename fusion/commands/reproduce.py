@@ -3,25 +3,38 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
 from fusion.commands import positive_int
 
 
-def outlier_objects(paths) -> list[tuple[str, str]]:
-    """(mesh path, "outlier") for each mesh file given, and for each mesh file directly in a folder given
-    (:func:`perception.loading.mesh_files`: sorted, hidden ones ignored).
+#: Instances per class of a ``catalogue:`` outlier item without a count.
+CATALOGUE_OUTLIERS = 3
+
+
+def outlier_objects(items) -> list[tuple]:
+    """The outlier objects of ``--outliers``, in the order given: (mesh path, "outlier") for each mesh file, and for
+    each mesh file directly in a folder (:func:`perception.loading.mesh_files`: sorted, hidden ones ignored);
+    (class, seed) pairs of the built-in catalogue (:mod:`perception.shapes`) for an item
+    ``catalogue:CLASS[,CLASS...][:N]`` (N instances per class, seeds 0..N-1; default :data:`CATALOGUE_OUTLIERS`).
 
     Raises:
         DatasetError: a path that is neither a mesh file nor a folder holding one.
+        InvalidArgumentError: a ``catalogue:`` item naming no or an unknown class, or a count that is not a
+            positive integer.
     """
     from perception.errors import DatasetError
     from perception.loading import mesh_files
     from perception.meshio import MESH_SUFFIXES
 
     objects = []
-    for given in map(Path, paths):
+    for item in map(str, items):
+        if item.startswith("catalogue:"):
+            objects += _catalogue_item(item)
+            continue
+        given = Path(item)
         if given.is_dir():
             found = mesh_files(given)
             if not found:
@@ -31,9 +44,33 @@ def outlier_objects(paths) -> list[tuple[str, str]]:
         elif given.is_file() and given.suffix.lower() in MESH_SUFFIXES:
             objects.append((str(given), "outlier"))
         else:
-            raise DatasetError(f"--outliers {given}: not a mesh file ({', '.join(sorted(MESH_SUFFIXES))}) or a "
-                               "folder of them")
+            raise DatasetError(f"--outliers {given}: not a mesh file ({', '.join(sorted(MESH_SUFFIXES))}), a "
+                               "folder of them or catalogue:CLASS[,CLASS...][:N]")
     return objects
+
+
+def _catalogue_item(item: str) -> list[tuple[str, int]]:
+    """The (class, seed) pairs of one ``catalogue:CLASS[,CLASS...][:N]`` item."""
+    from fusion.experiments.data import catalogue_objects
+    from perception.errors import InvalidArgumentError
+    from perception.shapes import CLASSES
+
+    fields = item.split(":")
+    if len(fields) not in (2, 3) or not fields[1]:
+        raise InvalidArgumentError(f"--outliers {item}: expected catalogue:CLASS[,CLASS...][:N] (classes: "
+                                   f"{', '.join(CLASSES)})")
+    count = CATALOGUE_OUTLIERS
+    if len(fields) == 3:
+        if not re.fullmatch(r"[0-9]{1,9}", fields[2]) or int(fields[2]) < 1:
+            raise InvalidArgumentError(f"--outliers {item}: the count N must be a positive integer, got {fields[2]!r}")
+        count = int(fields[2])
+    classes = fields[1].split(",")
+    if len(set(classes)) != len(classes):
+        raise InvalidArgumentError(f"--outliers {item}: a class is named twice")
+    try:
+        return catalogue_objects(classes, count)
+    except InvalidArgumentError as err:
+        raise InvalidArgumentError(f"--outliers {item}: {err}") from None
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:
@@ -106,8 +143,11 @@ def register(sub) -> None:
                         help="worker processes of data generation and of model fits (default: the cores; any count "
                              "gives the same stores and CNN models: each CNN trains on one thread)")
     parser.add_argument("--outliers", nargs="+", metavar="PATH", default=None,
-                        help="meshes (files, or folders of them) of no class in --data: the calibration and openset "
-                             "parts' CNNs also learn to doubt their touches (outlier exposure)")
+                        help="objects of no class in --data: mesh files, folders of them, or built-in shapes "
+                             f"(catalogue:CLASS[,CLASS...][:N], N per class, default {CATALOGUE_OUTLIERS}); the "
+                             "calibration and openset parts' CNNs also learn to doubt their touches (outlier "
+                             "exposure). An instance of a class in --data (a mug where Cup is one) teaches them to "
+                             "doubt that class")
     parser.add_argument("--seed", type=int, default=0, help="seed of data, splits, models and bootstraps")
     parser.add_argument("--json", action="store_true", help="print results.json on stdout")
     parser.set_defaults(func=run, resumable=True)

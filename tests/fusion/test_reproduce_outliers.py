@@ -92,3 +92,40 @@ def test_a_run_with_outliers_does_not_reuse_the_parts_of_a_run_without(tmp_path,
     reproduce(data, out, **run)  # cached
     reproduce(data, out, **run, outliers=[("spoon", 0)])
     assert calls == [None, [("spoon", 0)]]
+
+
+def test_catalogue_items_name_built_in_shapes_by_class_and_count(tmp_path):
+    """``catalogue:CLASS[,CLASS...][:N]``: N seeds 0..N-1 of each class (3 without N), in the order given, beside
+    mesh paths."""
+    from fusion.commands.reproduce import CATALOGUE_OUTLIERS
+
+    mesh = tmp_path / "a.obj"
+    mesh.write_text("x")
+    assert outlier_objects(["catalogue:spoon,box:2", str(mesh), "catalogue:ring"]) == [
+        ("spoon", 0), ("spoon", 1), ("box", 0), ("box", 1), (str(mesh), "outlier"),
+        *[("ring", i) for i in range(CATALOGUE_OUTLIERS)]]
+    assert CATALOGUE_OUTLIERS == 3
+
+
+@pytest.mark.parametrize("item, words", [
+    ("catalogue:", "expected catalogue:CLASS"), ("catalogue:spoon:2:3", "expected catalogue:CLASS"),
+    ("catalogue:teapot", "teapot"), ("catalogue:spoon,spoon", "named twice"), ("catalogue:spoon:0", "positive"),
+    ("catalogue:spoon:-1", "positive"), ("catalogue:spoon:x", "positive"), ("catalogue:spoon:²", "positive"),
+    ("catalogue:spoon:" + "9" * 5000, "positive"), ("catalogue:spoon:99999999", "objects"),
+])
+def test_a_bad_catalogue_item_is_refused_naming_it(item, words):
+    from perception.errors import InvalidArgumentError
+
+    with pytest.raises(InvalidArgumentError, match=words) as caught:
+        outlier_objects([item])
+    assert item[:40] in str(caught.value)
+
+
+def test_the_command_line_refuses_a_bad_catalogue_item_in_one_line(tmp_path, capsys):
+    from fusion.cli import main
+
+    assert main(["reproduce", "--data", str(tmp_path), "--out", str(tmp_path / "r"), "--parts", "openset",
+                 "--outliers", "catalogue:spoon,teapot:2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "catalogue:spoon,teapot:2" in err[0] and "teapot" in err[0], err
+    assert not (tmp_path / "r" / "stores").exists()
