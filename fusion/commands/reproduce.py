@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
 from pathlib import Path
 
 from fusion.commands import positive_int
-
 
 #: Instances per class of a ``catalogue:`` outlier item without a count.
 CATALOGUE_OUTLIERS = 3
@@ -18,35 +18,52 @@ def outlier_objects(items) -> list[tuple]:
     """The outlier objects of ``--outliers``, in the order given: (mesh path, "outlier") for each mesh file, and for
     each mesh file directly in a folder (:func:`perception.loading.mesh_files`: sorted, hidden ones ignored);
     (class, seed) pairs of the built-in catalogue (:mod:`perception.shapes`) for an item
-    ``catalogue:CLASS[,CLASS...][:N]`` (N instances per class, seeds 0..N-1; default :data:`CATALOGUE_OUTLIERS`).
+    ``catalogue:CLASS[,CLASS...][:N]`` (N instances per class, seeds 0..N-1; default :data:`CATALOGUE_OUTLIERS`;
+    a file of that name is reached as ``./catalogue:...``).
 
     Raises:
-        DatasetError: a path that is neither a mesh file nor a folder holding one.
-        InvalidArgumentError: a ``catalogue:`` item naming no or an unknown class, or a count that is not a
-            positive integer.
+        DatasetError: an empty item, a path that is neither a mesh file nor a folder holding one, or two items
+            giving objects of one name (the store needs unique names).
+        InvalidArgumentError: a ``catalogue:`` item naming no, an unknown or a repeated class, a count that is not
+            a positive integer, more objects than the limit, or an item that is also a file or folder here.
     """
     from perception.errors import DatasetError
+    from perception.limits import check_count
     from perception.loading import mesh_files
     from perception.meshio import MESH_SUFFIXES
+    from tactile.dataset import object_specs
 
     objects = []
     for item in map(str, items):
         if item.startswith("catalogue:"):
             objects += _catalogue_item(item)
             continue
+        if not item:
+            raise DatasetError("--outliers: an empty item (a mesh file, a folder of them or "
+                               "catalogue:CLASS[,CLASS...][:N])")
         given = Path(item)
-        if given.is_dir():
+        if os.path.isdir(item):  # os.path: False, not an OSError, for a name too long for the system
             found = mesh_files(given)
             if not found:
-                raise DatasetError(f"--outliers {given}: the folder holds no mesh file "
+                raise DatasetError(f"--outliers {_short(item)}: the folder holds no mesh file "
                                    f"({', '.join(sorted(MESH_SUFFIXES))})")
             objects += [(str(p), "outlier") for p in found]
-        elif given.is_file() and given.suffix.lower() in MESH_SUFFIXES:
+        elif os.path.isfile(item) and given.suffix.lower() in MESH_SUFFIXES:
             objects.append((str(given), "outlier"))
         else:
-            raise DatasetError(f"--outliers {given}: not a mesh file ({', '.join(sorted(MESH_SUFFIXES))}), a "
+            raise DatasetError(f"--outliers {_short(item)}: not a mesh file ({', '.join(sorted(MESH_SUFFIXES))}), a "
                                "folder of them or catalogue:CLASS[,CLASS...][:N]")
+    check_count("objects", len(objects), f"--outliers: {len(objects)} objects")
+    try:  # one store holds them all, under unique names: say so now, not after the parts' data is made
+        object_specs(objects)
+    except DatasetError as err:
+        raise DatasetError(f"--outliers: {_short(str(err), 300)}") from None
     return objects
+
+
+def _short(text: str, width: int = 80) -> str:
+    """``text`` cut to ``width`` characters for an error line."""
+    return text if len(text) <= width else text[:width - 3] + "..."
 
 
 def _catalogue_item(item: str) -> list[tuple[str, int]]:
@@ -55,22 +72,29 @@ def _catalogue_item(item: str) -> list[tuple[str, int]]:
     from perception.errors import InvalidArgumentError
     from perception.shapes import CLASSES
 
+    shown = _short(item)
+    if os.path.exists(item):  # os.path, unlike Path, answers False for a name too long for the system
+        raise InvalidArgumentError(f"--outliers {shown}: is both a built-in catalogue item and a file or folder here; "
+                                   f"write ./{shown} for the file")
     fields = item.split(":")
     if len(fields) not in (2, 3) or not fields[1]:
-        raise InvalidArgumentError(f"--outliers {item}: expected catalogue:CLASS[,CLASS...][:N] (classes: "
+        raise InvalidArgumentError(f"--outliers {shown}: expected catalogue:CLASS[,CLASS...][:N] (classes: "
                                    f"{', '.join(CLASSES)})")
     count = CATALOGUE_OUTLIERS
     if len(fields) == 3:
-        if not re.fullmatch(r"[0-9]{1,9}", fields[2]) or int(fields[2]) < 1:
-            raise InvalidArgumentError(f"--outliers {item}: the count N must be a positive integer, got {fields[2]!r}")
+        if not re.fullmatch(r"[0-9]+", fields[2]) or not fields[2].strip("0"):  # ASCII digits, not all zeros
+            raise InvalidArgumentError(f"--outliers {shown}: the count N must be a positive integer, got "
+                                       f"{_short(fields[2], 20)!r}")
+        if len(fields[2].lstrip("0")) > 9:
+            raise InvalidArgumentError(f"--outliers {shown}: the count N is too large (at most 999999999 a class)")
         count = int(fields[2])
     classes = fields[1].split(",")
     if len(set(classes)) != len(classes):
-        raise InvalidArgumentError(f"--outliers {item}: a class is named twice")
+        raise InvalidArgumentError(f"--outliers {shown}: a class is named twice")
     try:
         return catalogue_objects(classes, count)
     except InvalidArgumentError as err:
-        raise InvalidArgumentError(f"--outliers {item}: {err}") from None
+        raise InvalidArgumentError(f"--outliers {shown}: {_short(str(err), 300)}") from None
 
 
 def run(args: argparse.Namespace, rest: list[str]) -> int:

@@ -111,14 +111,15 @@ def test_catalogue_items_name_built_in_shapes_by_class_and_count(tmp_path):
     ("catalogue:", "expected catalogue:CLASS"), ("catalogue:spoon:2:3", "expected catalogue:CLASS"),
     ("catalogue:teapot", "teapot"), ("catalogue:spoon,spoon", "named twice"), ("catalogue:spoon:0", "positive"),
     ("catalogue:spoon:-1", "positive"), ("catalogue:spoon:x", "positive"), ("catalogue:spoon:²", "positive"),
-    ("catalogue:spoon:" + "9" * 5000, "positive"), ("catalogue:spoon:99999999", "objects"),
+    ("catalogue:spoon:" + "9" * 5000, "too large"), ("catalogue:spoon:99999999", "objects"),
+    ("x" * 5000, "not a mesh file"),
 ])
 def test_a_bad_catalogue_item_is_refused_naming_it(item, words):
-    from perception.errors import InvalidArgumentError
+    from perception.errors import VisuotactileError
 
-    with pytest.raises(InvalidArgumentError, match=words) as caught:
+    with pytest.raises(VisuotactileError, match=words) as caught:  # a path's error is a DatasetError
         outlier_objects([item])
-    assert item[:40] in str(caught.value)
+    assert item[:40] in str(caught.value) and len(str(caught.value)) < 500
 
 
 def test_the_command_line_refuses_a_bad_catalogue_item_in_one_line(tmp_path, capsys):
@@ -129,3 +130,83 @@ def test_the_command_line_refuses_a_bad_catalogue_item_in_one_line(tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "catalogue:spoon,teapot:2" in err[0] and "teapot" in err[0], err
     assert not (tmp_path / "r" / "stores").exists()
+
+
+def test_a_catalogue_count_of_one_is_seed_zero_alone():
+    assert outlier_objects(["catalogue:box:1"]) == [("box", 0)]
+    assert outlier_objects(["catalogue:box:002"]) == [("box", 0), ("box", 1)]
+
+
+@pytest.mark.parametrize("item, words", [
+    ("catalogue:box,", "unknown catalogue classes"), ("catalogue:,box", "unknown catalogue classes"),
+    ("catalogue:BOX", "BOX"), ("catalogue:box, spoon", "' spoon'"),
+    ("catalogue:spoon,box,spoon", "named twice"),  # not side by side
+    ("catalogue:box:\u0663", "positive"),  # Arabic-Indic 3: a decimal digit to \d and to int()
+    ("catalogue:box:\uff13", "positive"),  # full-width 3
+    ("catalogue:box:", "positive"), ("catalogue:box:000", "positive"),
+    ("catalogue:box:9999999999", "too large"), ("catalogue:box:" + "9" * 5000, "too large"),
+])
+def test_more_bad_catalogue_items_are_refused_naming_them(item, words):
+    from perception.errors import InvalidArgumentError
+
+    with pytest.raises(InvalidArgumentError, match=words) as caught:
+        outlier_objects([item])
+    assert f"--outliers {item[:40]}" in str(caught.value) and len(str(caught.value)) < 500
+
+
+def test_a_malformed_catalogue_item_lists_the_classes():
+    from perception.errors import InvalidArgumentError
+
+    with pytest.raises(InvalidArgumentError, match="classes: bottle, bowl, box"):
+        outlier_objects(["catalogue::3"])
+
+
+@pytest.mark.parametrize("item", ["catalogue", "Catalogue:box", "catalogues:box"])
+def test_only_the_exact_prefix_is_a_catalogue_item(tmp_path, monkeypatch, item):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(DatasetError, match=r"not a mesh file .*catalogue:CLASS\[,CLASS\.\.\.\]\[:N\]"):
+        outlier_objects([item])
+
+
+def test_a_file_named_like_a_catalogue_item_is_refused_unless_written_as_a_path(tmp_path, monkeypatch):
+    from perception.errors import InvalidArgumentError
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "catalogue:box.obj").write_text("x")
+    (tmp_path / "catalogue:spoon").mkdir()
+    (tmp_path / "catalogue:spoon" / "a.obj").write_text("x")
+    assert outlier_objects(["./catalogue:box.obj"]) == [("catalogue:box.obj", "outlier")]
+    for item in ("catalogue:box.obj", "catalogue:spoon"):
+        with pytest.raises(InvalidArgumentError, match=f"write ./{item}"):
+            outlier_objects([item])
+
+
+def test_items_may_be_paths_and_an_empty_item_is_refused(tmp_path):
+    mesh = tmp_path / "a.obj"
+    mesh.write_text("x")
+    assert outlier_objects([Path(mesh)]) == [(str(mesh), "outlier")]
+    with pytest.raises(DatasetError, match="empty item"):
+        outlier_objects([""])
+
+
+@pytest.mark.parametrize("items", [["catalogue:box", "catalogue:box:5"], ["catalogue:box", "catalogue:spoon,box:1"]])
+def test_an_object_named_by_two_items_is_refused_before_any_work(items):
+    with pytest.raises(DatasetError, match="--outliers.*box/0"):
+        outlier_objects(items)
+
+
+def test_the_same_mesh_name_from_two_folders_is_refused(tmp_path):
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "x.obj").write_text("x")
+    with pytest.raises(DatasetError, match="--outliers.*x"):
+        outlier_objects([str(tmp_path / "a"), str(tmp_path / "b" / "x.obj")])
+
+
+def test_the_object_limit_counts_every_item_together(monkeypatch):
+    from perception.errors import InvalidArgumentError
+
+    monkeypatch.setenv("VISUOTACTILE_MAX_OBJECTS", "5")
+    assert len(outlier_objects(["catalogue:box:2", "catalogue:spoon:3"])) == 5
+    with pytest.raises(InvalidArgumentError, match="--outliers: 6 objects"):
+        outlier_objects(["catalogue:box:3", "catalogue:spoon:3"])
