@@ -61,9 +61,13 @@ def outlier_objects(items) -> list[tuple]:
     return objects
 
 
-def _short(text: str, width: int = 80) -> str:
-    """``text`` cut to ``width`` characters for an error line."""
-    return text if len(text) <= width else text[:width - 3] + "..."
+def _short(text: str, width: int = 160) -> str:
+    """``text`` cut in the middle to ``width`` characters for an error line (a path keeps its start and its file
+    name)."""
+    if len(text) <= width:
+        return text
+    head = (width - 3) // 2
+    return text[:head] + "..." + text[len(text) - (width - 3 - head):]
 
 
 def _catalogue_item(item: str) -> list[tuple[str, int]]:

@@ -210,3 +210,12 @@ def test_the_object_limit_counts_every_item_together(monkeypatch):
     assert len(outlier_objects(["catalogue:box:2", "catalogue:spoon:3"])) == 5
     with pytest.raises(InvalidArgumentError, match="--outliers: 6 objects"):
         outlier_objects(["catalogue:box:3", "catalogue:spoon:3"])
+
+
+def test_a_long_missing_path_is_cut_in_the_middle_keeping_its_file_name(tmp_path):
+    long = str(tmp_path / ("d" * 200) / ("e" * 200) / "nothing.obj")
+    with pytest.raises(DatasetError, match="not a mesh file") as caught:
+        outlier_objects([long])
+    message = str(caught.value)
+    assert long[:60] in message and message.split(":")[0].endswith("nothing.obj") and "..." in message
+    assert len(message) < 300
