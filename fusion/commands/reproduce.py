@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import reprlib
 import sys
 from pathlib import Path
 
@@ -88,7 +89,7 @@ def _catalogue_item(item: str) -> list[tuple[str, int]]:
     if len(fields) == 3:
         if not re.fullmatch(r"[0-9]+", fields[2]) or not fields[2].strip("0"):  # ASCII digits, not all zeros
             raise InvalidArgumentError(f"--outliers {shown}: the count N must be a positive integer, got "
-                                       f"{_short(fields[2], 20)!r}")
+                                       f"{reprlib.repr(fields[2])}")
         if len(fields[2].lstrip("0")) > 9:
             raise InvalidArgumentError(f"--outliers {shown}: the count N is too large (at most 999999999 a class)")
         count = int(fields[2])
