@@ -118,6 +118,11 @@ MAX_OUTLIER_WEIGHT = 10.0
 #: Seed offset of the outlier batches' draws (their own stream: the known sequences' batches stay those of a fit
 #: without outliers).
 OUTLIER_SEED = 7919
+#: Temperature of the supervised contrastive term (``contrastive_weight``) on unit-length hidden features: the value
+#: the supervised contrastive literature trains with (Khosla et al., 2020).
+CONTRASTIVE_TEMPERATURE = 0.1
+#: Largest ``contrastive_weight`` (the term's size is that of the cross-entropy, a few nats).
+MAX_CONTRASTIVE_WEIGHT = 10.0
 #: How the two nets' probabilities combine, see :func:`fuse_modalities`.
 MODALITY_RULES = ("product", "sum")
 #: Most CPU threads a model may ask for (an OpenMP runtime asked for a million dies allocating their stacks).
@@ -151,6 +156,35 @@ def _same_value(a, b) -> bool:
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         return np.asarray(a).shape == np.asarray(b).shape and bool(np.all(np.asarray(a) == np.asarray(b)))
     return type(a) is type(b) and bool(a == b)
+
+
+def supervised_contrastive(hidden: torch.Tensor, labels: torch.Tensor,
+                           temperature: float = CONTRASTIVE_TEMPERATURE) -> torch.Tensor:
+    """The supervised contrastive loss (Khosla et al., 2020) of a training step's hidden features, in nats.
+
+    ``hidden`` (B, H): the first ``len(labels)`` rows are labelled sequences, any further rows outliers (objects of no
+    known class: negatives only). Rows are scaled to unit length (a row of zeros stays zero). For each labelled row i
+    with at least one other row of its class, the loss is minus the mean over those rows p of
+    log(exp(u_i . u_p / t) / sum over all rows a != i of exp(u_i . u_a / t)); the result is the mean over such rows
+    (0 when there are none). It pulls the sequences of a class together and pushes other classes and outliers away,
+    on the unit sphere where :meth:`CNNClassifier.embed` measures the open-set distances.
+    """
+    n = len(labels)
+    unit = F.normalize(hidden, dim=1, eps=1e-12)
+    similarity = unit[:n] @ unit.T / temperature
+    itself = torch.zeros_like(similarity, dtype=torch.bool)
+    itself[torch.arange(n), torch.arange(n)] = True
+    # -inf would make 0 * -inf = NaN below; a large finite value has exp() = 0 all the same
+    similarity = similarity.masked_fill(itself, -1e9)
+    log_share = similarity - torch.logsumexp(similarity, dim=1, keepdim=True)
+    positive = torch.zeros_like(itself)
+    positive[:, :n] = labels[:, None] == labels[None, :]
+    positive &= ~itself
+    count = positive.sum(dim=1)
+    has = count > 0
+    if not has.any():
+        return hidden.sum() * 0.0  # keeps the graph: the step's backward still runs
+    return -((log_share * positive).sum(dim=1)[has] / count[has]).mean()
 
 
 def _circular_probes(x: torch.Tensor, pad: int = 1) -> torch.Tensor:
@@ -312,6 +346,11 @@ class CNNClassifier(TactileClassifier):
             part on the same stores): at K = 8, 58.6 -> 76.4 % of unknown objects rejected (+17.8 points, interval
             +10.8 to +25.6), known objects kept 92.8 -> 93.7 %.
         outlier_weight: the weight of that term (0 turns it off; at most :data:`MAX_OUTLIER_WEIGHT`).
+        contrastive_weight: the weight of a supervised contrastive term on each net's hidden layer
+            (:func:`supervised_contrastive`, the outliers' rows as negatives) beside the cross-entropy (0, the
+            default: none; at most :data:`MAX_CONTRASTIVE_WEIGHT`). It gathers each class's touches on the unit sphere
+            where the open-set distance scores are measured (:meth:`embed`), so that touches of an object of no known
+            class fall farther from every class.
 
     Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs;
@@ -335,7 +374,7 @@ class CNNClassifier(TactileClassifier):
                  threads: int | None = None, progress: bool = True, modality: str = "fusion",
                  frame_size: int = 16, augment: bool | str = "both", test_views: int = 1,
                  modality_rule: str = "product", max_steps: int | tuple | None = MAX_STEPS, outliers: str | None = None,
-                 outlier_weight: float = 0.5, **renamed):
+                 outlier_weight: float = 0.5, contrastive_weight: float = 0.0, **renamed):
         random_state = renamed_seed(renamed, random_state, type(self).__name__)
         self.cue = cue
         self.epochs = epochs
@@ -358,6 +397,7 @@ class CNNClassifier(TactileClassifier):
         self.max_steps = max_steps
         self.outliers = outliers
         self.outlier_weight = outlier_weight
+        self.contrastive_weight = contrastive_weight
 
     # ------------------------------------------------------------------------------------ checks
     def _check_params(self) -> None:
@@ -394,6 +434,11 @@ class CNNClassifier(TactileClassifier):
                 or not 0 <= self.outlier_weight <= MAX_OUTLIER_WEIGHT):  # NaN fails it; isfinite refuses huge ints
             raise InvalidArgumentError(f"CNNClassifier: outlier_weight must be a number in [0, {MAX_OUTLIER_WEIGHT}], "
                                        f"got {self.outlier_weight!r}")
+        if (isinstance(self.contrastive_weight, bool)
+                or not isinstance(self.contrastive_weight, (int, float, np.floating))
+                or not 0 <= self.contrastive_weight <= MAX_CONTRASTIVE_WEIGHT):
+            raise InvalidArgumentError(f"CNNClassifier: contrastive_weight must be a number in "
+                                       f"[0, {MAX_CONTRASTIVE_WEIGHT}], got {self.contrastive_weight!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
@@ -553,7 +598,8 @@ class CNNClassifier(TactileClassifier):
                    outliers: torch.Tensor | None = None) -> dict:
         """Adam with early stopping; ``net`` ends on the CPU holding its best validation weights. With ``outliers``
         (inputs of objects of no known class), every step also feeds as many of them, drawn at random, and adds
-        ``outlier_weight`` x the cross-entropy of their softmax to the uniform distribution (outlier exposure)."""
+        ``outlier_weight`` x the cross-entropy of their softmax to the uniform distribution (outlier exposure); with
+        ``contrastive_weight`` > 0, that weight x :func:`supervised_contrastive` of the step's hidden layer."""
         gen = torch.Generator().manual_seed(self.random_state + (0 if kind == "cutaneous" else 1))
         gen_out = torch.Generator().manual_seed(self.random_state + OUTLIER_SEED + (0 if kind == "cutaneous" else 1))
         train_idx, val_idx = split
@@ -577,16 +623,21 @@ class CNNClassifier(TactileClassifier):
                 xb = x[idx].to(device, torch.float32)
                 if augment:
                     xb = self._augment(xb, kind, gen)
-                if outliers is None:
-                    loss = F.cross_entropy(net(xb), y_t[idx].to(device), label_smoothing=self.label_smoothing)
-                else:
+                xo = None
+                if outliers is not None:
                     xo = outliers[torch.randint(0, len(outliers), (len(idx),), generator=gen_out)].to(device,
                                                                                                        torch.float32)
                     if augment:
                         xo = self._augment(xo, kind, gen_out)
-                    logits = net(torch.cat([xb, xo]))  # one pass: batch norm sees both, as at test time it may
-                    loss = F.cross_entropy(logits[:len(idx)], y_t[idx].to(device), label_smoothing=self.label_smoothing)
+                # one pass: batch norm sees the outliers with the known sequences, as at test time it may
+                hidden = net.features(xb if xo is None else torch.cat([xb, xo]))
+                logits = net.fc2(net.drop(hidden))  # what net(x) computes, the hidden layer kept
+                yb = y_t[idx].to(device)
+                loss = F.cross_entropy(logits[:len(idx)], yb, label_smoothing=self.label_smoothing)
+                if xo is not None:
                     loss = loss + self.outlier_weight * -torch.log_softmax(logits[len(idx):], 1).mean()
+                if self.contrastive_weight > 0:
+                    loss = loss + self.contrastive_weight * supervised_contrastive(hidden, yb)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()

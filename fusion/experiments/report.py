@@ -218,7 +218,9 @@ def _calibration_lines(results: dict) -> list[str]:
                    "ones answered unknown at the thresholds fitted on training data (leaving classes out inside "
                    "it); '@95 % test-known': unknown rejected at the threshold keeping 95 % of the test's known."
                    + (f" CNNs among the classifiers train with outlier exposure on the touches of {ops['outliers']} objects of no "
-                      "class here." if ops.get("outliers") else "")),
+                      "class here." if ops.get("outliers") else "")
+                   + (f" Their hidden layers also train with a supervised contrastive term (weight {ops['contrastive']})."
+                      if ops.get("contrastive") else "")),
                   "", markdown_table(openset_table(ops["rows"])), ""]
         by_class = rejected_by_class_lines(ops["rows"])
         if by_class:

@@ -196,7 +196,8 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
 
         unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
         record = {"objects": [str(p) for p, _ in unseen_list], "sizes": sizes.to_dict(), "seed": ctx.seed,
-                  "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers]}
+                  "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers],
+                  "openset_contrastive": experiment.OPENSET_CONTRASTIVE}
         if ctx.outliers:  # a run without them keeps the record (and the cached parts) it had
             record["outliers"] = [[str(x) for x in o] for o in ctx.outliers]
         todo = [part for part in calibrating if not ctx.has_part(part, record)]
@@ -213,6 +214,8 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
         results[part] = timed(part, run_part)
         results[part] |= {"n_objects": len(unseen_list), "contours": sizes.unseen_contours,
                           "outliers": len(ctx.outliers or [])}
+        if part == "openset":
+            results[part]["contrastive"] = experiment.OPENSET_CONTRASTIVE
         _write(out, results)
     if "active" in parts:
         from fusion.experiments.active import active_part

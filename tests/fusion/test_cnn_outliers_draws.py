@@ -28,14 +28,14 @@ def training_inputs(monkeypatch, fit) -> dict[str, list[np.ndarray]]:
     seen: dict[str, list[np.ndarray]] = {"CutaneousNet": [], "KinestheticNet": []}
     for name, inputs in seen.items():
         net = getattr(cnn, name)
-        forward = net.forward
+        features = net.features  # where a training step enters the net (it keeps the hidden layer)
 
-        def record(self, x, forward=forward, inputs=inputs):
+        def record(self, x, features=features, inputs=inputs):
             if self.training:
                 inputs.append(x.detach().numpy().copy())
-            return forward(self, x)
+            return features(self, x)
 
-        monkeypatch.setattr(net, "forward", record)
+        monkeypatch.setattr(net, "features", record)
     fit()
     monkeypatch.undo()
     return seen
