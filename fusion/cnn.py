@@ -100,7 +100,7 @@ from torch.nn import functional as F
 from fusion.base import TactileClassifier, renamed_seed
 from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
 from fusion.decide import PROBA_FLOOR
-from perception.errors import DatasetError, InvalidArgumentError
+from perception.errors import DatasetError, InvalidArgumentError, shown
 from perception.runtime import progress_bar, usable_cores
 from tactile.explore import SequenceBatch
 
@@ -433,12 +433,12 @@ class CNNClassifier(TactileClassifier):
         if (isinstance(self.outlier_weight, bool) or not isinstance(self.outlier_weight, (int, float, np.floating))
                 or not 0 <= self.outlier_weight <= MAX_OUTLIER_WEIGHT):  # NaN fails it; isfinite refuses huge ints
             raise InvalidArgumentError(f"CNNClassifier: outlier_weight must be a number in [0, {MAX_OUTLIER_WEIGHT}], "
-                                       f"got {self.outlier_weight!r}")
+                                       f"got {shown(self.outlier_weight)}")
         if (isinstance(self.contrastive_weight, bool)
                 or not isinstance(self.contrastive_weight, (int, float, np.floating))
                 or not 0 <= self.contrastive_weight <= MAX_CONTRASTIVE_WEIGHT):
             raise InvalidArgumentError(f"CNNClassifier: contrastive_weight must be a number in "
-                                       f"[0, {MAX_CONTRASTIVE_WEIGHT}], got {self.contrastive_weight!r}")
+                                       f"[0, {MAX_CONTRASTIVE_WEIGHT}], got {shown(self.contrastive_weight)}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():

@@ -69,6 +69,17 @@ class DeviceNotFoundError(VisuotactileError):
     """No depth camera is connected (or it cannot be opened)."""
 
 
+def shown(value) -> str:
+    """``value`` as an error message shows it: :func:`reprlib.repr` (long values abbreviated), and an integer too long
+    for Python to print (over 4,300 digits raise ValueError in ``repr``) by its size instead."""
+    import reprlib
+
+    try:
+        return reprlib.repr(value)
+    except ValueError:
+        return f"an integer of {value.bit_length():,} bits" if isinstance(value, int) else f"a {type(value).__name__}"
+
+
 __all__ = [
     "ContourError",
     "DataLeakError",
@@ -84,4 +95,5 @@ __all__ = [
     "SensorSpecError",
     "VisuotactileError",
     "WorkerError",
+    "shown",
 ]

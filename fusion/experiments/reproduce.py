@@ -196,11 +196,12 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
 
         unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
         record = {"objects": [str(p) for p, _ in unseen_list], "sizes": sizes.to_dict(), "seed": ctx.seed,
-                  "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers],
-                  "openset_contrastive": experiment.OPENSET_CONTRASTIVE}
+                  "classifiers": [_describe(ctx, n) for n in sizes.calibration_classifiers]}
         if ctx.outliers:  # a run without them keeps the record (and the cached parts) it had
             record["outliers"] = [[str(x) for x in o] for o in ctx.outliers]
-        todo = [part for part in calibrating if not ctx.has_part(part, record)]
+        records = {part: record | ({"contrastive": experiment.OPENSET_CONTRASTIVE} if part == "openset" else {})
+                   for part in calibrating}  # the open-set part's CNNs alone train with the term
+        todo = [part for part in calibrating if not ctx.has_part(part, records[part])]
         if len(todo) > 1:  # both parts' calibrations in one pool: they pack on the workers better than part by part
             try:
                 timed("calibrations", lambda: experiment.calibrate_parts(ctx, unseen_list, todo))
@@ -208,7 +209,7 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
                 log.warning("calibrating both parts together failed (%s); each part calibrates on its own", exc)
     for part in calibrating:
         compute = getattr(experiment, f"{part}_part")
-        def run_part(part=part, record=record, compute=compute, objects=unseen_list):
+        def run_part(part=part, record=records[part], compute=compute, objects=unseen_list):
             return ctx.cached_part(part, record, lambda: compute(ctx, objects))
 
         results[part] = timed(part, run_part)

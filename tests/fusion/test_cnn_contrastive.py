@@ -9,12 +9,14 @@ import numpy as np
 import pytest
 import torch
 
+from fusion import cnn
 from fusion.base import load_model
 from fusion.cnn import CONTRASTIVE_TEMPERATURE, MAX_CONTRASTIVE_WEIGHT, CNNClassifier, supervised_contrastive
 from fusion.experiments.touch import touch_objects
 from perception.errors import InvalidArgumentError
 from perception.shapes import make_object
 from tactile import FSRSensor
+from tests.fusion.test_cnn_outliers import outlier_store  # noqa: F401 -- fixture
 
 T = CONTRASTIVE_TEMPERATURE
 
@@ -119,3 +121,58 @@ def test_the_weight_survives_a_model_file(known, tmp_path):
 def test_a_bad_weight_is_refused(known, weight):
     with pytest.raises(InvalidArgumentError, match="contrastive_weight"):
         model(contrastive_weight=weight).fit(known)
+
+
+def test_outliers_are_negatives_only_even_when_two_point_alike():
+    """Two outliers along (0, 1): they enlarge the anchors' denominators but are no anchors themselves (as anchors,
+    each would be the other's positive and change the mean)."""
+    c, s = math.cos(math.pi / 3), math.sin(math.pi / 3)
+    hidden = torch.tensor([[1.0, 0.0], [c, s], [0.0, 1.0], [0.0, 2.0]], dtype=torch.float64)
+    share0 = c / T - math.log(math.exp(c / T) + 2.0)
+    share1 = c / T - math.log(math.exp(c / T) + 2 * math.exp(s / T))
+    loss = supervised_contrastive(hidden, torch.tensor([0, 0]))
+    assert float(loss) == pytest.approx(-(share0 + share1) / 2, rel=1e-12)
+
+
+def test_the_temperature_is_the_one_given():
+    hidden = torch.tensor([[2.0, 0.0], [0.5, 0.0], [0.0, 3.0]], dtype=torch.float64)
+    loss = supervised_contrastive(hidden, torch.tensor([0, 0]), temperature=0.5)
+    assert float(loss) == pytest.approx(math.log1p(math.exp(-2.0)), rel=1e-12)
+
+
+def test_the_weight_scales_the_term(known):
+    a = model(epochs=2, contrastive_weight=1.0).fit(known).cutaneous_net_.state_dict()
+    b = model(epochs=2, contrastive_weight=2.0).fit(known).cutaneous_net_.state_dict()
+    assert not all(torch.equal(a[k], b[k]) for k in a)
+
+
+@pytest.mark.parametrize("weight", [MAX_CONTRASTIVE_WEIGHT, np.float32(0.5), -0.0, 0])
+def test_edge_weights_are_accepted(known, weight):
+    model(epochs=1, contrastive_weight=weight).fit(known)
+
+
+def test_a_huge_weight_is_refused_in_a_short_message(known):
+    """10**5000 has more digits than Python will print: the message shows an abbreviation instead of failing."""
+    with pytest.raises(InvalidArgumentError, match="contrastive_weight") as caught:
+        model(contrastive_weight=10**5000).fit(known)
+    assert len(str(caught.value)) < 200
+
+
+def test_a_zero_weight_never_computes_the_term(known, monkeypatch):
+    monkeypatch.setattr(cnn, "supervised_contrastive", lambda *a, **k: pytest.fail("computed at weight 0"))
+    model(epochs=1).fit(known)
+
+
+def test_the_term_reads_the_hidden_layer_with_the_outliers_rows(known, outlier_store, monkeypatch):  # noqa: F811
+    seen, real = [], cnn.supervised_contrastive
+    monkeypatch.setattr(cnn, "supervised_contrastive",
+                        lambda h, y, *a, **k: seen.append((h.shape, len(y), h.requires_grad)) or real(h, y, *a, **k))
+    model(epochs=1, outliers=outlier_store, contrastive_weight=1.0).fit(known)
+    assert seen and all(shape == (2 * n, 64) and grad for shape, n, grad in seen)
+
+
+def test_the_training_step_applies_dropout_as_forward_does(known, monkeypatch):
+    modes, real = [], torch.nn.Dropout.forward
+    monkeypatch.setattr(torch.nn.Dropout, "forward", lambda self, x: modes.append(self.training) or real(self, x))
+    model(epochs=1).fit(known)
+    assert any(modes)
