@@ -350,7 +350,9 @@ class CNNClassifier(TactileClassifier):
             (:func:`supervised_contrastive`, the outliers' rows as negatives) beside the cross-entropy (0, the
             default: none; at most :data:`MAX_CONTRASTIVE_WEIGHT`). It gathers each class's touches on the unit sphere
             where the open-set distance scores are measured (:meth:`embed`), so that touches of an object of no known
-            class fall farther from every class.
+            class fall farther from every class. In ``reproduce``'s open-set part (weight 0.5 with outlier exposure,
+            README) the unknown objects rejected at K = 8 rose from 75.1 to 81.8 % (paired over objects: +6.7 points,
+            interval +1.3 to +12.1), the AUROC from 0.935 to 0.959.
 
     Fitted attributes: ``cutaneous_net_``, ``kinesthetic_net_`` (CPU modules, None when not trained),
     ``history_`` (per net: epochs run, best epoch, validation accuracy) and the statistics of the inputs;
