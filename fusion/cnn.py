@@ -432,15 +432,11 @@ class CNNClassifier(TactileClassifier):
         if self.outliers is not None and not isinstance(self.outliers, str):
             raise InvalidArgumentError(f"CNNClassifier: outliers must be None or the path of a store (a str), got "
                                        f"{type(self.outliers).__name__}")
-        if (isinstance(self.outlier_weight, bool) or not isinstance(self.outlier_weight, (int, float, np.floating))
-                or not 0 <= self.outlier_weight <= MAX_OUTLIER_WEIGHT):  # NaN fails it; isfinite refuses huge ints
-            raise InvalidArgumentError(f"CNNClassifier: outlier_weight must be a number in [0, {MAX_OUTLIER_WEIGHT}], "
-                                       f"got {shown(self.outlier_weight)}")
-        if (isinstance(self.contrastive_weight, bool)
-                or not isinstance(self.contrastive_weight, (int, float, np.floating))
-                or not 0 <= self.contrastive_weight <= MAX_CONTRASTIVE_WEIGHT):
-            raise InvalidArgumentError(f"CNNClassifier: contrastive_weight must be a number in "
-                                       f"[0, {MAX_CONTRASTIVE_WEIGHT}], got {shown(self.contrastive_weight)}")
+        for name, top in (("outlier_weight", MAX_OUTLIER_WEIGHT), ("contrastive_weight", MAX_CONTRASTIVE_WEIGHT)):
+            weight = getattr(self, name)
+            if (isinstance(weight, bool) or not isinstance(weight, (int, float, np.floating))
+                    or not 0 <= weight <= top):  # NaN fails it; isfinite would refuse huge ints
+                raise InvalidArgumentError(f"CNNClassifier: {name} must be a number in [0, {top}], got {shown(weight)}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise InvalidArgumentError(f"CNNClassifier: device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
