@@ -168,14 +168,29 @@ def supervised_contrastive(hidden: torch.Tensor, labels: torch.Tensor,
     log(exp(u_i . u_p / t) / sum over all rows a != i of exp(u_i . u_a / t)); the result is the mean over such rows
     (0 when there are none). It pulls the sequences of a class together and pushes other classes and outliers away,
     on the unit sphere where :meth:`CNNClassifier.embed` measures the open-set distances.
+
+    Raises:
+        InvalidArgumentError: ``temperature`` not a finite number > 0, ``hidden`` not (B, H) with B >= the number
+            of labels, or holding NaN or Inf (the weights have diverged).
     """
+    if (isinstance(temperature, bool) or not isinstance(temperature, (int, float, np.integer, np.floating))
+            or not np.isfinite(temperature) or temperature <= 0):
+        raise InvalidArgumentError(f"supervised_contrastive: temperature must be a finite number > 0, got "
+                                   f"{shown(temperature)}")
     n = len(labels)
+    if hidden.dim() != 2 or len(hidden) < n:
+        raise InvalidArgumentError(f"supervised_contrastive: expected (B, H) features with B >= {n} (the labels), got "
+                                   f"shape {tuple(hidden.shape)}")
+    if not bool(torch.isfinite(hidden).all()):
+        raise InvalidArgumentError("supervised_contrastive: the hidden features hold NaN or Inf (the weights have "
+                                   "diverged; a lower learning rate or weight may help)")
     unit = F.normalize(hidden, dim=1, eps=1e-12)
     similarity = unit[:n] @ unit.T / temperature
     itself = torch.zeros_like(similarity, dtype=torch.bool)
     itself[torch.arange(n), torch.arange(n)] = True
-    # -inf would make 0 * -inf = NaN below; a large finite value has exp() = 0 all the same
-    similarity = similarity.masked_fill(itself, -1e9)
+    # -inf would make 0 * -inf = NaN below; a large finite value has exp() = 0 all the same (half the type's
+    # lowest in half precision, whose range ends at -65504)
+    similarity = similarity.masked_fill(itself, max(-1e9, float(torch.finfo(similarity.dtype).min) / 2))
     log_share = similarity - torch.logsumexp(similarity, dim=1, keepdim=True)
     positive = torch.zeros_like(itself)
     positive[:, :n] = labels[:, None] == labels[None, :]

@@ -78,7 +78,7 @@ def _copies_together(dataset, train: np.ndarray, test: np.ndarray) -> tuple[np.n
 
 def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = "invariant", split: str = "sequence",
                    test_fraction: float = 0.2, strategy: str | None = None, random_state: int = 0,
-                   calibrated: bool = False, outliers: str | Path | None = None) -> dict:
+                   calibrated: bool = False, outliers: str | Path | None = None, contrastive: float = 0.0) -> dict:
     """Fit classifier ``kind`` (:func:`fusion.classifiers.make_classifier`) on ``store``'s training part, record
     the :class:`TrainingRecord` as ``model.training_``, save it to ``out`` and score the held-out part.
 
@@ -86,6 +86,8 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
     least three classes, the "unknown" answer (leave-classes-out folds: up to four), all on the training part
     only; its inner folds train the classifier several more times. ``outliers``: a store of touches of objects of no
     class in ``store``, for the CNN's outlier exposure (:class:`fusion.cnn.CNNClassifier`'s ``outliers``).
+    ``contrastive``: the CNN's supervised contrastive weight (``contrastive_weight``; 0: none), which gathers each
+    class in the feature space where the "unknown" answer measures its distances.
 
     Returns:
         {"model", "cue", "out", "train_sequences", "fit_seconds"}, with ``calibrated`` also "calibration"
@@ -94,8 +96,8 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
         :class:`~fusion.evaluate.Accuracy`).
 
     Raises:
-        InvalidArgumentError: an unknown classifier, cue or split; ``outliers`` for a classifier other than the CNN,
-            or naming ``store`` itself. DatasetError: an unreadable store; with ``calibrated``, a class with fewer than
+        InvalidArgumentError: an unknown classifier, cue or split; ``outliers`` or a nonzero ``contrastive`` for a
+            classifier other than the CNN, ``outliers`` naming ``store`` itself, or a bad weight. DatasetError: an unreadable store; with ``calibrated``, a class with fewer than
             three training objects.
     """
     from fusion.classifiers import make_classifier
@@ -110,6 +112,10 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
             raise InvalidArgumentError(f"outliers: {outliers} is the training store itself; give a store of objects "
                                        "of no class the model is to know")
         options["outliers"] = str(outliers)
+    if contrastive != 0:  # the CNN checks the value itself
+        if kind != "cnn":
+            raise InvalidArgumentError(f"contrastive: only the cnn model trains with the contrastive term, not {kind!r}")
+        options["contrastive_weight"] = contrastive
     dataset = open_dataset(store)
     train, test = split_indices(dataset, split, strategy, test_fraction, random_state)
     model = make_classifier(kind, cue=cue, random_state=random_state, **options)

@@ -14,7 +14,8 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     check_output_file(args.out, "--out")  # before training, not after
     result = train_on_store(args.store, args.model, args.out, cue=args.cue, split=args.split,
                             test_fraction=args.test_fraction, strategy=args.strategy, random_state=args.seed,
-                            calibrated=args.calibrate, outliers=args.outliers)
+                            calibrated=args.calibrate, outliers=args.outliers,
+                            contrastive=args.contrastive)
     acc = result.pop("accuracy", None)
     if args.json:
         print_json(result)
@@ -54,6 +55,10 @@ def register(sub) -> None:
     p.add_argument("--outliers", default=None, metavar="STORE",
                    help="cnn only: a store of touches of objects of no class in --store; the nets learn to doubt "
                         "what feels like none of the classes (outlier exposure)")
+    p.add_argument("--contrastive", type=float, default=0.0, metavar="WEIGHT",
+                   help="cnn only: weight of a supervised contrastive term (0 to 10; default 0: none) that gathers each "
+                        "class's touches in the feature space where --calibrate's 'unknown' answer measures distances "
+                        "(reproduce's open-set part uses 0.5)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print a JSON result on stdout")
     p.set_defaults(func=run)

@@ -166,3 +166,25 @@ def test_train_with_outliers_keeps_the_store_in_the_model(store, tmp_path, capsy
         assert main(["train", "--store", str(store), "--out", str(tmp_path / "m.vtm"), *argv]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and all(w in err[0] for w in words), err
+
+
+def test_train_with_contrastive_keeps_the_weight_in_the_model(store, tmp_path, capsys):
+    """``--contrastive``: the CNN trains with the supervised contrastive term of that weight, which the model file
+    keeps; the SVM has no such term, and a weight the CNN refuses writes no model."""
+    model_path = tmp_path / "cnn.vtm"
+    assert main(["train", "--store", str(store), "--model", "cnn", "--contrastive", "0.5", "--split", "none",
+                 "--out", str(model_path)]) == 0
+    capsys.readouterr()
+    assert load_model(model_path).contrastive_weight == 0.5
+    plain = tmp_path / "plain.vtm"
+    assert main(["train", "--store", str(store), "--model", "cnn", "--split", "none", "--out", str(plain)]) == 0
+    capsys.readouterr()
+    assert load_model(plain).contrastive_weight == 0.0
+    for argv, words in ((["--model", "svm", "--contrastive", "0.5"], ("only the cnn", "svm", "contrastive")),
+                        (["--model", "cnn", "--contrastive", "-1"], ("contrastive_weight", "-1")),
+                        (["--model", "cnn", "--contrastive", "nan"], ("contrastive_weight", "nan"))):
+        bad = tmp_path / "bad.vtm"
+        assert main(["train", "--store", str(store), "--out", str(bad), *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and all(w in err[0] for w in words), err
+        assert not bad.exists()

@@ -40,6 +40,43 @@ def test_three_labelled_rows_at_sixty_and_ninety_degrees():
     assert float(loss) == pytest.approx(-(share0 + share1) / 2, rel=1e-12)
 
 
+@pytest.mark.parametrize("dtype, rel", [(torch.float32, 1e-5), (torch.float16, 2e-2), (torch.bfloat16, 3e-2)])
+def test_lower_precision_gives_the_hand_computed_loss(dtype, rel):
+    """The rows at 60 and 90 degrees above in float32 and half precision (whose range ends at -65504: the fill that
+    hides a row from itself must fit the type): the hand-computed loss to the type's precision, finite gradients."""
+    c, s = math.cos(math.pi / 3), math.sin(math.pi / 3)
+    hidden = torch.tensor([[1.0, 0.0], [c * 4, s * 4], [0.0, 0.1]], dtype=dtype, requires_grad=True)
+    share0 = c / T - math.log(math.exp(c / T) + 1.0)
+    share1 = c / T - math.log(math.exp(c / T) + math.exp(s / T))
+    loss = supervised_contrastive(hidden, torch.tensor([0, 0, 1]))
+    loss.backward()
+    assert loss.dtype == dtype
+    assert float(loss) == pytest.approx(-(share0 + share1) / 2, rel=rel)
+    assert torch.isfinite(hidden.grad).all()
+
+
+@pytest.mark.parametrize("temperature", [0, 0.0, -0.1, float("nan"), float("inf"), True, "0.1", None])
+def test_a_bad_temperature_is_refused(temperature):
+    hidden = torch.tensor([[1.0, 0.0], [1.0, 0.1]], dtype=torch.float64)
+    with pytest.raises(InvalidArgumentError, match="temperature must be a finite number > 0"):
+        supervised_contrastive(hidden, torch.tensor([0, 0]), temperature=temperature)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_features_holding_nan_or_inf_are_refused(bad):
+    """One diverged row would make the whole loss NaN: the term says so instead of training on."""
+    hidden = torch.tensor([[1.0, 0.0], [1.0, 0.1], [0.0, 1.0]], dtype=torch.float64)
+    hidden[2, 1] = bad
+    with pytest.raises(InvalidArgumentError, match="NaN or Inf"):
+        supervised_contrastive(hidden, torch.tensor([0, 0]))
+
+
+@pytest.mark.parametrize("shape", [(1, 2), (2,), (2, 2, 1)])
+def test_features_of_the_wrong_shape_are_refused(shape):
+    with pytest.raises(InvalidArgumentError, match=r"expected \(B, H\) features with B >= 2"):
+        supervised_contrastive(torch.ones(shape, dtype=torch.float64), torch.tensor([0, 0]))
+
+
 def test_no_anchor_with_a_positive_gives_zero_and_a_gradient_of_zeros():
     hidden = torch.tensor([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], dtype=torch.float64, requires_grad=True)
     loss = supervised_contrastive(hidden, torch.tensor([0, 1, 2]))
