@@ -43,7 +43,8 @@ from perception.runtime import machine_line as machine
 log = logging.getLogger(__name__)
 
 PARTS = ("paper", "unseen", "touches", "noise", "attention", "runtime", "calibration", "openset", "active")
-#: What runs when no parts are named: all but calibration and open set (each trains many models; ask by name).
+#: What runs when no parts are named: all but calibration, open set and active touch (each trains or plays many
+#: models and episodes; ask by name).
 DEFAULT_PARTS = PARTS[:6]
 BOOTSTRAP_NOTE = ("over test sequences for the paper protocol; over objects (whole objects resampled) "
                   "for unseen objects, K touches, noise, attention and the run-time part; differences (guided - blind, "

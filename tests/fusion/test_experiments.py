@@ -725,11 +725,14 @@ class TestModelCodeVersion:
         assert {"fusion/demo.py", "fusion/commands/__init__.py", "fusion/commands/verify.py"} <= files
 
 
-def test_reproduce_command_offers_exactly_the_parts():
+def test_reproduce_command_offers_exactly_the_parts_and_defaults():
+    from fusion.commands.reproduce import DEFAULT_PARTS as COMMAND_DEFAULTS
     from fusion.commands.reproduce import PARTS as COMMAND_PARTS
     from fusion.experiments import PARTS
+    from fusion.experiments.reproduce import DEFAULT_PARTS
 
     assert COMMAND_PARTS == PARTS
+    assert COMMAND_DEFAULTS == DEFAULT_PARTS == ("paper", "unseen", "touches", "noise", "attention", "runtime")
 
 
 CALLS = {"fit": 0, "predict": 0}
