@@ -88,6 +88,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import logging
+import math
 import time
 from collections.abc import Iterator
 from typing import ClassVar
@@ -170,28 +171,23 @@ def supervised_contrastive(hidden: torch.Tensor, labels: torch.Tensor,
     on the unit sphere where :meth:`CNNClassifier.embed` measures the open-set distances.
 
     Raises:
-        InvalidArgumentError: ``temperature`` not a finite number > 0, ``hidden`` not (B, H) with B >= the number
-            of labels, or holding NaN or Inf (the weights have diverged).
+        InvalidArgumentError: ``temperature`` not a finite number > 0 or so small that the similarities overflow,
+            ``hidden`` not a floating (B, H) tensor with B >= the number of labels or holding NaN or Inf (the weights
+            have diverged), ``labels`` not a 1-D tensor.
     """
-    if (isinstance(temperature, bool) or not isinstance(temperature, (int, float, np.integer, np.floating))
-            or not np.isfinite(temperature) or temperature <= 0):
-        raise InvalidArgumentError(f"supervised_contrastive: temperature must be a finite number > 0, got "
-                                   f"{shown(temperature)}")
+    t = _temperature(temperature)
+    if not isinstance(labels, torch.Tensor) or labels.dim() != 1:
+        raise InvalidArgumentError(f"supervised_contrastive: labels must be a 1-D tensor, got {shown(labels)}")
     n = len(labels)
-    if hidden.dim() != 2 or len(hidden) < n:
-        raise InvalidArgumentError(f"supervised_contrastive: expected (B, H) features with B >= {n} (the labels), got "
-                                   f"shape {tuple(hidden.shape)}")
-    if not bool(torch.isfinite(hidden).all()):
+    if (not isinstance(hidden, torch.Tensor) or not hidden.is_floating_point() or hidden.dim() != 2
+            or len(hidden) < n):
+        raise InvalidArgumentError(f"supervised_contrastive: expected floating (B, H) features with B >= {n} (the "
+                                   f"labels), got {_described(hidden)}")
+    if not bool(torch.isfinite(hidden).all()):  # on CUDA a sync, as the step's float(loss) is anyway
         raise InvalidArgumentError("supervised_contrastive: the hidden features hold NaN or Inf (the weights have "
                                    "diverged; a lower learning rate or weight may help)")
-    unit = F.normalize(hidden, dim=1, eps=1e-12)
-    similarity = unit[:n] @ unit.T / temperature
-    itself = torch.zeros_like(similarity, dtype=torch.bool)
+    itself = torch.zeros((n, len(hidden)), dtype=torch.bool, device=hidden.device)
     itself[torch.arange(n), torch.arange(n)] = True
-    # -inf would make 0 * -inf = NaN below; a large finite value has exp() = 0 all the same (half the type's
-    # lowest in half precision, whose range ends at -65504)
-    similarity = similarity.masked_fill(itself, max(-1e9, float(torch.finfo(similarity.dtype).min) / 2))
-    log_share = similarity - torch.logsumexp(similarity, dim=1, keepdim=True)
     positive = torch.zeros_like(itself)
     positive[:, :n] = labels[:, None] == labels[None, :]
     positive &= ~itself
@@ -199,7 +195,43 @@ def supervised_contrastive(hidden: torch.Tensor, labels: torch.Tensor,
     has = count > 0
     if not has.any():
         return hidden.sum() * 0.0  # keeps the graph: the step's backward still runs
-    return -((log_share * positive).sum(dim=1)[has] / count[has]).mean()
+    unit = F.normalize(hidden, dim=1, eps=1e-12)
+    similarity = unit[:n] @ unit.T / t
+    if not bool(torch.isfinite(similarity).all()):
+        raise InvalidArgumentError(f"supervised_contrastive: temperature {shown(temperature)} is too small for "
+                                   f"{hidden.dtype} features (the similarities overflow)")
+    # a row is hidden from itself by -inf (exp() = 0 whatever the scale), and the products with the non-positive
+    # entries are masked rather than multiplied by 0 (0 x -inf would be NaN)
+    log_share = similarity.masked_fill(itself, float("-inf"))
+    log_share = log_share - torch.logsumexp(log_share, dim=1, keepdim=True)
+    return -(log_share.masked_fill(~positive, 0.0).sum(dim=1)[has] / count[has]).mean()
+
+
+def _temperature(value) -> float:
+    """``value`` as a float temperature.
+
+    Raises:
+        InvalidArgumentError: not a real number, or not finite and > 0 (an integer too large for a float counts as
+            infinite).
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InvalidArgumentError(f"supervised_contrastive: temperature must be a finite number > 0, got "
+                                   f"{shown(value)}")
+    try:
+        t = float(value)
+    except OverflowError:
+        t = math.inf
+    if not 0 < t < math.inf:  # NaN fails it too
+        raise InvalidArgumentError(f"supervised_contrastive: temperature must be a finite number > 0, got "
+                                   f"{shown(value)}")
+    return t
+
+
+def _described(value) -> str:
+    """A tensor's dtype and shape, or what else ``value`` is, for an error message."""
+    if isinstance(value, torch.Tensor):
+        return f"a {value.dtype} tensor of shape {tuple(value.shape)}"
+    return shown(value)
 
 
 def _circular_probes(x: torch.Tensor, pad: int = 1) -> torch.Tensor:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.leakage import SPLITS, check_held_out, overlap
-from perception.errors import DatasetError, InvalidArgumentError
+from perception.errors import DatasetError, InvalidArgumentError, shown
 
 #: How training holds out test sequences: by sequence (the paper's 80/20), by object (unseen objects), or none.
 
@@ -112,7 +112,9 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
             raise InvalidArgumentError(f"outliers: {outliers} is the training store itself; give a store of objects "
                                        "of no class the model is to know")
         options["outliers"] = str(outliers)
-    if contrastive != 0:  # the CNN checks the value itself
+    if isinstance(contrastive, bool) or not isinstance(contrastive, (int, float, np.integer, np.floating)):
+        raise InvalidArgumentError(f"contrastive: expected a number (the CNN's weight), got {shown(contrastive)}")
+    if contrastive != 0:  # the CNN checks the range itself
         if kind != "cnn":
             raise InvalidArgumentError(f"contrastive: only the cnn model trains with the contrastive term, not {kind!r}")
         options["contrastive_weight"] = contrastive

@@ -188,3 +188,14 @@ def test_train_with_contrastive_keeps_the_weight_in_the_model(store, tmp_path, c
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and all(w in err[0] for w in words), err
         assert not bad.exists()
+
+
+@pytest.mark.parametrize("weight", [None, "0.5", np.array([1.0, 0.0]), True])
+@pytest.mark.parametrize("kind", ["cnn", "knn"])
+def test_train_on_store_refuses_a_contrastive_weight_that_is_no_number(store, tmp_path, weight, kind):
+    from fusion.training import train_on_store
+    from perception.errors import InvalidArgumentError
+
+    with pytest.raises(InvalidArgumentError, match="contrastive: expected a number"):
+        train_on_store(store, kind, tmp_path / "m.vtm", contrastive=weight)
+    assert not (tmp_path / "m.vtm").exists()

@@ -55,11 +55,56 @@ def test_lower_precision_gives_the_hand_computed_loss(dtype, rel):
     assert torch.isfinite(hidden.grad).all()
 
 
-@pytest.mark.parametrize("temperature", [0, 0.0, -0.1, float("nan"), float("inf"), True, "0.1", None])
+@pytest.mark.parametrize("temperature", [0, 0.0, -0.1, float("nan"), float("inf"), True, "0.1", None, 10**400,
+                                         -10**400, torch.tensor(0.1)])
 def test_a_bad_temperature_is_refused(temperature):
     hidden = torch.tensor([[1.0, 0.0], [1.0, 0.1]], dtype=torch.float64)
     with pytest.raises(InvalidArgumentError, match="temperature must be a finite number > 0"):
         supervised_contrastive(hidden, torch.tensor([0, 0]), temperature=temperature)
+
+
+def test_the_self_entry_stays_hidden_at_any_scale():
+    """Rows u0 = (1, 0), u1 = u2 = (-1, 0), anchors 0 and 1 of one class, row 2 an outlier. Anchor 0's positive is
+    opposite it and the outlier too, so its share is 1/2; anchor 1's positive is opposite and the outlier alike, so
+    its log-share is -1/t - log(e^(-1/t) + e^(1/t)) = -2/t - log(1 + e^(-2/t)). The loss is
+    (log 2 + 2/t + log(1 + e^(-2/t))) / 2 at any temperature: a finite fill (-1e9 before) stops hiding a row from
+    itself once 1/t passes it."""
+    hidden = torch.tensor([[1.0, 0.0], [-1.0, 0.0], [-1.0, 0.0]], dtype=torch.float64)
+    for t in (0.1, 1e-3, 1e-10):
+        expected = (math.log(2) + 2 / t + math.log1p(math.exp(-2 / t))) / 2
+        assert float(supervised_contrastive(hidden, torch.tensor([0, 0]), temperature=t)) == pytest.approx(
+            expected, rel=1e-12)
+
+
+def test_the_fill_leaves_room_below_the_log_sum_in_half_precision():
+    """Three alike rows in float16 at t = 0.05: each anchor's share of its one positive is 1/2, loss log 2. A fill at
+    the type's lowest value would overflow to -inf in the subtraction and make NaN."""
+    hidden = torch.ones(3, 2, dtype=torch.float16, requires_grad=True)
+    loss = supervised_contrastive(hidden, torch.tensor([0, 0, 1]), temperature=0.05)
+    loss.backward()
+    assert float(loss) == pytest.approx(math.log(2), rel=2e-2)
+    assert torch.isfinite(hidden.grad).all()
+
+
+@pytest.mark.parametrize("dtype, temperature", [(torch.float32, 1e-300), (torch.float16, 1e-6),
+                                                (torch.float64, 5e-324)])
+def test_a_temperature_too_small_for_the_type_is_refused(dtype, temperature):
+    hidden = torch.tensor([[1.0, 0.0], [1.0, 0.1], [0.0, 1.0]], dtype=dtype)
+    with pytest.raises(InvalidArgumentError, match="too small for"):
+        supervised_contrastive(hidden, torch.tensor([0, 0, 1]), temperature=temperature)
+
+
+@pytest.mark.parametrize("hidden", [torch.tensor([[1, 0], [1, 0]]), torch.tensor([[True, False], [True, True]]),
+                                    torch.ones(2, 2, dtype=torch.complex64), [[1.0, 0.0], [1.0, 0.0]]])
+def test_features_that_are_not_a_floating_tensor_are_refused(hidden):
+    with pytest.raises(InvalidArgumentError, match="expected floating"):
+        supervised_contrastive(hidden, torch.tensor([0, 0]))
+
+
+@pytest.mark.parametrize("labels", [torch.tensor([[0], [0]]), torch.tensor(0), [0, 0], np.array([0, 0])])
+def test_labels_that_are_not_a_1d_tensor_are_refused(labels):
+    with pytest.raises(InvalidArgumentError, match="labels must be a 1-D tensor"):
+        supervised_contrastive(torch.ones(2, 2, dtype=torch.float64), labels)
 
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
@@ -73,7 +118,7 @@ def test_features_holding_nan_or_inf_are_refused(bad):
 
 @pytest.mark.parametrize("shape", [(1, 2), (2,), (2, 2, 1)])
 def test_features_of_the_wrong_shape_are_refused(shape):
-    with pytest.raises(InvalidArgumentError, match=r"expected \(B, H\) features with B >= 2"):
+    with pytest.raises(InvalidArgumentError, match=r"expected floating \(B, H\) features with B >= 2"):
         supervised_contrastive(torch.ones(shape, dtype=torch.float64), torch.tensor([0, 0]))
 
 
