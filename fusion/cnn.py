@@ -214,13 +214,12 @@ def _temperature(value) -> float:
         InvalidArgumentError: not a real number, or not finite and > 0 (an integer too large for a float counts as
             infinite).
     """
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InvalidArgumentError(f"supervised_contrastive: temperature must be a finite number > 0, got "
-                                   f"{shown(value)}")
-    try:
-        t = float(value)
-    except OverflowError:
-        t = math.inf
+    t = math.nan
+    if not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating)):
+        try:
+            t = float(value)
+        except OverflowError:
+            t = math.inf
     if not 0 < t < math.inf:  # NaN fails it too
         raise InvalidArgumentError(f"supervised_contrastive: temperature must be a finite number > 0, got "
                                    f"{shown(value)}")

@@ -97,8 +97,8 @@ def train_on_store(store: str | Path, kind: str, out: str | Path, *, cue: str = 
 
     Raises:
         InvalidArgumentError: an unknown classifier, cue or split; ``outliers`` or a nonzero ``contrastive`` for a
-            classifier other than the CNN, ``outliers`` naming ``store`` itself, or a bad weight. DatasetError: an unreadable store; with ``calibrated``, a class with fewer than
-            three training objects.
+            classifier other than the CNN, ``outliers`` naming ``store`` itself, or a bad weight. DatasetError: an
+            unreadable store; with ``calibrated``, a class with fewer than three training objects.
     """
     from fusion.classifiers import make_classifier
     from fusion.evaluate import accuracy

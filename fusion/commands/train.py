@@ -14,8 +14,7 @@ def run(args: argparse.Namespace, rest: list[str]) -> int:
     check_output_file(args.out, "--out")  # before training, not after
     result = train_on_store(args.store, args.model, args.out, cue=args.cue, split=args.split,
                             test_fraction=args.test_fraction, strategy=args.strategy, random_state=args.seed,
-                            calibrated=args.calibrate, outliers=args.outliers,
-                            contrastive=args.contrastive)
+                            calibrated=args.calibrate, outliers=args.outliers, contrastive=args.contrastive)
     acc = result.pop("accuracy", None)
     if args.json:
         print_json(result)
