@@ -270,11 +270,42 @@ def _running(pid: int) -> bool:
     return True
 
 
+#: CPU vector extensions worth naming in a report, widest first: oneDNN and Open3D pick their kernels by them, so
+#: they explain run-time ratios between machines, and CNN weights that differ in the last bits between machines.
+VECTOR_EXTENSIONS = ("amx_tile", "avx512_bf16", "avx512f", "avx2", "asimd")
+
+
+def cpu_description(cpuinfo: str) -> tuple[str, str]:
+    """(CPU model, its widest :data:`VECTOR_EXTENSIONS` joined by "+") read from the text of ``/proc/cpuinfo``;
+    empty strings for what it does not say."""
+    model, flags = "", set()
+    for line in cpuinfo.splitlines():
+        key, _, value = line.partition(":")
+        key = key.strip().lower()
+        if key in ("model name", "cpu model") and not model:
+            model = " ".join(value.split())
+        elif key in ("flags", "features") and not flags:
+            flags = set(value.split())
+    return model, "+".join(ext for ext in VECTOR_EXTENSIONS if ext in flags)
+
+
+def _cpu() -> tuple[str, str]:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            return cpu_description(f.read(1 << 20))  # the first CPUs' entries are enough
+    except OSError:  # not Linux
+        return platform.processor() or "", ""
+
+
 def machine() -> dict:
-    """Where the numbers were measured: platform, processor, logical CPUs, usable cores, Python."""
+    """Where the numbers were measured: platform, processor, CPU model and vector extensions, logical CPUs, usable
+    cores, Python."""
+    model, vector = _cpu()
     return {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
+        "cpu_model": model,
+        "cpu_vector": vector,
         "cpu_count": os.cpu_count(),
         "cores_available": usable_cores(),
         "python": platform.python_version(),
@@ -283,8 +314,10 @@ def machine() -> dict:
 
 def machine_line() -> str:
     """:func:`machine` in one line, for reports."""
-    return f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} logical CPUs, " \
-           f"{usable_cores()} usable, Python {platform.python_version()}".replace("  ", " ")
+    model, vector = _cpu()
+    cpu = f"{model} ({vector})" if model and vector else model or vector
+    return " ".join(part for part in (platform.machine(), platform.processor(), cpu) if part) + \
+        f" {os.cpu_count()} logical CPUs, {usable_cores()} usable, Python {platform.python_version()}"
 
 
 def set_progress(enabled: bool | None) -> None:

@@ -51,6 +51,30 @@ class TestMachine:
         assert 1 <= info["cores_available"] <= info["cpu_count"]
         assert f"{info['cores_available']} usable" in runtime.machine_line()
 
+    INTEL = ("processor\t: 0\nvendor_id\t: GenuineIntel\nmodel name\t: Intel(R) Xeon(R) Platinum 8488C\n"
+             "flags\t\t: fpu sse2 avx avx2 fma avx512f avx512bw avx512_bf16 amx_bf16 amx_tile\n\n"
+             "processor\t: 1\nmodel name\t: Intel(R) Xeon(R) Platinum 8488C\nflags\t\t: fpu avx2\n")
+    AMD = "processor\t: 0\nmodel name\t: AMD EPYC\nflags\t\t: fpu sse2 avx fma avx2 sha_ni\n"
+    ARM = "processor\t: 0\nBogoMIPS\t: 50.00\nFeatures\t: fp asimd evtstrm aes crc32\nCPU part\t: 0xd0c\n"
+
+    @pytest.mark.parametrize("text, expected", [
+        (INTEL, ("Intel(R) Xeon(R) Platinum 8488C", "amx_tile+avx512_bf16+avx512f+avx2")),
+        (AMD, ("AMD EPYC", "avx2")),
+        (ARM, ("", "asimd")),
+        ("", ("", "")),
+        ("model name : \x00 odd\tspacing  here\nflags:\n", ("\x00 odd spacing here", "")),
+    ])
+    def test_cpu_description_reads_the_model_and_the_widest_vector_extensions(self, text, expected):
+        """The first CPU's entries: a later CPU listing fewer flags does not count (hand-made /proc/cpuinfo texts)."""
+        assert runtime.cpu_description(text) == expected
+
+    def test_machine_line_names_the_cpu(self, monkeypatch):
+        monkeypatch.setattr(runtime, "_cpu", lambda: ("AMD EPYC", "avx2"))
+        assert "AMD EPYC (avx2) " in runtime.machine_line()
+        assert runtime.machine()["cpu_vector"] == "avx2"
+        monkeypatch.setattr(runtime, "_cpu", lambda: ("", ""))
+        assert "()" not in runtime.machine_line() and "  " not in runtime.machine_line()
+
 
 class TestProgressSwitch:
     @pytest.fixture(autouse=True)
