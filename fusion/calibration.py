@@ -16,13 +16,15 @@ data* (:func:`fusion.openset.calibrate` does the folds); never on test objects. 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.special import log_softmax
 
 from fusion.decide import PROBA_FLOOR
 from perception.atomic import save_figure
-from perception.errors import DatasetError, InvalidArgumentError
+from perception.errors import DatasetError, InvalidArgumentError, shown
 
 #: Temperatures searched by :func:`fit_temperature` (dimensionless).
 TEMPERATURE_BOUNDS = (0.02, 200.0)
@@ -53,12 +55,18 @@ def log_proba(proba) -> np.ndarray:
     return np.log(np.maximum(np.asarray(proba, dtype=np.float64), PROBA_FLOOR))
 
 
-def check_temperature(temperature) -> float:
-    """``temperature`` as a float; raise InvalidArgumentError unless finite and > 0."""
-    if isinstance(temperature, bool) or not isinstance(temperature, (int, float, np.integer, np.floating)) or not (
-            np.isfinite(temperature) and temperature > 0):
-        raise InvalidArgumentError(f"temperature must be a finite number > 0, got {temperature!r}")
-    return float(temperature)
+def check_temperature(temperature, where: str = "") -> float:
+    """``temperature`` as a float; raise InvalidArgumentError (its message starting with ``where``) unless a real
+    number, finite and > 0 (an integer too large for a float counts as infinite)."""
+    t = math.nan
+    if not isinstance(temperature, bool) and isinstance(temperature, (int, float, np.integer, np.floating)):
+        try:
+            t = float(temperature)
+        except OverflowError:
+            t = math.inf
+    if not 0 < t < math.inf:  # NaN fails it too
+        raise InvalidArgumentError(f"{where}temperature must be a finite number > 0, got {shown(temperature)}")
+    return t
 
 
 def check_dependence(dependence) -> float:

@@ -88,7 +88,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import logging
-import math
 import time
 from collections.abc import Iterator
 from typing import ClassVar
@@ -99,6 +98,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from fusion.base import TactileClassifier, renamed_seed
+from fusion.calibration import check_temperature
 from fusion.cues import INVARIANT_NAMES, check_cue, cue_width, kinesthetic_cues
 from fusion.decide import PROBA_FLOOR
 from perception.errors import DatasetError, InvalidArgumentError, shown
@@ -175,7 +175,7 @@ def supervised_contrastive(hidden: torch.Tensor, labels: torch.Tensor,
             ``hidden`` not a floating (B, H) tensor with B >= the number of labels or holding NaN or Inf (the weights
             have diverged), ``labels`` not a 1-D tensor.
     """
-    t = _temperature(temperature)
+    t = check_temperature(temperature, "supervised_contrastive: ")
     if not isinstance(labels, torch.Tensor) or labels.dim() != 1:
         raise InvalidArgumentError(f"supervised_contrastive: labels must be a 1-D tensor, got {shown(labels)}")
     n = len(labels)
@@ -205,25 +205,6 @@ def supervised_contrastive(hidden: torch.Tensor, labels: torch.Tensor,
     log_share = similarity.masked_fill(itself, float("-inf"))
     log_share = log_share - torch.logsumexp(log_share, dim=1, keepdim=True)
     return -(log_share.masked_fill(~positive, 0.0).sum(dim=1)[has] / count[has]).mean()
-
-
-def _temperature(value) -> float:
-    """``value`` as a float temperature.
-
-    Raises:
-        InvalidArgumentError: not a real number, or not finite and > 0 (an integer too large for a float counts as
-            infinite).
-    """
-    t = math.nan
-    if not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating)):
-        try:
-            t = float(value)
-        except OverflowError:
-            t = math.inf
-    if not 0 < t < math.inf:  # NaN fails it too
-        raise InvalidArgumentError(f"supervised_contrastive: temperature must be a finite number > 0, got "
-                                   f"{shown(value)}")
-    return t
 
 
 def _described(value) -> str:

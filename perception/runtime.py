@@ -314,10 +314,11 @@ def machine() -> dict:
 
 def machine_line() -> str:
     """:func:`machine` in one line, for reports."""
-    model, vector = _cpu()
+    info = machine()
+    model, vector = info["cpu_model"], info["cpu_vector"]
     cpu = f"{model} ({vector})" if model and vector else model or vector
-    return " ".join(part for part in (platform.machine(), platform.processor(), cpu) if part) + \
-        f" {os.cpu_count()} logical CPUs, {usable_cores()} usable, Python {platform.python_version()}"
+    return " ".join(part for part in (info["processor"], cpu) if part) + \
+        f" {info['cpu_count']} logical CPUs, {info['cores_available']} usable, Python {info['python']}"
 
 
 def set_progress(enabled: bool | None) -> None:
