@@ -5,6 +5,8 @@
   that a policy never reads the true object.
 - :mod:`fusion.active.episode`: :func:`run_episode`, touches fused by the log rule until a confidence threshold
   or a touch budget.
+- :mod:`fusion.active.replay`: a candidate bank per object (simulated and real readings of the information policy's
+  candidates), over which next-touch criteria replay an episode's decisions offline.
 - :mod:`fusion.active.figure`: one episode as a figure (``make demo``).
 - :mod:`fusion.active.env`: ``ActiveTouchEnv``, the same loop as a Gymnasium / ``ap_gym`` active-classification
   environment (imported on demand: it needs ``gymnasium`` and ``ap_gym``).

@@ -307,6 +307,19 @@ class InformationPolicy(Policy):
         if cached is not None and cached[0] is state.classifier:
             return entry["planes"], cached[1]
         start = time.perf_counter()
+        planes = self.candidate_planes(state)
+        outcomes = simulated_outcomes(state.classifier, self.simulated_touches(state, planes))
+        entry["planes"], entry["outcomes"] = planes, (state.classifier, outcomes)
+        self.simulation_seconds.append(time.perf_counter() - start)
+        return planes, outcomes
+
+    def candidate_planes(self, state: ActiveState) -> list[Plane]:
+        """The ``candidates`` distinct blind planes of the visual model, drawn with the policy's seed and the model's
+        geometry (the same planes whatever the classifier)."""
+        entry = self._entry(state)
+        cached = entry.get("planes")
+        if cached is not None:
+            return cached
         toucher = entry["toucher"]
         rng = np.random.default_rng([self.seed, int(entry["key"][:16], 16) % 2**32, 2**31])
         planes: list[Plane] = []
@@ -320,19 +333,15 @@ class InformationPolicy(Policy):
                 planes.append(plane)
         if not planes:
             raise ContourError(f"{state.visual.name}: no candidate plane cuts the visual model")
-        sensor = state.sensor()
+        entry["planes"] = planes
+        return planes
+
+    def simulated_touches(self, state: ActiveState, planes: list[Plane]) -> list[list[TactileSequence]]:
+        """The touches of ``planes`` on the smoothed visual model, one list per variant (the first as planned, the
+        others jittered by ``jitter_mm``): the planes cut once, every variant pressed in one pass."""
         surface = Toucher(smoothed(state.visual, self.smooth_iterations), "blind", probes=state.probes)
-        # the first variant as planned, the others jittered; the planes cut once, every variant pressed in one pass
-        variants = touch_variants(surface, planes, sensor,
-                                  [(self.seed + v, self.jitter_mm if v else 0.0) for v in range(self.variants)])
-        # classified variant by variant: a classifier's arithmetic may depend on the batch (BLAS picks its kernels by
-        # the matrix shapes), and a last bit moved can change which near-tied candidate is chosen
-        outcomes = np.stack([np.asarray(state.classifier.predict_proba(SequenceBatch.from_sequences(
-            sequences, class_names=state.classes, sensor_spec=sensor.spec())), dtype=np.float64)
-            for sequences in variants], axis=1)
-        entry["planes"], entry["outcomes"] = planes, (state.classifier, outcomes)
-        self.simulation_seconds.append(time.perf_counter() - start)
-        return planes, outcomes
+        return touch_variants(surface, planes, state.sensor(),
+                              [(self.seed + v, self.jitter_mm if v else 0.0) for v in range(self.variants)])
 
     def scores(self, state: ActiveState) -> np.ndarray:
         """(M,) each candidate's score under the current state (:func:`plan_scores`); touched candidates score
@@ -352,6 +361,16 @@ class InformationPolicy(Policy):
             scores = plan_scores(state.probabilities, outcomes, np.zeros(len(planes), dtype=bool),
                                  visual_weight=self.visual_weight)
         return planes[int(np.argmax(scores))]
+
+
+def simulated_outcomes(classifier, variants: list[list[TactileSequence]]) -> np.ndarray:
+    """(M, V, C) ``classifier``'s probabilities of V variants of M simulated touches (:meth:`InformationPolicy.
+    simulated_touches`), classified variant by variant: a classifier's arithmetic may depend on the batch (BLAS picks
+    its kernels by the matrix shapes), and a last bit moved can change which near-tied candidate is chosen."""
+    classes = [str(c) for c in classifier.classes_]
+    spec = classifier.sensor().spec()
+    return np.stack([np.asarray(classifier.predict_proba(SequenceBatch.from_sequences(
+        sequences, class_names=classes, sensor_spec=spec)), dtype=np.float64) for sequences in variants], axis=1)
 
 
 def smoothed(model: ObjectModel, iterations: int) -> ObjectModel:
@@ -401,5 +420,5 @@ def noisy_copy(model: ObjectModel, noise_mm: float = 1.0, seed: int = 0, *, name
 
 
 __all__ = ["MAX_NOISE_MM", "POLICIES", "SMOOTH_ITERATIONS", "ActiveState", "InformationPolicy", "Policy", "RandomPolicy",
-           "SaliencyPolicy", "information_gain", "make_policy", "noisy_copy", "plan_scores", "same_plane", "smoothed",
-           "visual_belief", "visual_key"]
+           "SaliencyPolicy", "information_gain", "make_policy", "noisy_copy", "plan_scores", "same_plane",
+           "simulated_outcomes", "smoothed", "visual_belief", "visual_key"]

@@ -1,0 +1,172 @@
+"""Next-touch criteria screened offline on the active part's unseen objects (:mod:`fusion.active.replay`).
+
+For every test object of the active part's grouped folds (each in its seeded random pose, its visual model the mesh
+plus 1 mm of noise, as ``python -m fusion.experiments.active`` makes them) and every policy seed, one candidate bank:
+the information policy's 24 candidates simulated on the visual model and touched on the true mesh, read by each
+classifier's fold model. Then each (planner, decider) pair replays the information rule (the planner's simulated
+outcomes and readings choose, the decider's readings decide), and each decider reads the candidates in a seeded
+random order as a reference. With planner = decider the replay is the information policy's episode to the bit, so
+the row "cnn -> cnn" equals that run's information row (same seeds) and the other rows are what a changed planner
+would give, without touching anything again.
+
+Accuracy after K touches is the mean over an object's seeds, then over objects; differences are paired over
+objects (95 % bootstrap). The fold models are those of the active part's run in ``--out`` (fitted there if absent).
+
+    .venv/bin/python -m benchmarks.active_replay --data ../shared/data/shrec07 --out out/active \\
+        --classifiers cnn,svm --seeds 0,1,2,3,4 [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks._common import DATA, machine
+
+#: Touch budget of every replay.
+BUDGET = 8
+
+
+@dataclass(frozen=True)
+class BankJob:
+    """The banks of one object, one per policy seed (a job for the run's workers)."""
+
+    spec: object
+    models: dict
+    noise_seed: int
+    seeds: tuple
+
+    def run(self) -> list:
+        from fusion.active import InformationPolicy, noisy_copy
+        from fusion.active.replay import build_bank
+
+        true = self.spec.load()
+        visual = noisy_copy(true, 1.0, seed=self.noise_seed)  # as the active part's EpisodeJob makes it
+        return [build_bank(true, visual, self.models, InformationPolicy(seed)) for seed in self.seeds]
+
+    def cost(self) -> float:
+        return 1.0
+
+    def __str__(self) -> str:
+        return f"banking {self.spec.name}"
+
+
+def banks(data: Path, out: Path, classifiers: list[str], seeds: tuple, quick: bool) -> list[dict]:
+    """[{"object", "label", "banks"}] over the active part's test objects, fold by fold."""
+    # the job class by its module's name: run as ``python -m``, this module is __main__, which workers cannot import
+    from benchmarks.active_replay import BankJob as job
+    from fusion.experiments.active import fold_order
+    from fusion.experiments.config import FULL, QUICK
+    from fusion.experiments.context import Context
+    from fusion.experiments.data import any_pose, folder_objects
+    from fusion.experiments.models import default_classifiers, fit_cached, pick
+    from tactile.dataset import object_specs
+
+    sizes = QUICK if quick else FULL
+    ctx = Context(out, 0, sizes, default_classifiers(0, sizes.epochs), progress=True)
+    objects = folder_objects(data, None, sizes.unseen_per_class)
+    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
+    specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
+    rows = []
+    for i, (train, test) in enumerate(ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)):
+        record_i = {"part": "active", "store": record, "train": [int(x) for x in train]}
+        models = {name: fit_cached(factory, lambda t=train: ds.load(t),
+                                   ctx.path("models", "active", f"fold{i + 1}", f"{name}.vtm"), record_i)[0]
+                  for name, factory in pick(ctx.classifiers, classifiers).items()}
+        names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
+        jobs = [job(specs[name], models, ctx.seed + n + 1000 * i, seeds) for n, name in enumerate(names)]
+        for name, made in zip(names, ctx.run_jobs(jobs, f"banks, fold {i + 1}", "object"), strict=True):
+            rows.append({"object": name, "label": specs[name].label, "banks": made})
+    return rows
+
+
+def _random_order(seed: int):
+    """Candidates in a seeded random order (a reference: random planes drawn as the candidates are)."""
+    def scores(view):
+        order = np.random.default_rng(seed).permutation(len(view.touched))
+        return -np.argsort(order).astype(np.float64)  # the earliest in the order scores highest
+    return scores
+
+
+def right(rows: list[dict], criterion_of, decide: str) -> np.ndarray:
+    """(objects, BUDGET) the share of an object's seeds whose decision after K touches is right."""
+    from fusion.active.replay import replay
+
+    out = []
+    for row in rows:
+        per_seed = []
+        for s, bank in enumerate(row["banks"]):
+            _, posteriors = replay(bank, criterion_of(s), decide, BUDGET)
+            per_seed.append([bank.classes[int(i)] == row["label"] for i in posteriors.argmax(axis=1)])
+        out.append(np.mean(per_seed, axis=0))
+    return np.asarray(out, dtype=np.float64)
+
+
+def screen(rows: list[dict], classifiers: list[str]) -> dict:
+    from fusion.active.replay import information_criterion
+    from fusion.experiments.active import paired_over_objects
+
+    table, differences = [], []
+    for decide in classifiers:
+        reference = right(rows, lambda s: _random_order(1000 + s), decide)
+        own = right(rows, lambda s, d=decide: information_criterion(d), decide)
+        table.append({"planner": "random order", "decider": decide, "accuracy": reference.mean(axis=0).tolist()})
+        for planner in classifiers:
+            acc = own if planner == decide else right(rows, lambda s, p=planner: information_criterion(p), decide)
+            table.append({"planner": planner, "decider": decide, "accuracy": acc.mean(axis=0).tolist()})
+            for k in (1, 2, 4, 8):
+                differences.append({"planner": planner, "decider": decide, "k": k,
+                                    "vs_random_order": paired_over_objects(acc[:, k - 1], reference[:, k - 1]),
+                                    "vs_own_planner": paired_over_objects(acc[:, k - 1], own[:, k - 1])})
+    return {"objects": len(rows), "table": table, "differences": differences}
+
+
+def _print(result: dict) -> None:
+    print(f"{result['objects']} unseen objects in any pose, seeds {result['seeds']}, classifiers "
+          f"{', '.join(result['classifiers'])}")
+    print("planner -> decider         " + " ".join(f"K={k:<4d}" for k in range(1, BUDGET + 1)))
+    for row in result["table"]:
+        print(f"{row['planner'] + ' -> ' + row['decider']:26s} " + " ".join(f"{100 * a:6.1f}" for a in row["accuracy"]))
+    print("\npaired differences, points [95 % bootstrap over objects]")
+    for d in result["differences"]:
+        a, b = d["vs_random_order"], d["vs_own_planner"]
+        print(f"{d['planner']} -> {d['decider']} K={d['k']}: vs random order {100 * a['difference']:+.1f} "
+              f"[{100 * a['low']:+.1f}, {100 * a['high']:+.1f}], vs {d['decider']} planning "
+              f"{100 * b['difference']:+.1f} [{100 * b['low']:+.1f}, {100 * b['high']:+.1f}]")
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data", type=Path, default=DATA / "shrec07")
+    parser.add_argument("--out", type=Path, required=True, help="the active part's output folder (models, banks)")
+    parser.add_argument("--classifiers", default="cnn,svm")
+    parser.add_argument("--seeds", default="0,1,2,3,4", help="policy seeds (the active part's episodes 0..4)")
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    classifiers = [c for c in args.classifiers.split(",") if c]
+    try:
+        seeds = tuple(int(s) for s in args.seeds.split(",") if s)
+    except ValueError:
+        parser.error(f"--seeds must be comma-separated integers, got {args.seeds!r}")
+    if not classifiers or not seeds:
+        parser.error("give at least one classifier and one seed")
+    if not args.data.is_dir():
+        parser.error(f"--data {args.data} is not a folder")
+    rows = banks(args.data, args.out, classifiers, seeds, args.quick)
+    result = {"machine": machine(), "seeds": list(seeds), "classifiers": classifiers, **screen(rows, classifiers)}
+    if args.json:
+        json.dump(result, sys.stdout, indent=2)
+        print()
+    else:
+        _print(result)
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,180 @@
+"""Next-touch criteria screened offline: one object's candidate contours banked once, any criterion replayed in
+milliseconds.
+
+The information policy chooses, step by step, among the same M candidate planes of the visual model
+(:meth:`~fusion.active.InformationPolicy.candidate_planes`). With a noise-free sensor the real reading of a plane on
+the true object does not depend on when it is touched, so a :class:`CandidateBank` (the candidates, their simulated
+outcomes on the visual model and their real readings on the true object, each read by one or more classifiers)
+holds everything an episode over those candidates can see. :func:`replay` then runs a criterion over it and gives
+the decisions of :func:`~fusion.active.run_episode` with that policy, bit for bit (tested): a planner can be tried
+with another classifier, or another rule, without touching anything again.
+
+The bank holds real readings that no policy may read before touching. :func:`replay` hands a criterion only the
+simulated outcomes and the readings of the planes touched so far (:class:`ReplayView`); the label is not in the bank.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from fusion.active.episode import touch_seed
+from fusion.active.policies import ActiveState, InformationPolicy, plan_scores, simulated_outcomes
+from fusion.decide import fuse_touches
+from perception.errors import ContourError, InvalidArgumentError
+from perception.geometry import ObjectModel
+from tactile.contours import Plane
+from tactile.explore import SequenceBatch
+from tactile.touching import touch
+
+
+@dataclass(frozen=True)
+class CandidateBank:
+    """One object's candidates as an information policy of one seed draws them.
+
+    Attributes:
+        object: the true object's name.
+        classes: the classifiers' class names (columns of the arrays).
+        planes: the M candidate planes (through the visual model's centre, mm).
+        simulated: {classifier name: (M, V, C) probabilities of the V simulated variants of each candidate}.
+        real: {classifier name: (M, C) probabilities of each candidate touched on the true object}; uniform where the
+            plane missed it (as :func:`~fusion.active.run_episode` counts a miss).
+        missed: (M,) bool, the planes that missed the true object.
+    """
+
+    object: str
+    classes: list[str]
+    planes: list[Plane]
+    simulated: dict[str, np.ndarray]
+    real: dict[str, np.ndarray]
+    missed: np.ndarray
+
+
+@dataclass(frozen=True)
+class ReplayView:
+    """What a criterion may read at one step of a replay: nothing about an untouched plane but its simulation.
+
+    Attributes:
+        simulated: {classifier name: (M, V, C)} as in the bank.
+        readings: {classifier name: (K, C) the real readings of the K planes touched so far, in touch order}.
+        touched: (M,) bool, the candidates touched so far.
+        step: K, the touches made so far.
+    """
+
+    simulated: dict[str, np.ndarray]
+    readings: dict[str, np.ndarray]
+    touched: np.ndarray
+    step: int
+
+
+#: A criterion: (M,) scores of the candidates at one step; the highest untouched one is touched next.
+Criterion = Callable[[ReplayView], np.ndarray]
+
+
+def _sensor_and_probes(classifiers: dict):
+    if not isinstance(classifiers, dict) or not classifiers:
+        raise InvalidArgumentError(f"build_bank: classifiers must be a non-empty {{name: fitted classifier}} dict, got "
+                                   f"{type(classifiers).__name__}")
+    first = next(iter(classifiers.values()))
+    classes = [str(c) for c in first.classes_]
+    spec, probes = first.sensor().spec(), int(first.probes)
+    for name, model in classifiers.items():
+        if [str(c) for c in model.classes_] != classes:
+            raise InvalidArgumentError(f"build_bank: classifier {name!r} has classes {list(model.classes_)}, the first "
+                                       f"one {classes}: the bank needs one class order")
+        if model.sensor().spec() != spec or int(model.probes) != probes:
+            raise InvalidArgumentError(f"build_bank: classifier {name!r} reads another sensor or probe count than the "
+                                       "first one")
+    sensor = first.sensor()
+    if sensor.noise_std != 0 or sensor.dead_taxel_rate != 0:
+        raise InvalidArgumentError("build_bank: the sensor has taxel noise or dead taxels, so a plane's reading depends "
+                                   "on the step it is touched at and a replay would not be the episode; bank with a "
+                                   "noise-free sensor")
+    return first, classes, sensor, probes
+
+
+def build_bank(true_model: ObjectModel, visual: ObjectModel, classifiers: dict, policy: InformationPolicy) -> CandidateBank:
+    """Bank ``policy``'s candidates of ``visual`` (the camera's model) for ``true_model``: simulated on the visual model
+    and touched on the true one, read by every classifier of ``classifiers`` ({name: fitted classifier}; one class
+    order, sensor and probe count, the sensor noise-free). Each real touch is classified on its own, as an episode
+    classifies it.
+
+    Raises:
+        InvalidArgumentError: an empty or mismatched ``classifiers``, a noisy sensor, a policy that is not an
+            :class:`~fusion.active.InformationPolicy`.
+        ContourError: no candidate plane cuts the visual model.
+    """
+    if not isinstance(policy, InformationPolicy):
+        raise InvalidArgumentError(f"build_bank: needs an InformationPolicy (its candidates), got "
+                                   f"{type(policy).__name__}")
+    first, classes, sensor, probes = _sensor_and_probes(classifiers)
+    state = ActiveState(visual, first)
+    planes = policy.candidate_planes(state)
+    variants = policy.simulated_touches(state, planes)
+    simulated = {name: simulated_outcomes(model, variants) for name, model in classifiers.items()}
+    real = {name: np.full((len(planes), len(classes)), 1.0 / len(classes)) for name in classifiers}
+    missed = np.zeros(len(planes), dtype=bool)
+    for m, plane in enumerate(planes):
+        try:  # the seed of an episode's first touch: a noise-free read-out does not use it
+            sequence = touch(true_model, "blind", 1, sensor, probes, seed=touch_seed(0, 0), planes=[plane])[0]
+        except ContourError:
+            missed[m] = True
+            continue
+        sequence.strategy, sequence.label = policy.name, None  # as an episode: the robot does not know the class
+        batch = SequenceBatch.from_sequences([sequence], class_names=classes, sensor_spec=sensor.spec())
+        for name, model in classifiers.items():
+            real[name][m] = np.asarray(model.predict_proba(batch), dtype=np.float64)[0]
+    return CandidateBank(true_model.name, classes, planes, simulated, real, missed)
+
+
+def information_criterion(planner: str, visual_weight: float = 1.0) -> Criterion:
+    """The information policy's rule (:func:`~fusion.active.plan_scores`) with the classifier named ``planner``'s
+    simulated outcomes and real readings; the classifier that decides may be another one (:func:`replay`)."""
+
+    def scores(view: ReplayView) -> np.ndarray:
+        return plan_scores(view.readings[planner], view.simulated[planner], view.touched, visual_weight=visual_weight)
+
+    return scores
+
+
+def replay(bank: CandidateBank, criterion: Criterion, decide: str, max_touches: int = 8) -> tuple[list[int], np.ndarray]:
+    """Run ``criterion`` over ``bank`` for ``max_touches`` steps: each step touches the untouched candidate it scores
+    highest (the first of ties; once every candidate is touched, the best again, as the information policy does);
+    the classifier named ``decide`` reads the touches, fused by the log rule.
+
+    Returns:
+        the candidates touched, in order, and (max_touches, C) the posterior after each touch.
+
+    Raises:
+        InvalidArgumentError: an unknown classifier name, a budget below 1, scores of the wrong shape or with NaN.
+    """
+    if decide not in bank.real:
+        raise InvalidArgumentError(f"replay: no classifier {decide!r} in the bank of {bank.object} "
+                                   f"(it holds {sorted(bank.real)})")
+    if isinstance(max_touches, bool) or not isinstance(max_touches, (int, np.integer)) or max_touches < 1:
+        raise InvalidArgumentError(f"replay: max_touches must be an integer >= 1, got {max_touches!r}")
+    n = len(bank.planes)
+    touched, order, posteriors = np.zeros(n, dtype=bool), [], []
+    for step in range(int(max_touches)):
+        readings = {name: values[order] for name, values in bank.real.items()}
+        scores = np.where(touched, -np.inf, _scores(criterion, ReplayView(bank.simulated, readings, touched.copy(),
+                                                                           step), n))
+        if not np.isfinite(scores).any():  # every candidate touched (or scored -inf): the best again
+            scores = _scores(criterion, ReplayView(bank.simulated, readings, np.zeros(n, dtype=bool), step), n)
+        choice = int(np.argmax(scores))
+        order.append(choice)
+        touched[choice] = True
+        posteriors.append(fuse_touches(bank.real[decide][order], rule="log"))
+    return order, np.asarray(posteriors)
+
+
+def _scores(criterion: Criterion, view: ReplayView, n: int) -> np.ndarray:
+    scores = np.asarray(criterion(view), dtype=np.float64)
+    if scores.shape != (n,) or np.isnan(scores).any():
+        raise InvalidArgumentError(f"replay: a criterion must give ({n},) scores without NaN, got shape {scores.shape}")
+    return scores
+
+
+__all__ = ["CandidateBank", "Criterion", "ReplayView", "build_bank", "information_criterion", "replay"]
