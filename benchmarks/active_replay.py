@@ -6,8 +6,9 @@ the information policy's 24 candidates simulated on the visual model and touched
 classifier's fold model. Then each (planner, decider) pair replays the information rule (the planner's simulated
 outcomes and readings choose, the decider's readings decide), and each decider reads the candidates in a seeded
 random order as a reference. With planner = decider the replay is the information policy's episode to the bit, so
-the row "cnn -> cnn" equals that run's information row (same seeds) and the other rows are what a changed planner
-would give, without touching anything again.
+the row "cnn -> cnn" equals the information row of ``python -m fusion.experiments.active --classifier cnn`` run with
+the default seed 0 into the same folder (policy seeds 0..4 are its episodes 0..4), and the other rows are what a
+changed planner would give, without touching anything again.
 
 Accuracy after K touches is the mean over an object's seeds, then over objects; differences are paired over
 objects (95 % bootstrap). The fold models are those of the active part's run in ``--out`` (fitted there if absent).
@@ -18,7 +19,6 @@ objects (95 % bootstrap). The fold models are those of the active part's run in 
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from dataclasses import dataclass
@@ -141,9 +141,13 @@ def _print(result: dict) -> None:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    from fusion.cli import SEED_MAX, _Parser
+    from fusion.experiments.models import default_classifiers, pick
+    from perception.errors import InvalidArgumentError
+
+    parser = _Parser(prog="python -m benchmarks.active_replay", description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=DATA / "shrec07")
-    parser.add_argument("--out", type=Path, required=True, help="the active part's output folder (models, banks)")
+    parser.add_argument("--out", type=Path, required=True, help="the active part's output folder (its store and fold models; fitted there if absent)")
     parser.add_argument("--classifiers", default="cnn,svm")
     parser.add_argument("--seeds", default="0,1,2,3,4", help="policy seeds (the active part's episodes 0..4)")
     parser.add_argument("--quick", action="store_true")
@@ -156,6 +160,12 @@ def main(argv=None) -> dict:
         parser.error(f"--seeds must be comma-separated integers, got {args.seeds!r}")
     if not classifiers or not seeds:
         parser.error("give at least one classifier and one seed")
+    if any(not 0 <= s <= SEED_MAX for s in seeds):
+        parser.error(f"--seeds must be integers from 0 to {SEED_MAX}, got {args.seeds!r}")
+    try:  # before the data is read and the models fitted
+        pick(default_classifiers(0), classifiers)
+    except InvalidArgumentError as exc:
+        parser.error(f"--classifiers: {exc}")
     if not args.data.is_dir():
         parser.error(f"--data {args.data} is not a folder")
     rows = banks(args.data, args.out, classifiers, seeds, args.quick)

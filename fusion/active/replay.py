@@ -25,6 +25,8 @@ from fusion.active.policies import ActiveState, InformationPolicy, plan_scores, 
 from fusion.decide import fuse_touches
 from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
+from perception.limits import check_count
+from perception.validate import check_length
 from tactile.contours import Plane
 from tactile.explore import SequenceBatch
 from tactile.touching import touch
@@ -77,6 +79,10 @@ def _sensor_and_probes(classifiers: dict):
     if not isinstance(classifiers, dict) or not classifiers:
         raise InvalidArgumentError(f"build_bank: classifiers must be a non-empty {{name: fitted classifier}} dict, got "
                                    f"{type(classifiers).__name__}")
+    for name, model in classifiers.items():
+        if not all(hasattr(model, a) for a in ("classes_", "probes", "sensor", "predict_proba")):
+            raise InvalidArgumentError(f"build_bank: classifier {name!r} is not a fitted classifier (classes_, probes, "
+                                       f"sensor(), predict_proba), got {type(model).__name__}")
     first = next(iter(classifiers.values()))
     classes = [str(c) for c in first.classes_]
     spec, probes = first.sensor().spec(), int(first.probes)
@@ -102,8 +108,9 @@ def build_bank(true_model: ObjectModel, visual: ObjectModel, classifiers: dict, 
     classifies it.
 
     Raises:
-        InvalidArgumentError: an empty or mismatched ``classifiers``, a noisy sensor, a policy that is not an
-            :class:`~fusion.active.InformationPolicy`.
+        InvalidArgumentError: an empty or mismatched ``classifiers``, one that is not a fitted classifier or gives
+            probabilities that are not finite, non-negative and of its class count, a noisy sensor, a policy that is
+            not an :class:`~fusion.active.InformationPolicy`.
         ContourError: no candidate plane cuts the visual model.
     """
     if not isinstance(policy, InformationPolicy):
@@ -113,7 +120,8 @@ def build_bank(true_model: ObjectModel, visual: ObjectModel, classifiers: dict, 
     state = ActiveState(visual, first)
     planes = policy.candidate_planes(state)
     variants = policy.simulated_touches(state, planes)
-    simulated = {name: simulated_outcomes(model, variants) for name, model in classifiers.items()}
+    simulated = {name: _checked(simulated_outcomes(model, variants), (len(planes), len(variants), len(classes)), name)
+                 for name, model in classifiers.items()}
     real = {name: np.full((len(planes), len(classes)), 1.0 / len(classes)) for name in classifiers}
     missed = np.zeros(len(planes), dtype=bool)
     for m, plane in enumerate(planes):
@@ -125,15 +133,34 @@ def build_bank(true_model: ObjectModel, visual: ObjectModel, classifiers: dict, 
         sequence.strategy, sequence.label = policy.name, None  # as an episode: the robot does not know the class
         batch = SequenceBatch.from_sequences([sequence], class_names=classes, sensor_spec=sensor.spec())
         for name, model in classifiers.items():
-            real[name][m] = np.asarray(model.predict_proba(batch), dtype=np.float64)[0]
+            real[name][m] = _checked(model.predict_proba(batch), (1, len(classes)), name)[0]
     return CandidateBank(true_model.name, classes, planes, simulated, real, missed)
+
+
+def _checked(proba, shape: tuple, name) -> np.ndarray:
+    proba = np.asarray(proba, dtype=np.float64)
+    if proba.shape != shape or not np.isfinite(proba).all() or (proba < 0).any():
+        raise InvalidArgumentError(f"build_bank: classifier {name!r} gave probabilities of shape {proba.shape} (expected "
+                                   f"{shape}, finite and non-negative)")
+    return proba
 
 
 def information_criterion(planner: str, visual_weight: float = 1.0) -> Criterion:
     """The information policy's rule (:func:`~fusion.active.plan_scores`) with the classifier named ``planner``'s
-    simulated outcomes and real readings; the classifier that decides may be another one (:func:`replay`)."""
+    simulated outcomes and real readings; the classifier that decides may be another one (:func:`replay`).
+
+    Raises:
+        InvalidArgumentError: a planner that is not a name, a negative or non-finite ``visual_weight``; when scoring, a
+            planner the bank does not hold.
+    """
+    if not isinstance(planner, str):
+        raise InvalidArgumentError(f"information_criterion: planner must be a classifier name, got {planner!r}")
+    visual_weight = check_length(visual_weight, "visual_weight", "information_criterion", unit="")
 
     def scores(view: ReplayView) -> np.ndarray:
+        if planner not in view.simulated:
+            raise InvalidArgumentError(f"information_criterion: no classifier {planner!r} in the bank "
+                                       f"(it holds {sorted(view.simulated)})")
         return plan_scores(view.readings[planner], view.simulated[planner], view.touched, visual_weight=visual_weight)
 
     return scores
@@ -148,21 +175,29 @@ def replay(bank: CandidateBank, criterion: Criterion, decide: str, max_touches: 
         the candidates touched, in order, and (max_touches, C) the posterior after each touch.
 
     Raises:
-        InvalidArgumentError: an unknown classifier name, a budget below 1, scores of the wrong shape or with NaN.
+        InvalidArgumentError: not a bank with planes, a criterion that is not callable, an unknown classifier name, a
+            budget below 1 or above the touch limit (:func:`perception.limits.check_count`), scores that are not (M,)
+            real numbers without NaN (+inf is the highest score, -inf never chosen while another candidate is not).
     """
-    if decide not in bank.real:
+    if not isinstance(bank, CandidateBank) or not bank.planes:
+        raise InvalidArgumentError(f"replay: needs a CandidateBank with at least one plane, got {type(bank).__name__}")
+    if not callable(criterion):
+        raise InvalidArgumentError(f"replay: criterion must be callable, got {type(criterion).__name__}")
+    if not isinstance(decide, str) or decide not in bank.real:
         raise InvalidArgumentError(f"replay: no classifier {decide!r} in the bank of {bank.object} "
                                    f"(it holds {sorted(bank.real)})")
     if isinstance(max_touches, bool) or not isinstance(max_touches, (int, np.integer)) or max_touches < 1:
         raise InvalidArgumentError(f"replay: max_touches must be an integer >= 1, got {max_touches!r}")
+    check_count("touches", max_touches, "replay: max_touches")  # a bound: each step allocates and the loop is O(K^2)
     n = len(bank.planes)
+    simulated = {name: _read_only(values) for name, values in bank.simulated.items()}  # a criterion cannot edit the bank
     touched, order, posteriors = np.zeros(n, dtype=bool), [], []
     for step in range(int(max_touches)):
         readings = {name: values[order] for name, values in bank.real.items()}
-        scores = np.where(touched, -np.inf, _scores(criterion, ReplayView(bank.simulated, readings, touched.copy(),
+        scores = np.where(touched, -np.inf, _scores(criterion, ReplayView(simulated, readings, touched.copy(),
                                                                            step), n))
-        if not np.isfinite(scores).any():  # every candidate touched (or scored -inf): the best again
-            scores = _scores(criterion, ReplayView(bank.simulated, readings, np.zeros(n, dtype=bool), step), n)
+        if not (scores > -np.inf).any():  # every candidate touched (or scored -inf): the best again
+            scores = _scores(criterion, ReplayView(simulated, readings, np.zeros(n, dtype=bool), step), n)
         choice = int(np.argmax(scores))
         order.append(choice)
         touched[choice] = True
@@ -171,10 +206,17 @@ def replay(bank: CandidateBank, criterion: Criterion, decide: str, max_touches: 
 
 
 def _scores(criterion: Criterion, view: ReplayView, n: int) -> np.ndarray:
-    scores = np.asarray(criterion(view), dtype=np.float64)
-    if scores.shape != (n,) or np.isnan(scores).any():
-        raise InvalidArgumentError(f"replay: a criterion must give ({n},) scores without NaN, got shape {scores.shape}")
-    return scores
+    raw = np.asarray(criterion(view))
+    if raw.dtype.kind not in "biuf" or raw.shape != (n,) or np.isnan(raw.astype(np.float64)).any():
+        raise InvalidArgumentError(f"replay: a criterion must give ({n},) real scores without NaN, got {raw.dtype} "
+                                   f"shape {raw.shape}")
+    return raw.astype(np.float64)
+
+
+def _read_only(values: np.ndarray) -> np.ndarray:
+    view = np.asarray(values).view()
+    view.flags.writeable = False
+    return view
 
 
 __all__ = ["CandidateBank", "Criterion", "ReplayView", "build_bank", "information_criterion", "replay"]

@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 
 from fusion.active import InformationPolicy, make_policy, noisy_copy, run_episode
-from fusion.active.replay import build_bank, information_criterion, replay
+from fusion.active.policies import ActiveState, simulated_outcomes
+from fusion.active.replay import CandidateBank, build_bank, information_criterion, replay
 from fusion.decide import fuse_touches
 from perception.errors import InvalidArgumentError
 from perception.shapes import make_object
+from tactile.contours import Plane
 from tactile.sensor import FSRSensor
 
 CLASSES = np.array(["a", "b", "c"], dtype=object)
@@ -148,9 +150,6 @@ def test_refusals(objects):
 def _hand_bank():
     """Three candidates of an object of class "a": candidate 0 reads "a" (0.9), 1 and 2 read "b" (0.7); the
     simulation makes candidate 0 the one that best confirms the view."""
-    from fusion.active.replay import CandidateBank
-    from tactile.contours import Plane
-
     real = np.array([[0.9, 0.1], [0.3, 0.7], [0.3, 0.7]])
     sim = np.repeat(np.array([[0.9, 0.1], [0.6, 0.4], [0.6, 0.4]])[:, None, :], 2, axis=1)
     planes = [Plane(np.zeros(3), np.eye(3)[i]) for i in range(3)]
@@ -173,3 +172,135 @@ def test_benchmark_scores_against_hand_fused_decisions():
         expected.append([first == 0, k2, True])  # all three: 0.081 : 0.049
     got = right(rows, lambda s: _random_order(1000 + s), "x")
     assert got[0, :3].tolist() == np.mean(expected, axis=0).tolist()
+
+
+# ---------------------------------------------------------------------------- ties, fallbacks, caches, CLI
+def _bank(m=4):
+    real = np.tile([0.6, 0.4], (m, 1))
+    return CandidateBank("h", ["a", "b"], [Plane(np.zeros(3), np.eye(3)[i % 3]) for i in range(m)],
+                         {"x": np.full((m, 2, 2), 0.5)}, {"x": real}, np.zeros(m, dtype=bool))
+
+
+def test_ties_go_to_the_first_and_a_full_pass_touches_the_best_again():
+    bank = _bank(3)
+    assert replay(bank, lambda v: np.zeros(3), "x", 5)[0] == [0, 1, 2, 0, 0]          # R12
+    # steps 0-2 touch 2, 1, 0; then every candidate is touched: the best *now* (1), not the first touched (2)
+    crit = lambda v: np.array([1.0, 2.0, 3.0]) if v.step < 3 else np.array([0.0, 5.0, 1.0])
+    assert replay(bank, crit, "x", 5)[0] == [2, 1, 0, 1, 1]                             # R3
+
+
+def test_untouched_candidates_all_scored_minus_inf_fall_back_to_the_best():         # R4 (documented "or scored -inf")
+    bank = _bank(3)
+    crit = lambda v: np.full(3, -np.inf) if v.touched.any() else np.array([0.0, 1.0, 2.0])
+    assert replay(bank, crit, "x", 3)[0] == [2, 2, 2]
+
+
+def test_plus_inf_scores_are_the_highest_not_a_reason_to_repeat():                 # hostile: fails today
+    assert replay(_bank(3), lambda v: np.full(3, np.inf), "x", 4)[0] == [0, 1, 2, 0]
+
+
+def test_refusals_more(objects):                                                     # R9, R17
+    mug, _, visual, _ = objects
+    with pytest.raises(InvalidArgumentError, match="dead taxels"):
+        build_bank(mug, visual, {"d": GapClassifier(FSRSensor(rows=8, cols=8, dead_taxel_rate=0.2))}, _policy(0))
+    few = GapClassifier()
+    few.probes = 4
+    with pytest.raises(InvalidArgumentError, match="probe count"):
+        build_bank(mug, visual, {"gap": GapClassifier(), "few": few}, _policy(0))
+
+
+@pytest.mark.parametrize("weight", [0.0, 4.0])
+def test_visual_weight_is_the_policys(objects, weight):                              # R13
+    true, visual = objects[0], objects[2]
+    policy = lambda: InformationPolicy(0, candidates=5, variants=2, visual_weight=weight)
+    episode = run_episode(true, visual, GapClassifier(), policy(), max_touches=5)
+    bank = build_bank(true, visual, {"gap": GapClassifier()}, policy())
+    order, posteriors = replay(bank, information_criterion("gap", visual_weight=weight), "gap", 5)
+    assert [bank.planes[m].normal.tolist() for m in order] == [p.normal.tolist() for p in episode.planes]
+    assert np.array_equal(posteriors, episode.posteriors)
+
+
+class Spy(GapClassifier):
+    """Records every batch it reads (size, labels)."""
+
+    def __init__(self):
+        super().__init__()
+        self.calls = []
+
+    def predict_proba(self, batch):
+        self.calls.append((len(batch.frames), batch.labels.tolist()))
+        return super().predict_proba(batch)
+
+
+def test_one_batch_per_variant_and_per_real_touch_and_no_labels(objects):              # R5, R7, P2
+    box = dataclasses.replace(objects[1], label="a")  # a label the classifier knows: it must still not be read
+    spy = Spy()
+    bank = build_bank(box, objects[3], {"spy": spy}, _policy(0))
+    m = len(bank.planes)
+    assert [n for n, _ in spy.calls] == [m, m] + [1] * int((~bank.missed).sum())
+    assert all(label == -1 for _, labels in spy.calls for label in labels)
+
+
+def test_candidates_per_visual_model_and_outcomes_per_classifier(objects):            # P1, P5
+    _, _, v1, v2 = objects
+    shared = _policy(0)
+    for visual in (v1, v2, v1):
+        assert [p.normal.tolist() for p in shared.candidate_planes(ActiveState(visual, GapClassifier()))] == \
+               [p.normal.tolist() for p in _policy(0).candidate_planes(ActiveState(visual, GapClassifier()))]
+    gap, tilt = GapClassifier(), TiltClassifier()
+    for clf in (gap, tilt):
+        planes, outcomes = shared.simulated(ActiveState(v1, clf))
+        fresh = _policy(0)
+        expected = simulated_outcomes(clf, fresh.simulated_touches(ActiveState(v1, clf), planes))
+        assert np.array_equal(outcomes, expected)
+
+
+@pytest.mark.parametrize("seed", range(1000, 1006))
+def test_random_order_is_the_seeded_permutation(seed):                                 # B1, B2
+    from benchmarks.active_replay import _random_order
+    order, _ = replay(_bank(5), _random_order(seed), "x", 5)
+    assert order == np.random.default_rng(seed).permutation(5).tolist()
+
+
+def _pair_bank():
+    """Four candidates read by two classifiers that disagree on which candidate to touch first."""
+    x_real = np.array([[0.9, 0.1], [0.3, 0.7], [0.4, 0.6], [0.2, 0.8]])
+    y_real = np.array([[0.5, 0.5], [0.8, 0.2], [0.1, 0.9], [0.6, 0.4]])
+    x_sim = np.repeat(np.array([[0.9, 0.1], [0.6, 0.4], [0.6, 0.4], [0.5, 0.5]])[:, None], 2, axis=1)
+    y_sim = np.repeat(np.array([[0.5, 0.5], [0.4, 0.6], [0.6, 0.4], [0.1, 0.9]])[:, None], 2, axis=1)
+    return CandidateBank("pair", ["a", "b"], [Plane(np.zeros(3), np.eye(3)[i % 3]) for i in range(4)],
+                         {"x": x_sim, "y": y_sim}, {"x": x_real, "y": y_real}, np.zeros(4, dtype=bool))
+
+
+def test_screen_rows():                                                                 # B5, B6
+    from benchmarks.active_replay import _random_order, right, screen
+    rows = [{"object": f"o{i}", "label": label, "banks": [_pair_bank()] * 3} for i, label in enumerate("aa")]
+    result = screen(rows, ["x", "y"])
+    got = {(r["planner"], r["decider"]): r["accuracy"] for r in result["table"]}
+    for decide in ("x", "y"):
+        reference = right(rows, lambda s: _random_order(1000 + s), decide)
+        assert got[("random order", decide)] == reference.mean(0).tolist()
+        for planner in ("x", "y"):
+            acc = right(rows, lambda s, p=planner: information_criterion(p), decide)
+            assert got[(planner, decide)] == acc.mean(0).tolist()
+    own = {d: right(rows, lambda s, d=d: information_criterion(d), d)[:, 0] for d in ("x", "y")}
+    for diff in result["differences"]:
+        if diff["k"] == 1:
+            mine = right(rows, lambda s, p=diff["planner"]: information_criterion(p), diff["decider"])[:, 0]
+            assert diff["vs_own_planner"]["difference"] == pytest.approx((mine - own[diff["decider"]]).mean())
+
+
+@pytest.mark.parametrize("seeds", ["-1", "99999999999999999999"])
+def test_cli_refuses_bad_seeds_before_the_data(seeds, tmp_path, capsys):               # B7; fails today
+    from benchmarks.active_replay import main
+    with pytest.raises(SystemExit):
+        main(["--out", str(tmp_path), "--data", str(tmp_path / "absent"), "--seeds=" + seeds])
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert "--seeds" in err and "not a folder" not in err  # names --seeds, not the missing data folder
+
+
+def test_cli_refuses_unknown_classifiers_before_the_data(tmp_path, capsys):            # fails today
+    from benchmarks.active_replay import main
+    with pytest.raises(SystemExit):
+        main(["--out", str(tmp_path), "--data", str(tmp_path / "absent"), "--classifiers", "foo"])
+    assert "foo" in capsys.readouterr().err.splitlines()[-1]
