@@ -44,6 +44,10 @@ class CandidateBank:
         real: {classifier name: (M, C) probabilities of each candidate touched on the true object}; uniform where the
             plane missed it (as :func:`~fusion.active.run_episode` counts a miss).
         missed: (M,) bool, the planes that missed the true object.
+
+    Raises:
+        InvalidArgumentError: no planes, no classes, arrays whose shapes do not match, or probabilities that are not
+            finite and non-negative (a bank made by hand is checked as one :func:`build_bank` makes).
     """
 
     object: str
@@ -52,6 +56,25 @@ class CandidateBank:
     simulated: dict[str, np.ndarray]
     real: dict[str, np.ndarray]
     missed: np.ndarray
+
+    def __post_init__(self) -> None:
+        m, c = len(self.planes), len(self.classes)
+        where = f"CandidateBank of {self.object!r}"
+        if not m or not c:
+            raise InvalidArgumentError(f"{where}: needs at least one plane and one class, got {m} and {c}")
+        if not isinstance(self.simulated, dict) or not isinstance(self.real, dict) or set(self.simulated) != set(self.real):
+            raise InvalidArgumentError(f"{where}: simulated and real must be dicts over the same classifier names")
+        for name in self.real:
+            sim, real = np.asarray(self.simulated[name]), np.asarray(self.real[name])
+            if sim.ndim != 3 or sim.shape[0] != m or sim.shape[2] != c or real.shape != (m, c):
+                raise InvalidArgumentError(f"{where}: classifier {name!r} has simulated {sim.shape} and real {real.shape},"
+                                           f" expected (M, V, C) and (M, C) with M = {m}, C = {c}")
+            for values in (sim, real):
+                if values.dtype.kind not in "biuf" or not np.isfinite(values).all() or (values < 0).any():
+                    raise InvalidArgumentError(f"{where}: classifier {name!r} has probabilities that are not finite and "
+                                               "non-negative")
+        if np.shape(self.missed) != (m,):
+            raise InvalidArgumentError(f"{where}: missed must be ({m},), got {np.shape(self.missed)}")
 
 
 @dataclass(frozen=True)

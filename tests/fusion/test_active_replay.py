@@ -5,6 +5,7 @@ sees no untouched plane's real reading, the deciding classifier does not choose,
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -304,3 +305,18 @@ def test_cli_refuses_unknown_classifiers_before_the_data(tmp_path, capsys):     
     with pytest.raises(SystemExit):
         main(["--out", str(tmp_path), "--data", str(tmp_path / "absent"), "--classifiers", "foo"])
     assert "foo" in capsys.readouterr().err.splitlines()[-1]
+
+
+def test_a_hand_made_bank_is_checked():
+    good = _bank(3)
+    fields = {"object": "h", "classes": ["a", "b"], "planes": good.planes, "simulated": good.simulated,
+              "real": good.real, "missed": good.missed}
+    for change, words in (({"planes": []}, "at least one plane"), ({"classes": []}, "one class"),
+                          ({"real": {"y": good.real["x"]}}, "same classifier names"),
+                          ({"real": {"x": good.real["x"][:2]}}, "expected (M, V, C) and (M, C)"),
+                          ({"simulated": {"x": np.full((3, 2, 3), 0.5)}}, "expected (M, V, C) and (M, C)"),
+                          ({"real": {"x": np.full((3, 2), np.nan)}}, "finite and non-negative"),
+                          ({"simulated": {"x": np.full((3, 2, 2), -0.1)}}, "finite and non-negative"),
+                          ({"missed": np.zeros(2, dtype=bool)}, "missed must be")):
+        with pytest.raises(InvalidArgumentError, match=re.escape(words)):
+            CandidateBank(**(fields | change))
