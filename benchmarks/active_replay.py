@@ -60,27 +60,22 @@ def banks(data: Path, out: Path, classifiers: list[str], seeds: tuple, quick: bo
     """[{"object", "label", "banks"}] over the active part's test objects, fold by fold."""
     # the job class by its module's name: run as ``python -m``, this module is __main__, which workers cannot import
     from benchmarks.active_replay import BankJob as job
-    from fusion.experiments.active import fold_order
+    from fusion.experiments.active import active_folds, fold_model_path
     from fusion.experiments.config import FULL, QUICK
     from fusion.experiments.context import Context
-    from fusion.experiments.data import any_pose, folder_objects
+    from fusion.experiments.data import folder_objects
     from fusion.experiments.models import default_classifiers, fit_cached, pick
-    from tactile.dataset import object_specs
 
     sizes = QUICK if quick else FULL
     ctx = Context(out, 0, sizes, default_classifiers(0, sizes.epochs), progress=True)
-    objects = folder_objects(data, None, sizes.unseen_per_class)
-    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
-    specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
+    ds, specs, folds = active_folds(ctx, folder_objects(data, None, sizes.unseen_per_class))
     rows = []
-    for i, (train, test) in enumerate(ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)):
-        record_i = {"part": "active", "store": record, "train": [int(x) for x in train]}
-        models = {name: fit_cached(factory, lambda t=train: ds.load(t),
-                                   ctx.path("models", "active", f"fold{i + 1}", f"{name}.vtm"), record_i)[0]
+    for i, (train, fit_record, tests) in enumerate(folds):
+        models = {name: fit_cached(factory, lambda t=train: ds.load(t), fold_model_path(ctx, i + 1, f"{name}.vtm"),
+                                   fit_record)[0]
                   for name, factory in pick(ctx.classifiers, classifiers).items()}
-        names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
-        jobs = [job(specs[name], models, ctx.seed + n + 1000 * i, seeds) for n, name in enumerate(names)]
-        for name, made in zip(names, ctx.run_jobs(jobs, f"banks, fold {i + 1}", "object"), strict=True):
+        jobs = [job(specs[name], models, noise_seed, seeds) for name, noise_seed in tests]
+        for (name, _), made in zip(tests, ctx.run_jobs(jobs, f"banks, fold {i + 1}", "object"), strict=True):
             rows.append({"object": name, "label": specs[name].label, "banks": made})
     return rows
 

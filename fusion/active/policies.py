@@ -309,7 +309,7 @@ class InformationPolicy(Policy):
         start = time.perf_counter()
         planes = self.candidate_planes(state)
         outcomes = simulated_outcomes(state.classifier, self.simulated_touches(state, planes))
-        entry["planes"], entry["outcomes"] = planes, (state.classifier, outcomes)
+        entry["outcomes"] = (state.classifier, outcomes)  # the planes are cached by candidate_planes
         self.simulation_seconds.append(time.perf_counter() - start)
         return planes, outcomes
 

@@ -143,8 +143,7 @@ def build_bank(true_model: ObjectModel, visual: ObjectModel, classifiers: dict, 
     state = ActiveState(visual, first)
     planes = policy.candidate_planes(state)
     variants = policy.simulated_touches(state, planes)
-    simulated = {name: _checked(simulated_outcomes(model, variants), (len(planes), len(variants), len(classes)), name)
-                 for name, model in classifiers.items()}
+    simulated = {name: simulated_outcomes(model, variants) for name, model in classifiers.items()}  # checked by the bank
     real = {name: np.full((len(planes), len(classes)), 1.0 / len(classes)) for name in classifiers}
     missed = np.zeros(len(planes), dtype=bool)
     for m, plane in enumerate(planes):

@@ -228,6 +228,30 @@ def _check_options(policies, candidates, variants, noise_mm, per_fold) -> tuple:
             None if per_fold is None else int(per_fold))
 
 
+def active_folds(ctx, objects) -> tuple:
+    """The active part's plan: (its store, {object name: spec in its seeded pose}, per grouped fold (training rows, the
+    fit record of its models, [(test object name, the noise seed of its visual model)] in :func:`fold_order`)).
+    :func:`active_episodes` and ``benchmarks.active_replay`` both follow it, so a bank is built for the very objects,
+    models and visual models of the part's episodes."""
+    from fusion.experiments.data import any_pose
+    from tactile.dataset import object_specs
+
+    sizes = ctx.sizes
+    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
+    specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
+    folds = []
+    for i, (train, test) in enumerate(ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)):
+        names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
+        folds.append((train, {"part": "active", "store": record, "train": [int(x) for x in train]},
+                      [(name, ctx.seed + n + 1000 * i) for n, name in enumerate(names)]))
+    return ds, specs, folds
+
+
+def fold_model_path(ctx, fold: int, file: str) -> Path:
+    """Where the active part keeps fold ``fold``'s (1-based) model ``file``."""
+    return ctx.path("models", "active", f"fold{fold}", file)
+
+
 def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("random", "saliency", "information"),
                     max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
                     visual: str = "noisy", per_fold: int | None = None, train_on_captures: bool = False,
@@ -252,9 +276,6 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
                 f"active: {episodes} episodes x {max_touches} touches per object and policy")
     policies, candidates, variants, noise_mm, per_fold = _check_options(policies, candidates, variants,
                                                                         noise_mm, per_fold)
-    from fusion.experiments.data import any_pose
-    from tactile.dataset import object_specs
-
     if visual not in VISUALS:
         raise InvalidArgumentError(f"active: visual must be one of {', '.join(VISUALS)}, got {visual!r}")
     if train_on_captures and visual != "camera":
@@ -264,12 +285,9 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
     if classifier is None:  # the SVM when the run has one, else its first unseen-objects classifier
         classifier = "svm" if "svm" in ctx.classifiers else ctx.sizes.unseen_classifiers[0]
     factory = pick(ctx.classifiers, [classifier])[classifier]  # an unknown name: refused before the store
-    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
-    specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
-    folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)
+    ds, specs, folds = active_folds(ctx, objects)
     rows, failures, touched = [], [], {}
-    for i, (train, test) in enumerate(folds):
-        fit_record = {"part": "active", "store": record, "train": [int(x) for x in train]}
+    for i, (train, fit_record, tests) in enumerate(folds):
         load = lambda t=train: ds.load(t)
         file = f"{classifier}.vtm"
         if train_on_captures:
@@ -279,16 +297,16 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
                 [ds.load(t), capture_batch(ctx, n, specs, ds, s, p, sizes.unseen_contours, SMOOTH_ITERATIONS,
                                            touched)])
             # (the objects captured are the training objects, which "train" names already)
-            fit_record["captures"] = {"views": CAMERA_VIEWS, "contours": sizes.unseen_contours,
-                                      "smoothing": SMOOTH_ITERATIONS}
+            fit_record = fit_record | {"captures": {"views": CAMERA_VIEWS, "contours": sizes.unseen_contours,
+                                                    "smoothing": SMOOTH_ITERATIONS}}
             file = f"{classifier}-captures.vtm"
-        model, _fit_s = fit_cached(factory, load, ctx.path("models", "active", f"fold{i + 1}", file), fit_record)
-        names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
+        model, _fit_s = fit_cached(factory, load, fold_model_path(ctx, i + 1, file), fit_record)
         if per_fold is not None:
-            names = names[:int(per_fold)]
-        jobs = [EpisodeJob(specs[name], model, i + 1, ctx.seed + n + 1000 * i, visual, noise_mm,
+            tests = tests[:int(per_fold)]
+        names = [name for name, _ in tests]
+        jobs = [EpisodeJob(specs[name], model, i + 1, noise_seed, visual, noise_mm,
                            str(ctx.path("captures")), ctx.seed, tuple(policies), int(episodes), int(max_touches),
-                           candidates, variants) for n, name in enumerate(names)]
+                           candidates, variants) for name, noise_seed in tests]
         # the objects side by side on the run's workers (each policy's draws are seeded by the object's visual
         # model and the step, so an object's episodes do not depend on which objects came before it)
         for name, row in zip(names, ctx.run_jobs(jobs, f"episodes, fold {i + 1}", "object") if jobs else []):
