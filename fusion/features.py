@@ -11,7 +11,8 @@ Steps, in :func:`fusion.conventional.conventional_pipeline` order:
 2. :class:`WaveletStatistics` -- each series -> 3-level ``db2`` wavelet decomposition (PyWavelets) -> rms, std
    and skewness of the series and of each of its 4 coefficient arrays (cA3, cD3, cD2, cD1): 15 per series.
 3. :class:`InfoGainSelector` -- keep the ``k`` features of highest information gain (mutual information with
-   the class, ``sklearn.feature_selection.mutual_info_classif``, seeded).
+   the class: scikit-learn's ``mutual_info_classif`` estimate, seeded, computed by sorting in
+   :func:`fusion.mutual_info.mutual_info_continuous`).
 4. :class:`SOMProjection` -- "SOM to 5": a 1 x 5 self-organising map (MiniSom) clusters the selected
    features by correlation; each of the 5 groups gives its first principal component.
 
@@ -34,12 +35,13 @@ import numpy as np
 import pywt
 from minisom import MiniSom
 from sklearn.base import BaseEstimator, TransformerMixin
-from sklearn.feature_selection import SelectorMixin, mutual_info_classif
+from sklearn.feature_selection import SelectorMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 from threadpoolctl import threadpool_limits
 
 from fusion.contourlet import rescale_exponent, subband_std
 from fusion.cues import check_cue, cue_width, kinesthetic_cues
+from fusion.mutual_info import mutual_info_continuous
 from perception.errors import DatasetError
 from tactile.explore import SequenceBatch
 
@@ -217,13 +219,12 @@ def _gain_key(X: np.ndarray, y: np.ndarray, n_neighbors: int, random_state: int)
     return h.digest()
 
 
-def information_gain(X, y, n_neighbors: int = 3, random_state: int = 0, n_jobs: int | None = None) -> np.ndarray:
-    """(n_features,) mutual information (nats) of each column of ``X`` with the labels ``y``, seeded.
-
-    ``mutual_info_classif`` runs thousands of tiny neighbour searches; their OpenMP threads cost far more
-    than they save (measured 150 s with threads vs 11 s without for 8 x 330 on a busy 2-core machine), so
-    they run single-threaded; ``n_jobs`` parallelises over features instead. All zeros when every class
-    has a single sample (the estimator needs two of a class).
+def information_gain(X, y, n_neighbors: int = 3, random_state: int = 0) -> np.ndarray:
+    """(n_features,) mutual information (nats) of each column of ``X`` with the labels ``y``, seeded: the floats
+    of ``sklearn.feature_selection.mutual_info_classif``, from :func:`fusion.mutual_info.mutual_info_continuous`
+    (6-8 times faster). All zeros when every class has a single sample (the estimator needs two of a class).
+    The few neighbour searches it leaves to scikit-learn (classes of under ``2 * n_neighbors + 2`` samples) are
+    tiny: their OpenMP threads would cost more than they save, so they run on one.
 
     The last ``_GAIN_CACHE_SIZE`` results are kept by a digest of (X, y, n_neighbors, random_state): a pipeline
     search fits the same selection on the same inner fold once per candidate, and the estimate is a pure
@@ -242,7 +243,7 @@ def information_gain(X, y, n_neighbors: int = 3, random_state: int = 0, n_jobs: 
             _GAIN_CACHE.move_to_end(key)
             return _GAIN_CACHE[key].copy()
     with threadpool_limits(limits=1, user_api="openmp"):
-        gain = mutual_info_classif(X, y, n_neighbors=n_neighbors, random_state=random_state, n_jobs=n_jobs)
+        gain = mutual_info_continuous(X, y, n_neighbors=n_neighbors, random_state=random_state)
     if key is None:
         return gain
     with _GAIN_LOCK:
@@ -256,15 +257,15 @@ class InfoGainSelector(SelectorMixin, BaseEstimator):
     """Keep the ``k`` features of highest information gain with the class (all if there are fewer).
 
     Information gain of a continuous feature is its mutual information with the label, estimated by
-    ``mutual_info_classif`` (k-nearest-neighbour estimator, ``n_neighbors``; seeded by ``random_state``).
+    ``mutual_info_classif`` (k-nearest-neighbour estimator, ``n_neighbors``; seeded by ``random_state``; see
+    :func:`information_gain`).
     Ties keep the earlier feature. Fitted: ``scores_`` (nats), ``support_``.
     """
 
-    def __init__(self, k: int = 40, n_neighbors: int = 3, random_state: int = 0, n_jobs: int | None = None):
+    def __init__(self, k: int = 40, n_neighbors: int = 3, random_state: int = 0):
         self.k = k
         self.n_neighbors = n_neighbors
         self.random_state = random_state
-        self.n_jobs = n_jobs
 
     def fit(self, X, y):
         X, y = validate_data(self, X, y, dtype=np.float64)
@@ -273,7 +274,7 @@ class InfoGainSelector(SelectorMixin, BaseEstimator):
         if len(X) < 2:
             raise ValueError(f"InfoGainSelector: n_samples = {len(X)}; mutual information needs at least 2 samples")
         neighbours = max(1, min(int(self.n_neighbors), len(X) - 1))
-        self.scores_ = information_gain(X, y, neighbours, self.random_state, self.n_jobs)
+        self.scores_ = information_gain(X, y, neighbours, self.random_state)
         order = np.argsort(-self.scores_, kind="stable")
         self.support_ = np.zeros(X.shape[1], dtype=bool)
         self.support_[order[: int(self.k)]] = True

@@ -242,8 +242,8 @@ def fit_cached(factory: Factory, train, path: Path, record: dict) -> tuple[Tacti
     estimator = factory()
     batch = train() if callable(train) else train
     start = time.perf_counter()
-    # scikit-learn steps left at n_jobs=None (the information gain over features, the SVM's calibration folds)
-    # use every core while training; nothing else runs then, and their results do not depend on the job count.
+    # scikit-learn steps left at n_jobs=None (the SVM's calibration folds) use every core while training; nothing
+    # else runs then, and their results do not depend on the job count.
     with joblib.parallel_config(n_jobs=usable_cores()):
         estimator.fit(batch)
     seconds = time.perf_counter() - start

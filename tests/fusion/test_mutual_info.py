@@ -1,0 +1,94 @@
+"""fusion.mutual_info: scikit-learn's mutual-information estimate computed by sorting, compared with scikit-learn's
+own output bit for bit, and with known answers where the estimator has one."""
+
+import numpy as np
+import pytest
+from scipy.special import digamma
+from sklearn.feature_selection import mutual_info_classif
+from sklearn.neighbors import KDTree, NearestNeighbors
+
+from fusion.mutual_info import _count_within, _kth_neighbour_distance, mutual_info_continuous
+
+
+def _dataset(rng, kind):
+    n, n_features, n_classes = int(rng.integers(4, 300)), int(rng.integers(1, 5)), int(rng.integers(1, 6))
+    y = rng.integers(0, n_classes, n)
+    if kind == "normal":
+        X = rng.normal(size=(n, n_features))
+    elif kind == "ties":  # a few distinct values: the jitter alone separates them
+        X = rng.integers(0, 4, size=(n, n_features)).astype(float)
+    elif kind == "scales":  # columns from 1e-8 to 1e8
+        X = rng.normal(size=(n, n_features)) * 10.0 ** rng.integers(-8, 9, size=n_features)
+    else:  # rounded, class-dependent: real information and near-ties
+        X = np.round(rng.normal(size=(n, n_features)), 2) + 0.3 * y[:, None]
+    return X, y
+
+
+@pytest.mark.parametrize("kind", ["normal", "ties", "scales", "informative"])
+def test_equals_scikit_learn_bit_for_bit(kind):
+    rng = np.random.default_rng(["normal", "ties", "scales", "informative"].index(kind))
+    compared = 0
+    for trial in range(60):
+        X, y = _dataset(rng, kind)
+        if np.unique(y, return_counts=True)[1].max() < 2:
+            continue
+        k = int(rng.integers(1, 6))  # classes of 2..2k+1 samples take scikit-learn's brute-force path
+        expected = mutual_info_classif(X, y, n_neighbors=k, random_state=trial)
+        np.testing.assert_array_equal(mutual_info_continuous(X, y, n_neighbors=k, random_state=trial), expected)
+        compared += 1
+    assert compared > 40
+
+
+def test_labels_of_any_kind_and_single_sample_classes():
+    rng = np.random.default_rng(7)
+    X = rng.normal(size=(80, 3))
+    y = np.array(["mug", "cup", "bottle"] * 26 + ["lonely", "alone"], dtype=object)  # two single-sample classes
+    X[:, 0] += (y == "mug") * 2.0
+    expected = mutual_info_classif(X, y, random_state=3)
+    got = mutual_info_continuous(X, y, random_state=3)
+    np.testing.assert_array_equal(got, expected)
+    assert got[0] > 0.3 > got[1]
+
+
+def test_known_answers():
+    """Two classes far apart: the estimate is digamma(N) - digamma(N / 2) (every radius holds only the sample's own
+    class), about log 2; a feature independent of the class estimates near 0 and is clipped at 0 from below."""
+    rng = np.random.default_rng(1)
+    n = 2000
+    y = np.repeat([0, 1], n // 2)
+    separated = rng.normal(size=n) + 100.0 * y
+    noise = rng.normal(size=n)
+    gain = mutual_info_continuous(np.stack([separated, noise], axis=1), y, n_neighbors=3, random_state=0)
+    assert gain[0] == pytest.approx(digamma(n) - digamma(n // 2), abs=1e-12)
+    assert gain[0] == pytest.approx(np.log(2), abs=1e-3)
+    assert 0.0 <= gain[1] < 0.01
+
+
+def test_neighbour_distances_and_counts_equal_scikit_learns_trees():
+    """On a 0.1 mm grid (distances such as 0.30000000000000004) the radii sit one float below a neighbour's
+    distance and squaring rounds: the counts must still be the tree's."""
+    rng = np.random.default_rng(2)
+    for x in (np.arange(60) * 0.1, rng.permutation(np.arange(500) * 0.1), rng.normal(size=300),
+              np.repeat(rng.normal(size=40), 3)):
+        for k in (1, 3, 5):
+            tree = NearestNeighbors(n_neighbors=k).fit(x[:, None])
+            assert tree._fit_method == "kd_tree"
+            expected = tree.kneighbors()[0][:, -1]
+            np.testing.assert_array_equal(_kth_neighbour_distance(x, k), expected)
+            radius = np.nextafter(expected, 0)
+            counts = KDTree(x[:, None]).query_radius(x[:, None], radius, count_only=True)
+            np.testing.assert_array_equal(_count_within(x, radius), counts)
+    x = np.arange(100) * 0.1
+    for radius in (np.full(100, 0.3), np.full(100, 0.30000000000000004), rng.uniform(0, 2, 100), np.zeros(100)):
+        np.testing.assert_array_equal(_count_within(x, radius),
+                                      KDTree(x[:, None]).query_radius(x[:, None], radius, count_only=True))
+
+
+def test_refuses_what_scikit_learn_refuses():
+    X = np.zeros((10, 2))
+    with pytest.raises(ValueError, match="continuous"):
+        mutual_info_continuous(X, np.linspace(0, 1, 10))
+    with pytest.raises(ValueError, match="n_neighbors"):
+        mutual_info_continuous(X, np.arange(10) % 2, n_neighbors=0)
+    with pytest.raises(ValueError, match="NaN|infinity"):
+        mutual_info_continuous(np.full((10, 2), np.nan), np.arange(10) % 2)
