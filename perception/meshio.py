@@ -120,27 +120,49 @@ def read_off(path: Path) -> RawMesh:
             f"{path}: truncated: {n_vertices} vertices + {n_faces} faces declared, {len(body)} lines present"
         )
     try:
-        vrows = [ln.split() for ln in body[:n_vertices]]
-        vertices = np.array([[float(t) for t in row[:3]] for row in vrows], dtype=np.float64)
-        colors = None
-        if has_color and all(len(r) >= 6 for r in vrows):
-            colors = np.array([[float(t) for t in row[3:6]] for row in vrows], dtype=np.float64)
-            if colors.max(initial=0) > 1.0:
-                colors = colors / 255.0
-        triangles = []
-        for ln in body[n_vertices : n_vertices + n_faces]:
-            tok = ln.split()
-            k = int(tok[0])
-            if k < 3 or len(tok) < k + 1:
-                raise MeshLoadError(f"{path}: bad OFF face line {ln[:40]!r}")
-            idx = [int(t) for t in tok[1 : k + 1]]
-            triangles.extend([idx[0], idx[i], idx[i + 1]] for i in range(1, k - 1))
-        triangles = np.array(triangles, dtype=np.int64).reshape(-1, 3)
+        vertex_lines, face_lines = body[:n_vertices], body[n_vertices : n_vertices + n_faces]
+        vertices, colors = _off_vertices(vertex_lines, has_color)
+        triangles = _off_triangles(path, face_lines)
     except (ValueError, IndexError, OverflowError):  # OverflowError: an index beyond int64
         raise MeshLoadError(f"{path}: malformed OFF body (non-numeric or short vertex/face line)") from None
     if vertices.shape != (n_vertices, 3):
         raise MeshLoadError(f"{path}: vertex lines must hold 3 coordinates")
     return RawMesh(vertices, triangles, colors)
+
+
+def _off_vertices(lines: list[str], has_color: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """(V, 3) coordinates and, for COFF lines that carry them, (V, 3) colours in [0, 1], from OFF vertex lines.
+    numpy parses each token as Python's ``float`` does; a file of bare ``x y z`` lines is parsed in one call."""
+    tokens = " ".join(lines).split()
+    if len(tokens) == 3 * len(lines):
+        return np.array(tokens, dtype=np.float64).reshape(-1, 3), None
+    rows = [ln.split() for ln in lines]
+    vertices = np.array([row[:3] for row in rows], dtype=np.float64)
+    colors = None
+    if has_color and all(len(r) >= 6 for r in rows):
+        colors = np.array([row[3:6] for row in rows], dtype=np.float64)
+        if colors.max(initial=0) > 1.0:
+            colors = colors / 255.0
+    return vertices, colors
+
+
+def _off_triangles(path: Path, lines: list[str]) -> np.ndarray:
+    """(T, 3) int64 vertex indices from OFF face lines, polygons fanned from their first vertex. numpy parses each
+    token as Python's ``int`` does; a file of bare triangle lines (``3 a b c``) is parsed in one call."""
+    tokens = " ".join(lines).split()
+    if len(tokens) == 4 * len(lines):
+        faces = np.array(tokens, dtype=np.int64).reshape(-1, 4)
+        if (faces[:, 0] == 3).all():
+            return faces[:, 1:].copy()
+    triangles = []
+    for ln in lines:
+        tok = ln.split()
+        k = int(tok[0])
+        if k < 3 or len(tok) < k + 1:
+            raise MeshLoadError(f"{path}: bad OFF face line {ln[:40]!r}")
+        idx = [int(t) for t in tok[1 : k + 1]]
+        triangles.extend([idx[0], idx[i], idx[i + 1]] for i in range(1, k - 1))
+    return np.array(triangles, dtype=np.int64).reshape(-1, 3)
 
 
 def _check_header_counts(path: Path, suffix: str) -> None:

@@ -109,6 +109,34 @@ def test_vertex_colors_survive_repair(tmp_path):
     np.testing.assert_allclose(np.sort(model.vertex_colors.sum(axis=1)), [1.0, 1.0, 1.0])
 
 
+def test_off_lines_read_the_same_whatever_the_parser_path(tmp_path):
+    """Bare ``x y z`` / ``3 a b c`` lines are parsed in one call; a file with a face colour, a quad, an extra vertex
+    token or exponents takes the line-by-line path. Hand-written expected arrays, and both paths agree."""
+    from perception.meshio import read_off
+
+    expected_v = np.array([[0.0, 0.0, 0.0], [1.5, 0.0, 0.0], [1.5, 2.0, 0.0], [0.0, 2.0, 1e-3]])
+    expected_t = np.array([[0, 1, 2], [0, 2, 3]])
+    bare = "OFF\n4 2 0\n0 0 0\n1.5 0 0\n1.5 2 0\n0 2 1e-3\n3 0 1 2\n3 0 2 3\n"
+    variants = {
+        "bare": bare,
+        "face colour": bare.replace("3 0 2 3\n", "3 0 2 3 0.5 0.5 0.5\n"),
+        "quad": "OFF\n4 1 0\n0 0 0\n1.5 0 0\n1.5 2 0\n0 2 1e-3\n4 0 1 2 3\n",
+        "vertex token": bare.replace("1.5 2 0\n", "1.5 2 0 7\n"),
+        "comments, +signs, 0-padding": bare.replace("3 0 1 2\n", "+3 00 1 2  # first\n").replace("OFF\n", "OFF # x\n"),
+    }
+    for name, text in variants.items():
+        raw = read_off(write(tmp_path, "m.off", text))
+        np.testing.assert_array_equal(raw.vertices, expected_v, err_msg=name)
+        np.testing.assert_array_equal(raw.triangles, expected_t, err_msg=name)
+        assert raw.triangles.dtype == np.int64 and raw.vertices.dtype == np.float64 and raw.vertex_colors is None
+    with pytest.raises(MeshLoadError, match="bad OFF face line"):
+        read_off(write(tmp_path, "m.off", bare.replace("3 0 2 3\n", "2 0 2 3\n")))
+    with pytest.raises(MeshLoadError, match="malformed"):
+        read_off(write(tmp_path, "m.off", bare.replace("3 0 2 3\n", "3 0 2 x\n")))
+    with pytest.raises(MeshLoadError, match="malformed"):
+        read_off(write(tmp_path, "m.off", bare.replace("3 0 2 3\n", "3 0 2 99999999999999999999\n")))
+
+
 # --------------------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize(
     ("name", "content", "error", "words"),
