@@ -92,3 +92,17 @@ def test_refuses_what_scikit_learn_refuses():
         mutual_info_continuous(X, np.arange(10) % 2, n_neighbors=0)
     with pytest.raises(ValueError, match="NaN|infinity"):
         mutual_info_continuous(np.full((10, 2), np.nan), np.arange(10) % 2)
+
+
+def test_benchmark_reports_equal_floats_and_fails_when_they_differ(capsys, monkeypatch):
+    from benchmarks import information_gain as bench
+
+    assert bench.main(["--sequences", "120", "--repeats", "1", "--json"]) == 0
+    out = capsys.readouterr().out
+    assert "| synthetic | 120 x 285 |" in out and "| yes |" in out and '"equal": true' in out
+    import fusion.mutual_info as mi
+
+    real = mi.mutual_info_continuous
+    monkeypatch.setattr(mi, "mutual_info_continuous", lambda *a, **k: real(*a, **k) + 1e-12)
+    assert bench.main(["--sequences", "120", "--repeats", "1"]) == 1
+    assert "| NO |" in capsys.readouterr().out
