@@ -1,7 +1,8 @@
 """Next-touch criteria screened offline on the active part's unseen objects (:mod:`fusion.active.replay`).
 
 For every test object of the active part's grouped folds (each in its seeded random pose, its visual model the mesh
-plus 1 mm of noise, as ``python -m fusion.experiments.active`` makes them) and every policy seed, one candidate bank:
+plus ``--noise-mm`` of noise, 1 mm by default, as ``python -m fusion.experiments.active`` makes them) and every policy
+seed, one candidate bank:
 the information policy's 24 candidates simulated on the visual model and touched on the true mesh, read by each
 classifier's fold model. Then each (planner, decider) pair replays the information rule (the planner's simulated
 outcomes and readings choose, the decider's readings decide), and each decider reads the candidates in a seeded
@@ -40,13 +41,14 @@ class BankJob:
     models: dict
     noise_seed: int
     seeds: tuple
+    noise_mm: float = 1.0
 
     def run(self) -> list:
         from fusion.active import InformationPolicy, noisy_copy
         from fusion.active.replay import build_bank
 
         true = self.spec.load()
-        visual = noisy_copy(true, 1.0, seed=self.noise_seed)  # as the active part's EpisodeJob makes it
+        visual = noisy_copy(true, self.noise_mm, seed=self.noise_seed)  # as the active part's EpisodeJob makes it
         return [build_bank(true, visual, self.models, InformationPolicy(seed)) for seed in self.seeds]
 
     def cost(self) -> float:
@@ -56,8 +58,13 @@ class BankJob:
         return f"banking {self.spec.name}"
 
 
-def banks(data: Path, out: Path, classifiers: list[str], seeds: tuple, quick: bool) -> list[dict]:
-    """[{"object", "label", "banks"}] over the active part's test objects, fold by fold."""
+def banks(data: Path, out: Path, classifiers: list[str], seeds: tuple, quick: bool, noise_mm: float = 1.0) -> list[dict]:
+    """[{"object", "label", "banks"}] over the active part's test objects, fold by fold.
+
+    Raises:
+        InvalidArgumentError: fewer than two test objects (the differences are paired over objects), before any bank
+            is made or model fitted.
+    """
     # the job class by its module's name: run as ``python -m``, this module is __main__, which workers cannot import
     from benchmarks.active_replay import BankJob as job
     from fusion.experiments.active import active_folds, fold_model_path
@@ -65,16 +72,21 @@ def banks(data: Path, out: Path, classifiers: list[str], seeds: tuple, quick: bo
     from fusion.experiments.context import Context
     from fusion.experiments.data import folder_objects
     from fusion.experiments.models import default_classifiers, fit_cached, pick
+    from perception.errors import InvalidArgumentError
 
     sizes = QUICK if quick else FULL
     ctx = Context(out, 0, sizes, default_classifiers(0, sizes.epochs), progress=True)
     ds, specs, folds = active_folds(ctx, folder_objects(data, None, sizes.unseen_per_class))
+    n_objects = sum(len(tests) for _, _, tests in folds)
+    if n_objects < 2:
+        raise InvalidArgumentError(f"{data}: {n_objects} test object(s); the replay's differences are paired over "
+                                   "objects and need at least two")
     rows = []
     for i, (train, fit_record, tests) in enumerate(folds):
         models = {name: fit_cached(factory, lambda t=train: ds.load(t), fold_model_path(ctx, i + 1, f"{name}.vtm"),
                                    fit_record)[0]
                   for name, factory in pick(ctx.classifiers, classifiers).items()}
-        jobs = [job(specs[name], models, noise_seed, seeds) for name, noise_seed in tests]
+        jobs = [job(specs[name], models, noise_seed, seeds, noise_mm) for name, noise_seed in tests]
         for (name, _), made in zip(tests, ctx.run_jobs(jobs, f"banks, fold {i + 1}", "object"), strict=True):
             rows.append({"object": name, "label": specs[name].label, "banks": made})
     return rows
@@ -136,15 +148,21 @@ def _print(result: dict) -> None:
 
 
 def main(argv=None) -> dict:
+    """The command line; a project error (a bad data folder, a damaged store or model) ends it with one line on
+    stderr and exit status 2, as ``visuotactile`` commands end."""
+    from fusion.active.policies import MAX_NOISE_MM
     from fusion.cli import SEED_MAX, _Parser
     from fusion.experiments.models import default_classifiers, pick
-    from perception.errors import InvalidArgumentError
+    from perception.errors import InvalidArgumentError, VisuotactileError
+    from perception.validate import check_length
 
     parser = _Parser(prog="python -m benchmarks.active_replay", description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=DATA / "shrec07")
     parser.add_argument("--out", type=Path, required=True, help="the active part's output folder (its store and fold models; fitted there if absent)")
     parser.add_argument("--classifiers", default="cnn,svm")
     parser.add_argument("--seeds", default="0,1,2,3,4", help="policy seeds (the active part's episodes 0..4)")
+    parser.add_argument("--noise-mm", type=float, default=1.0,
+                        help="the visual model's noise, mm (the active part's --noise-mm)")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
@@ -161,10 +179,19 @@ def main(argv=None) -> dict:
         pick(default_classifiers(0), classifiers)
     except InvalidArgumentError as exc:
         parser.error(f"--classifiers: {exc}")
+    try:
+        noise_mm = check_length(args.noise_mm, "--noise-mm", "active_replay", maximum=MAX_NOISE_MM)
+    except InvalidArgumentError as exc:
+        parser.error(str(exc))
     if not args.data.is_dir():
         parser.error(f"--data {args.data} is not a folder")
-    rows = banks(args.data, args.out, classifiers, seeds, args.quick)
-    result = {"machine": machine(), "seeds": list(seeds), "classifiers": classifiers, **screen(rows, classifiers)}
+    try:
+        rows = banks(args.data, args.out, classifiers, seeds, args.quick, noise_mm)
+    except VisuotactileError as exc:
+        print(f"python -m benchmarks.active_replay: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    result = {"machine": machine(), "seeds": list(seeds), "classifiers": classifiers, "noise_mm": noise_mm,
+              **screen(rows, classifiers)}
     if args.json:
         json.dump(result, sys.stdout, indent=2)
         print()

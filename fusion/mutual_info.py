@@ -21,6 +21,8 @@ distances expanded as ``x**2 - 2 x y + y**2``) gets its radii from scikit-learn 
 
 from __future__ import annotations
 
+from numbers import Integral
+
 import numpy as np
 from scipy.special import digamma
 from sklearn.neighbors import NearestNeighbors
@@ -36,12 +38,13 @@ def mutual_info_continuous(X, y, n_neighbors: int = 3, random_state=None) -> np.
     random_state=random_state)``, the same floats.
 
     Raises:
-        ValueError: what ``mutual_info_classif`` raises on the same input (scikit-learn's checks run first).
+        ValueError: a sparse, non-finite or empty ``X``, continuous labels, ``n_neighbors`` not an integer >= 1 (as
+            scikit-learn refuses them), or no class with two samples (nothing to estimate from).
     """
     check_classification_targets(y)
     X, y = check_X_y(X, y, y_numeric=False)
-    if isinstance(n_neighbors, bool) or int(n_neighbors) != n_neighbors or n_neighbors < 1:
-        raise ValueError(f"n_neighbors must be a positive integer, got {n_neighbors!r}")
+    if isinstance(n_neighbors, bool) or not isinstance(n_neighbors, Integral) or n_neighbors < 1:
+        raise ValueError(f"n_neighbors must be an integer >= 1, got {n_neighbors!r}")
     n_samples, n_features = X.shape
     rng = check_random_state(random_state)
     # scikit-learn's preprocessing, step for step: unit variance, then jitter that breaks ties, drawn in one go. The
@@ -53,6 +56,8 @@ def mutual_info_continuous(X, y, n_neighbors: int = 3, random_state=None) -> np.
     X[:, every] += 1e-10 * means * rng.standard_normal(size=(n_samples, n_features))
     classes, codes = np.unique(y, return_inverse=True)
     members = [np.flatnonzero(codes == c) for c in range(len(classes))]
+    if max(len(m) for m in members) < 2:
+        raise ValueError(f"every one of the {len(classes)} classes has a single sample: the estimate needs two of a class")
     return np.array([_column_mi(np.ascontiguousarray(X[:, f]), members, int(n_neighbors)) for f in range(n_features)])
 
 

@@ -320,3 +320,61 @@ def test_a_hand_made_bank_is_checked():
                           ({"missed": np.zeros(2, dtype=bool)}, "missed must be")):
         with pytest.raises(InvalidArgumentError, match=re.escape(words)):
             CandidateBank(**(fields | change))
+
+
+@pytest.mark.parametrize("noise", ["-1", "nan", "1e9"])
+def test_cli_refuses_bad_noise_before_the_data(noise, tmp_path, capsys):
+    from benchmarks.active_replay import main
+    with pytest.raises(SystemExit):
+        main(["--out", str(tmp_path), "--data", str(tmp_path / "absent"), "--noise-mm=" + noise])
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert "--noise-mm" in err and "not a folder" not in err
+
+
+def test_bank_job_makes_the_visual_model_with_its_noise(monkeypatch):
+    import fusion.active
+    from benchmarks.active_replay import BankJob
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def record(true, noise_mm, seed):
+        seen.append((true, noise_mm, seed))
+        raise Stop
+
+    monkeypatch.setattr(fusion.active, "noisy_copy", record)
+    spec = type("Spec", (), {"load": lambda self: "mesh", "name": "o"})()
+    for noise in (1.0, 2.5):
+        with pytest.raises(Stop):
+            BankJob(spec, {}, 17, (0,), noise).run()
+    assert seen == [("mesh", 1.0, 17), ("mesh", 2.5, 17)]
+    assert BankJob(spec, {}, 17, (0,)).noise_mm == 1.0  # the active part's default
+
+
+def test_banks_refuse_a_single_test_object_before_any_fit(monkeypatch, tmp_path):
+    from benchmarks.active_replay import banks
+    from fusion.experiments import active, models
+
+    monkeypatch.setattr(active, "active_folds", lambda ctx, objects: (None, {}, [(None, {}, [("only", 3)])]))
+    monkeypatch.setattr(models, "fit_cached", lambda *a, **k: pytest.fail("fitted before refusing"))
+    monkeypatch.setattr("fusion.experiments.data.folder_objects", lambda *a, **k: [])
+    with pytest.raises(InvalidArgumentError, match="1 test object"):
+        banks(tmp_path, tmp_path / "out", ["svm"], (0,), quick=True)
+
+
+def test_cli_ends_a_project_error_in_one_line(monkeypatch, tmp_path, capsys):
+    import benchmarks.active_replay as bench
+    from perception.errors import DatasetError
+
+    def broken(*a, **k):
+        raise DatasetError("store.zarr: damaged chunk")
+
+    monkeypatch.setattr(bench, "banks", broken)
+    (tmp_path / "data").mkdir()
+    with pytest.raises(SystemExit) as exit_:
+        bench.main(["--out", str(tmp_path / "out"), "--data", str(tmp_path / "data")])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["python -m benchmarks.active_replay: error: store.zarr: damaged chunk"]

@@ -88,8 +88,15 @@ def test_refuses_what_scikit_learn_refuses():
     X = np.zeros((10, 2))
     with pytest.raises(ValueError, match="continuous"):
         mutual_info_continuous(X, np.linspace(0, 1, 10))
-    with pytest.raises(ValueError, match="n_neighbors"):
-        mutual_info_continuous(X, np.arange(10) % 2, n_neighbors=0)
+    for bad in (0, 2.5, 3.0):
+        with pytest.raises(ValueError, match="n_neighbors"):
+            mutual_info_continuous(X, np.arange(10) % 2, n_neighbors=bad)
+        with pytest.raises(ValueError):  # scikit-learn refuses the same
+            mutual_info_classif(X, np.arange(10) % 2, n_neighbors=bad)
+    with pytest.raises(ValueError, match="n_neighbors"):  # scikit-learn reads True as 1; a flag is no count here
+        mutual_info_continuous(X, np.arange(10) % 2, n_neighbors=True)
+    with pytest.raises(ValueError, match="single sample"):
+        mutual_info_continuous(X, np.arange(10))
     with pytest.raises(ValueError, match="NaN|infinity"):
         mutual_info_continuous(np.full((10, 2), np.nan), np.arange(10) % 2)
 
