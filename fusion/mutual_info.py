@@ -24,6 +24,7 @@ from __future__ import annotations
 from numbers import Integral
 
 import numpy as np
+from scipy.sparse import issparse
 from scipy.special import digamma
 from sklearn.neighbors import NearestNeighbors
 from sklearn.preprocessing import scale
@@ -41,6 +42,8 @@ def mutual_info_continuous(X, y, n_neighbors: int = 3, random_state=None) -> np.
         ValueError: a sparse, non-finite or empty ``X``, continuous labels, ``n_neighbors`` not an integer >= 1 (as
             scikit-learn refuses them), or no class with two samples (nothing to estimate from).
     """
+    if issparse(X):
+        raise ValueError("mutual_info_continuous takes a dense X; a sparse matrix holds no continuous features here")
     check_classification_targets(y)
     X, y = check_X_y(X, y, y_numeric=False)
     if isinstance(n_neighbors, bool) or not isinstance(n_neighbors, Integral) or n_neighbors < 1:
@@ -51,9 +54,13 @@ def mutual_info_continuous(X, y, n_neighbors: int = 3, random_state=None) -> np.
     # column mask stays: indexing with it lays the copy out in another order, and the variances sum in that order.
     every = np.ones(n_features, dtype=bool)
     X = X.astype(np.float64, copy=True)
-    X[:, every] = scale(X[:, every], with_mean=False, copy=False)
-    means = np.maximum(1, np.mean(np.abs(X[:, every]), axis=0))
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflowing variance is refused below, in words
+        X[:, every] = scale(X[:, every], with_mean=False, copy=False)
+        means = np.maximum(1, np.mean(np.abs(X[:, every]), axis=0))
     X[:, every] += 1e-10 * means * rng.standard_normal(size=(n_samples, n_features))
+    if not np.isfinite(X).all():  # a variance beyond float64 scales a column to NaN; scikit-learn's trees refuse it
+        raise ValueError("X contains NaN or infinity after scaling to unit variance (a column's variance overflows "
+                         "float64)")
     classes, codes = np.unique(y, return_inverse=True)
     members = [np.flatnonzero(codes == c) for c in range(len(classes))]
     if max(len(m) for m in members) < 2:
@@ -116,13 +123,13 @@ def _count_within(x: np.ndarray, radius: np.ndarray) -> np.ndarray:
     lo = np.searchsorted(s, x - radius, side="left")  # first position of the run, up to rounding
     # Move each end until the test holds just inside it and fails just outside (the test is monotone on either
     # side of x_i, and x_i itself always passes, so each end stops within a few positions of its estimate).
-    while True:
+    for _ in range(n + 1):  # each end moves one way only, so n + 1 rounds always suffice
         grow = inside(hi, hi < n)
         shrink = ~inside(hi - 1, hi > 0) & (hi > 0)
         if not (grow.any() or shrink.any()):
             break
         hi = hi + grow - shrink
-    while True:
+    for _ in range(n + 1):
         grow = inside(lo - 1, lo > 0)
         shrink = ~inside(lo, lo < n) & (lo < n)
         if not (grow.any() or shrink.any()):

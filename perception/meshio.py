@@ -130,12 +130,27 @@ def read_off(path: Path) -> RawMesh:
     return RawMesh(vertices, triangles, colors)
 
 
+def _tokens_of_rows(lines: list[str], width: int) -> list[str] | None:
+    """The tokens of ``lines`` in one flat list when every line holds exactly ``width`` of them, else None. One
+    split of the joined text: a ``#`` between lines (comments are already cut, so no line holds one) must fall
+    after every ``width`` tokens, so a short line beside a long one cannot pass for two rows."""
+    tokens = " # ".join(lines).split()
+    n = len(lines)
+    if len(tokens) != (width + 1) * n - 1 or tokens[width :: width + 1].count("#") != n - 1:
+        return None
+    del tokens[width :: width + 1]
+    return tokens
+
+
 def _off_vertices(lines: list[str], has_color: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """(V, 3) coordinates and, for COFF lines that carry them, (V, 3) colours in [0, 1], from OFF vertex lines.
     numpy parses each token as Python's ``float`` does; a file of bare ``x y z`` lines is parsed in one call."""
-    tokens = " ".join(lines).split()
-    if len(tokens) == 3 * len(lines):
-        return np.array(tokens, dtype=np.float64).reshape(-1, 3), None
+    tokens = _tokens_of_rows(lines, 3)
+    if tokens is not None:
+        try:
+            return np.array(tokens, dtype=np.float64).reshape(-1, 3), None
+        except ValueError:
+            pass  # the line-by-line path raises it again
     rows = [ln.split() for ln in lines]
     vertices = np.array([row[:3] for row in rows], dtype=np.float64)
     colors = None
@@ -149,11 +164,14 @@ def _off_vertices(lines: list[str], has_color: bool) -> tuple[np.ndarray, np.nda
 def _off_triangles(path: Path, lines: list[str]) -> np.ndarray:
     """(T, 3) int64 vertex indices from OFF face lines, polygons fanned from their first vertex. numpy parses each
     token as Python's ``int`` does; a file of bare triangle lines (``3 a b c``) is parsed in one call."""
-    tokens = " ".join(lines).split()
-    if len(tokens) == 4 * len(lines):
-        faces = np.array(tokens, dtype=np.int64).reshape(-1, 4)
-        if (faces[:, 0] == 3).all():
-            return faces[:, 1:].copy()
+    tokens = _tokens_of_rows(lines, 4)
+    if tokens is not None:
+        try:
+            faces = np.array(tokens, dtype=np.int64).reshape(-1, 4)
+        except (ValueError, OverflowError):
+            faces = None  # the line-by-line path names the line or the body
+        if faces is not None and (faces[:, 0] == 3).all():
+            return np.ascontiguousarray(faces[:, 1:])
     triangles = []
     for ln in lines:
         tok = ln.split()

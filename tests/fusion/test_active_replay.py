@@ -378,3 +378,39 @@ def test_cli_ends_a_project_error_in_one_line(monkeypatch, tmp_path, capsys):
     assert exit_.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["python -m benchmarks.active_replay: error: store.zarr: damaged chunk"]
+
+
+@pytest.mark.parametrize(("argv", "expected"), [([], 1.0), (["--noise-mm", "2.5"], 2.5)])
+def test_cli_passes_noise_mm_to_the_banks_and_records_it(monkeypatch, tmp_path, capsys, argv, expected):
+    import json
+
+    import benchmarks.active_replay as bench
+
+    seen = {}
+
+    def fake_banks(data, out, classifiers, seeds, quick, noise_mm=1.0):
+        seen["noise_mm"] = noise_mm
+        return []
+
+    monkeypatch.setattr(bench, "banks", fake_banks)
+    monkeypatch.setattr(bench, "screen", lambda rows, classifiers: {"objects": 0, "table": [], "differences": []})
+    monkeypatch.setattr(bench, "machine", dict)
+    (tmp_path / "data").mkdir()
+    result = bench.main(["--out", str(tmp_path / "out"), "--data", str(tmp_path / "data"), "--json", *argv])
+    assert seen["noise_mm"] == expected and result["noise_mm"] == expected
+    assert json.loads(capsys.readouterr().out)["noise_mm"] == expected
+
+
+def test_banks_give_each_job_its_noise(monkeypatch, tmp_path):
+    from benchmarks.active_replay import banks
+    from fusion.experiments import active, context, models
+
+    specs = {name: type("Spec", (), {"label": name.upper(), "name": name})() for name in "ab"}
+    monkeypatch.setattr(active, "active_folds", lambda ctx, objects: (None, specs, [(None, {}, [("a", 3), ("b", 4)])]))
+    monkeypatch.setattr(models, "fit_cached", lambda *a, **k: ("model", {}))
+    monkeypatch.setattr("fusion.experiments.data.folder_objects", lambda *a, **k: [])
+    jobs = []
+    monkeypatch.setattr(context.Context, "run_jobs", lambda self, js, *a, **k: jobs.extend(js) or [["bank"] for _ in js])
+    rows = banks(tmp_path, tmp_path / "out", ["svm"], (0,), quick=True, noise_mm=2.5)
+    assert [(j.noise_mm, j.noise_seed, j.seeds) for j in jobs] == [(2.5, 3, (0,)), (2.5, 4, (0,))]
+    assert rows == [{"object": "a", "label": "A", "banks": ["bank"]}, {"object": "b", "label": "B", "banks": ["bank"]}]

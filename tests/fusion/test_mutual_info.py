@@ -113,3 +113,43 @@ def test_benchmark_reports_equal_floats_and_fails_when_they_differ(capsys, monke
     monkeypatch.setattr(mi, "mutual_info_continuous", lambda *a, **k: real(*a, **k) + 1e-12)
     assert bench.main(["--sequences", "120", "--repeats", "1"]) == 1
     assert "| NO |" in capsys.readouterr().out
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
+def test_a_column_scaled_to_nan_is_refused_as_scikit_learn_refuses_it():
+    """+-1e308 alternating: the column's variance overflows and scaling makes it NaN."""
+    X = np.array([1e308, -1e308] * 8)[:, None]
+    y = np.arange(16) % 2
+    with pytest.raises(ValueError, match="NaN"):
+        mutual_info_classif(X, y, random_state=0)
+    with pytest.raises(ValueError, match="NaN"):
+        mutual_info_continuous(X, y, random_state=0)
+    with pytest.raises(ValueError, match="NaN"):  # beside a sound column too
+        mutual_info_continuous(np.hstack([X, np.arange(16.0)[:, None]]), y, random_state=0)
+
+
+def test_sparse_X_is_refused_with_a_value_error_as_scikit_learn_refuses_it():
+    import scipy.sparse
+
+    X, y = scipy.sparse.csr_matrix(np.eye(6)), np.arange(6) % 2
+    with pytest.raises(ValueError):
+        mutual_info_classif(X, y, discrete_features=False)
+    with pytest.raises(ValueError, match="dense"):
+        mutual_info_continuous(X, y)
+
+
+def test_the_callers_array_is_not_modified():
+    X = np.random.default_rng(0).normal(size=(30, 2))
+    before = X.copy()
+    mutual_info_continuous(X, np.arange(30) % 3, random_state=0)
+    np.testing.assert_array_equal(X, before)
+
+
+def test_benchmark_ratio_is_scikit_learns_time_over_ours(monkeypatch):
+    from benchmarks import information_gain as bench
+
+    times = iter([0.5, 2.0])  # ours first, then scikit-learn's
+    monkeypatch.setattr(bench, "median_time", lambda fn, repeats: (next(times), fn()))
+    X, y = bench.synthetic_features(60, 0)
+    row = bench.compare(X, y, 1, 0)
+    assert (row["ours_s"], row["sklearn_s"], row["ratio"]) == (0.5, 2.0, 4.0)

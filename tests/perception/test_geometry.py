@@ -282,3 +282,67 @@ def test_cached_properties_and_open3d_copy():
     closest, dist = model.closest_points(np.array([[0.0, 0.0, 100.0]]))
     assert dist[0] == pytest.approx(70.0, abs=0.1)
     assert closest[0, 2] == pytest.approx(30.0, abs=0.1)
+
+
+_V4 = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n"
+
+
+@pytest.mark.parametrize("faces", ["3 0 1 2 3\n0 2 3\n", "3 0 1 2 3\n1 2 3\n", "3 0 1\n3 3 0 2 3\n",
+                                   "3 0 1\n2 3 0 2 3\n"])
+def test_off_face_lines_are_checked_line_by_line_not_by_their_total(tmp_path, faces):
+    """A short face line beside a long one holds as many tokens as two triangles: still a bad face line."""
+    from perception.meshio import read_off
+
+    with pytest.raises(MeshLoadError, match="bad OFF face line"):
+        read_off(write(tmp_path, "m.off", "OFF\n4 2 0\n" + _V4 + faces))
+
+
+@pytest.mark.parametrize("vertices", ["0 0\n1 0 0 7\n1 1 0\n0 1 0\n", "0 0 0 1\n0 0\n1 1 0\n0 1 0\n",
+                                      "0 0\n0 0\n0 0 0 0 0\n0 1 0\n"])
+def test_off_vertex_lines_are_checked_line_by_line_not_by_their_total(tmp_path, vertices):
+    from perception.meshio import read_off
+
+    with pytest.raises(MeshLoadError, match="malformed|3 coordinates"):
+        read_off(write(tmp_path, "m.off", f"OFF\n{vertices.count(chr(10))} 1 0\n" + vertices + "3 0 1 2\n"))
+
+
+def test_off_face_count_beyond_int64_is_a_bad_face_line(tmp_path):
+    from perception.meshio import read_off
+
+    with pytest.raises(MeshLoadError, match="bad OFF face line"):
+        read_off(write(tmp_path, "m.off", "OFF\n4 2 0\n" + _V4 + "3 0 1 2\n9223372036854775808 0 2 3\n"))
+
+
+class _NoSplit(str):
+    """A line whose own split() fails: only the one-call path (which splits the joined text) reads it."""
+
+    def split(self, *args, **kwargs):
+        raise AssertionError("bare lines took the line-by-line path")
+
+
+def test_bare_off_lines_take_the_one_call_path():
+    from pathlib import Path
+
+    from perception.meshio import _off_triangles, _off_vertices
+
+    np.testing.assert_array_equal(_off_triangles(Path("m.off"), [_NoSplit("3 0 1 2"), _NoSplit("3 0 2 3")]),
+                                  [[0, 1, 2], [0, 2, 3]])
+    vertices, colors = _off_vertices([_NoSplit("0 0 0"), _NoSplit("1.5 2 1e-3")], False)
+    np.testing.assert_array_equal(vertices, [[0, 0, 0], [1.5, 2, 1e-3]])
+    assert colors is None
+
+
+def test_off_triangles_are_contiguous_int64_with_big_indices(tmp_path):
+    """Indices up to int64 are read as the old parser read them (out-of-range ones are refused by the model checks)."""
+    from perception.meshio import read_off
+
+    raw = read_off(write(tmp_path, "m.off", "OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 1 1099511627776\n"))
+    assert raw.triangles.dtype == np.int64 and raw.triangles.flags.c_contiguous
+    np.testing.assert_array_equal(raw.triangles, [[0, 1, 2], [0, 1, 2**40]])
+
+
+def test_coff_colours_already_in_unit_range_are_kept(tmp_path):
+    from perception.meshio import read_off
+
+    raw = read_off(write(tmp_path, "m.off", "COFF\n3 1 0\n0 0 0 1 0 0\n1 0 0 0 1 0\n0 1 0 0 0 1\n3 0 1 2\n"))
+    np.testing.assert_array_equal(raw.vertex_colors, np.eye(3))
