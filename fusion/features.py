@@ -222,7 +222,7 @@ def _gain_key(X: np.ndarray, y: np.ndarray, n_neighbors: int, random_state: int)
 def information_gain(X, y, n_neighbors: int = 3, random_state: int = 0) -> np.ndarray:
     """(n_features,) mutual information (nats) of each column of ``X`` with the labels ``y``, seeded: the floats
     of ``sklearn.feature_selection.mutual_info_classif``, from :func:`fusion.mutual_info.mutual_info_continuous`
-    (6-8 times faster). All zeros when every class has a single sample (the estimator needs two of a class).
+    (7-18 times faster here: benchmarks/information_gain.py). All zeros when every class has a single sample.
     The few neighbour searches it leaves to scikit-learn (classes of under ``2 * n_neighbors + 2`` samples) are
     tiny: their OpenMP threads would cost more than they save, so they run on one.
 
