@@ -65,25 +65,27 @@ def mutual_info_continuous(X, y, n_neighbors: int = 3, random_state=None) -> np.
     members = [np.flatnonzero(codes == c) for c in range(len(classes))]
     if max(len(m) for m in members) < 2:
         raise ValueError(f"every one of the {len(classes)} classes has a single sample: the estimate needs two of a class")
-    return np.array([_column_mi(np.ascontiguousarray(X[:, f]), members, int(n_neighbors)) for f in range(n_features)])
-
-
-def _column_mi(x: np.ndarray, members: list[np.ndarray], n_neighbors: int) -> float:
-    """Ross's estimate for one continuous column ``x`` (n,) and the classes' sample indices ``members``."""
-    n = len(x)
-    radius, k_all, label_counts = np.empty(n), np.empty(n), np.empty(n)
+    # What does not depend on the feature, once: each class's neighbour count k and the estimate's label terms,
+    # summed in scikit-learn's order (left to right), so that only the radius counts' term is left per feature.
+    k_all, label_counts = np.empty(n_samples), np.empty(n_samples)
     for idx in members:
-        count = len(idx)
-        if count > 1:
-            k = min(n_neighbors, count - 1)
-            radius[idx] = np.nextafter(_kth_neighbour_distance(x[idx], k), 0)
-            k_all[idx] = k
-        label_counts[idx] = count
+        k_all[idx] = min(int(n_neighbors), len(idx) - 1)
+        label_counts[idx] = len(idx)
     keep = label_counts > 1  # samples alone in their class do not count
-    m_all = _count_within(x[keep], radius[keep])
-    mi = (digamma(int(keep.sum())) + np.mean(digamma(k_all[keep])) - np.mean(digamma(label_counts[keep]))
-          - np.mean(digamma(m_all)))
-    return max(0, mi)
+    label_terms = (digamma(int(keep.sum())) + np.mean(digamma(k_all[keep]))
+                   - np.mean(digamma(label_counts[keep])))
+    classes_k = [(idx, int(k_all[idx[0]])) for idx in members if len(idx) > 1]
+    columns = np.ascontiguousarray(X.T)
+    return np.array([max(0, label_terms - np.mean(digamma(_radius_counts(x, classes_k, keep)))) for x in columns])
+
+
+def _radius_counts(x: np.ndarray, classes_k: list[tuple[np.ndarray, int]], keep: np.ndarray) -> np.ndarray:
+    """For one continuous column ``x`` (n,): the samples within each kept sample's k-th same-class neighbour
+    distance (``classes_k``: each class of two or more, its sample indices and k), over the kept samples."""
+    radius = np.empty(len(x))
+    for idx, k in classes_k:
+        radius[idx] = np.nextafter(_kth_neighbour_distance(x[idx], k), 0)
+    return _count_within(x[keep], radius[keep])
 
 
 def _kth_neighbour_distance(v: np.ndarray, k: int) -> np.ndarray:
