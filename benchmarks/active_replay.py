@@ -67,25 +67,24 @@ def banks(data: Path, out: Path, classifiers: list[str], seeds: tuple, quick: bo
     """
     # the job class by its module's name: run as ``python -m``, this module is __main__, which workers cannot import
     from benchmarks.active_replay import BankJob as job
-    from fusion.experiments.active import active_folds, fold_model_path
+    from fusion.experiments.active import active_folds, fold_models
     from fusion.experiments.config import FULL, QUICK
     from fusion.experiments.context import Context
     from fusion.experiments.data import folder_objects
-    from fusion.experiments.models import default_classifiers, fit_cached, pick
+    from fusion.experiments.models import default_classifiers, pick
     from perception.errors import InvalidArgumentError
 
     sizes = QUICK if quick else FULL
     ctx = Context(out, 0, sizes, default_classifiers(0, sizes.epochs), progress=True)
-    ds, specs, folds = active_folds(ctx, folder_objects(data, None, sizes.unseen_per_class))
+    objects = folder_objects(data, None, sizes.unseen_per_class)
+    _, specs, folds = active_folds(ctx, objects)
     n_objects = sum(len(tests) for _, _, tests in folds)
     if n_objects < 2:
         raise InvalidArgumentError(f"{data}: {n_objects} test object(s); the replay's differences are paired over "
                                    "objects and need at least two")
     rows = []
-    for i, (train, fit_record, tests) in enumerate(folds):
-        models = {name: fit_cached(factory, lambda t=train: ds.load(t), fold_model_path(ctx, i + 1, f"{name}.vtm"),
-                                   fit_record)[0]
-                  for name, factory in pick(ctx.classifiers, classifiers).items()}
+    trained = fold_models(ctx, objects, pick(ctx.classifiers, classifiers))
+    for i, ((_, _, tests), models) in enumerate(zip(folds, trained, strict=True)):
         jobs = [job(specs[name], models, noise_seed, seeds, noise_mm) for name, noise_seed in tests]
         for (name, _), made in zip(tests, ctx.run_jobs(jobs, f"banks, fold {i + 1}", "object"), strict=True):
             rows.append({"object": name, "label": specs[name].label, "banks": made})

@@ -234,17 +234,45 @@ def active_folds(ctx, objects) -> tuple:
     :func:`active_episodes` and ``benchmarks.active_replay`` both follow it, so a bank is built for the very objects,
     models and visual models of the part's episodes."""
     from fusion.experiments.data import any_pose
+    from fusion.experiments.protocol import pooled_folds
     from tactile.dataset import object_specs
 
     sizes = ctx.sizes
     ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
     specs = {spec.name: spec for spec in object_specs(any_pose(objects, ctx.seed))}
     folds = []
-    for i, (train, test) in enumerate(ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed)):
+    for i, (train, test) in enumerate(pooled_folds(ctx, ds, sizes.strategies, sizes.unseen_folds)):
         names = fold_order(sorted({ds.object_names[j] for j in np.unique(ds.object_ids[test])}), specs)
         folds.append((train, {"part": "active", "store": record, "train": [int(x) for x in train]},
                       [(name, ctx.seed + n + 1000 * i) for n, name in enumerate(names)]))
     return ds, specs, folds
+
+
+def fold_models(ctx, objects, classifiers: dict) -> list[dict]:
+    """Each grouped fold's fitted models, [{classifier name: model}] in fold order: the unseen-objects part's fold
+    models (the same store, folds, training rows and classifiers), found in its cache or trained there side by side on
+    the run's workers (and their upright test predictions made, which that part reads later). So a run with both parts
+    trains each fold model once, and never on one core while the other waits.
+
+    Raises:
+        WorkerError, or what a fit raises (the first failure, once every fit has run).
+    """
+    from fusion.experiments.models import load_cached, model_record
+    from fusion.experiments.protocol import kfold_tasks
+
+    sizes = ctx.sizes
+    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
+    tasks = kfold_tasks(ctx, "unseen", (ds, record, ds, record), tuple(sizes.strategies), classifiers,
+                        sizes.unseen_folds, "upright")
+    ctx.run(list(tasks.values()))
+    models: list[dict] = [{} for _ in range(sizes.unseen_folds)]
+    for (_, name, i), task in tasks.items():
+        if name not in models[i]:
+            loaded = load_cached(task.model_path(), model_record(task.factory, task.record))
+            if loaded is None:  # just saved: only a file removed or damaged meanwhile lands here
+                raise DatasetError(f"{task.model_path()}: the fold model trained a moment ago cannot be read back")
+            models[i][name] = loaded[0]
+    return models
 
 
 def fold_model_path(ctx, fold: int, file: str) -> Path:
@@ -286,21 +314,22 @@ def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("r
         classifier = "svm" if "svm" in ctx.classifiers else ctx.sizes.unseen_classifiers[0]
     factory = pick(ctx.classifiers, [classifier])[classifier]  # an unknown name: refused before the store
     ds, specs, folds = active_folds(ctx, objects)
+    trained = None if train_on_captures else fold_models(ctx, objects, {classifier: factory})
     rows, failures, touched = [], [], {}
     for i, (train, fit_record, tests) in enumerate(folds):
-        load = lambda t=train: ds.load(t)
-        file = f"{classifier}.vtm"
-        if train_on_captures:
-            trained = sorted({ds.object_names[j] for j in np.unique(ds.object_ids[train])})
+        if trained is not None:
+            model = trained[i][classifier]
+        else:
+            names = sorted({ds.object_names[j] for j in np.unique(ds.object_ids[train])})
             sensor, probes = FSRSensor.from_spec(ds.sensor_spec), ds.probes
-            load = lambda t=train, n=trained, s=sensor, p=probes: SequenceBatch.concatenate(
+            load = lambda t=train, n=names, s=sensor, p=probes: SequenceBatch.concatenate(
                 [ds.load(t), capture_batch(ctx, n, specs, ds, s, p, sizes.unseen_contours, SMOOTH_ITERATIONS,
                                            touched)])
             # (the objects captured are the training objects, which "train" names already)
             fit_record = fit_record | {"captures": {"views": CAMERA_VIEWS, "contours": sizes.unseen_contours,
                                                     "smoothing": SMOOTH_ITERATIONS}}
-            file = f"{classifier}-captures.vtm"
-        model, _fit_s = fit_cached(factory, load, fold_model_path(ctx, i + 1, file), fit_record)
+            model, _fit_s = fit_cached(factory, load, fold_model_path(ctx, i + 1, f"{classifier}-captures.vtm"),
+                                       fit_record)
         if per_fold is not None:
             tests = tests[:int(per_fold)]
         names = [name for name, _ in tests]

@@ -137,7 +137,7 @@ def grouped_kfold(ctx: Context, part: str, stores: dict[str, tuple], strategies,
         raise InvalidArgumentError(f"{part}: the poses {list(stores)} must share one training store")
     groups = [(s,) for s in strategies] if not pooled else [tuple(strategies)]
     tasks = {(pose, *key): task for pose, pose_store in stores.items() for group in groups
-             for key, task in _kfold_tasks(ctx, part, pose_store, group, classifiers, n_folds, pose).items()}
+             for key, task in kfold_tasks(ctx, part, pose_store, group, classifiers, n_folds, pose).items()}
     parts: dict[tuple[str, str, str], list[Predictions]] = {}
     for (pose, strategy, name, _), pred in zip(tasks, ctx.run(list(tasks.values())), strict=True):
         parts.setdefault((pose, strategy, name), []).append(pred)
@@ -150,13 +150,20 @@ def fold_folder(ctx: Context, part: str, strategies, fold: int):
     return ctx.path("models", part, "+".join(strategies), f"fold{fold + 1}")
 
 
-def _kfold_tasks(ctx: Context, part: str, stores: tuple, strategies: tuple, classifiers: dict, n_folds: int,
-                 pose: str) -> dict[tuple[str, str, int], FitTask]:
-    """The fits of :func:`grouped_kfold` with models trained on the contours of all of ``strategies`` together,
-    by (strategy, classifier name, fold)."""
-    ds, record, test_ds, test_store = stores
+def pooled_folds(ctx: Context, ds, strategies, n_folds: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The ``n_folds`` grouped folds by object (:meth:`~tactile.dataset.TactileDataset.kfold_by_object`, the run's
+    seed) over the contours of every strategy in ``strategies``: [(train, test)] row indices of ``ds``."""
     index = np.sort(np.concatenate([ds.indices(s) for s in strategies]))
-    folds = ds.kfold_by_object(n_folds, seed=ctx.seed, index=index)
+    return ds.kfold_by_object(n_folds, seed=ctx.seed, index=index)
+
+
+def kfold_tasks(ctx: Context, part: str, stores: tuple, strategies: tuple, classifiers: dict, n_folds: int,
+                pose: str) -> dict[tuple[str, str, int], FitTask]:
+    """The fits of :func:`grouped_kfold` with models trained on the contours of all of ``strategies`` together
+    (:func:`pooled_folds`), by (strategy, classifier name, fold). ``stores``: (training store, its record, test
+    store, its record), as :func:`pose_stores` gives them."""
+    ds, record, test_ds, test_store = stores
+    folds = pooled_folds(ctx, ds, strategies, n_folds)
     pooled = len(strategies) > 1
     tasks: dict[tuple[str, str, int], FitTask] = {}
     for i, (train, test_all) in enumerate(folds):
@@ -236,8 +243,10 @@ __all__ = [
     "confusion_figures",
     "fold_folder",
     "grouped_kfold",
+    "kfold_tasks",
     "paper_dataset",
     "paper_protocol",
+    "pooled_folds",
     "pose_stores",
     "same_objects",
     "store_record",

@@ -16,12 +16,14 @@ objects.
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
 from fusion.base import load_model
 from fusion.experiments.analysis import score
+from fusion.experiments.config import Sizes
 from fusion.experiments.context import Context
 from fusion.experiments.data import any_pose, load_models
 from fusion.experiments.models import DISPLAY, Predictions, digest, predict
@@ -81,48 +83,88 @@ def _view(kind: str) -> str:
 def noise_rows(ctx: Context, objects) -> list[dict]:
     """Accuracy rows {pose, kind, level, strategy, classifier, accuracy} for every noise kind and level (0
     included): each fold's models of the unseen-objects part (which must have run) read that fold's test objects.
+    Each (pose, strategy) is a :class:`NoiseJob` on the run's workers; the rows come in pose, then strategy order.
 
     Args:
         objects: the unseen-objects part's objects (the same list, so the folds are the same).
     """
     sizes = ctx.sizes
-    levels = [("clean", 0.0)] + [(k, float(v)) for k, vs in sizes.noise_levels.items() for v in vs]
-    rows = []
+    # loaded here and sent with the jobs: a worker may not know a model's class until it unpickles one
+    estimators = tuple({name: _on_every_core(load_model(fold_folder(ctx, "unseen", sizes.strategies, i)
+                                                        / f"{name}{SUFFIX}"))
+                        for name in sizes.unseen_classifiers} for i in range(sizes.unseen_folds))
+    jobs = []
     for pose in POSES:
         ds, _, test_ds, _ = pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours,
                                         sizes.unseen_train_contours)
-        models = {m.name: m for m in load_models(objects if pose == "upright" else any_pose(objects, ctx.seed))}
+        posed = tuple(objects if pose == "upright" else any_pose(objects, ctx.seed))
+        jobs += [NoiseJob(str(ctx.out), ctx.seed, sizes, posed, pose, strategy, str(ds.path), str(test_ds.path),
+                          estimators) for strategy in sizes.strategies]
+    return [row for rows in ctx.run_jobs(jobs, "noise", "setting") for row in rows]
+
+
+@dataclass(frozen=True)
+class NoiseJob:
+    """The rows of :func:`noise_rows` for one pose and strategy, a job for
+    :func:`fusion.experiments.parallel.run_jobs`: ``objects`` in that pose, the unseen-objects part's training store
+    (its folds) and test store (its interest points) by path, the report folder ``out`` (the touched batches' cache)
+    and ``estimators``, each fold's fitted models by name."""
+
+    out: str
+    seed: int
+    sizes: Sizes
+    objects: tuple
+    pose: str
+    strategy: str
+    train_store: str
+    test_store: str
+    estimators: tuple
+
+    def run(self) -> list[dict]:
+        from tactile.dataset import open_dataset
+
+        ctx = Context(Path(self.out), self.seed, self.sizes, {}, progress=False)
+        sizes, pose, strategy = self.sizes, self.pose, self.strategy
+        ds = open_dataset(self.train_store)
+        test_ds = ds if self.test_store == self.train_store else open_dataset(self.test_store)
+        levels = [("clean", 0.0)] + [(k, float(v)) for k, vs in sizes.noise_levels.items() for v in vs]
+        models = {m.name: m for m in load_models(list(self.objects))}
         class_names = list(ds.class_names)
-        for strategy in sizes.strategies:
-            folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
-            fold_objects = [[models[ds.object_names[o]] for o in np.unique(ds.object_ids[test])] for _, test in folds]
-            estimators = [{name: _on_every_core(load_model(fold_folder(ctx, "unseen", sizes.strategies, i)
-                                                           / f"{name}{SUFFIX}"))
-                           for name in sizes.unseen_classifiers} for i in range(len(folds))]
-            attention = _attention(test_ds, list(models.values()), strategy, ctx.seed)
-            cleans: dict[int, tuple] = {}  # per fold: the clean batch and its seeds, read once for every level
-            for kind, level in levels:
-                kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
-                sensor, jitter = _sensor_and_jitter(kind, level)
-                preds: dict[tuple[str, str], list] = {}
-                for i, test_models in enumerate(fold_objects):
-                    if i not in cleans:
-                        cleans[i] = _touched(ctx, test_models, class_names, pose, strategy, "clean", 0.0, FSRSensor(),
-                                             0.0, attention)
-                    batch = _noisy_batch(ctx, test_models, class_names, pose, strategy, kind, level, sensor, jitter,
-                                         attention, clean=cleans[i])
-                    inputs = _inputs(batch, sensor, kinds)
-                    for name, estimator in estimators[i].items():
-                        for view, data in inputs.items():
-                            preds.setdefault((name, view), []).append(predict(estimator, data))
-                for name in sizes.unseen_classifiers:
-                    acc = {view: score(Predictions.concatenate(p), by="object", seed=ctx.seed)
-                           for (n, view), p in preds.items() if n == name}
-                    for k in kinds:
-                        rows.append({"pose": pose, "kind": k, "level": level, "strategy": strategy,
-                                     "classifier": DISPLAY.get(name, name), "name": name,
-                                     "accuracy": acc[_view(k)].to_dict()})
-    return rows
+        folds = ds.kfold_by_object(sizes.unseen_folds, seed=ctx.seed, index=ds.indices(strategy))
+        fold_objects = [[models[ds.object_names[o]] for o in np.unique(ds.object_ids[test])] for _, test in folds]
+        estimators = self.estimators
+        attention = _attention(test_ds, list(models.values()), strategy, ctx.seed)
+        cleans: dict[int, tuple] = {}  # per fold: the clean batch and its seeds, read once for every level
+        rows = []
+        for kind, level in levels:
+            kinds = list(sizes.noise_levels) if kind == "clean" else [kind]  # clean is level 0 of every kind
+            sensor, jitter = _sensor_and_jitter(kind, level)
+            preds: dict[tuple[str, str], list] = {}
+            for i, test_models in enumerate(fold_objects):
+                if i not in cleans:
+                    cleans[i] = _touched(ctx, test_models, class_names, pose, strategy, "clean", 0.0, FSRSensor(),
+                                         0.0, attention)
+                batch = _noisy_batch(ctx, test_models, class_names, pose, strategy, kind, level, sensor, jitter,
+                                     attention, clean=cleans[i])
+                inputs = _inputs(batch, sensor, kinds)
+                for name, estimator in estimators[i].items():
+                    for view, data in inputs.items():
+                        preds.setdefault((name, view), []).append(predict(estimator, data))
+            for name in sizes.unseen_classifiers:
+                acc = {view: score(Predictions.concatenate(p), by="object", seed=ctx.seed)
+                       for (n, view), p in preds.items() if n == name}
+                for k in kinds:
+                    rows.append({"pose": pose, "kind": k, "level": level, "strategy": strategy,
+                                 "classifier": DISPLAY.get(name, name), "name": name,
+                                 "accuracy": acc[_view(k)].to_dict()})
+        return rows
+
+    def cost(self) -> float:
+        """Guided-like strategies cost more: each object's pair order cuts every pair of interest points first."""
+        return 2.0 if METHODS[self.strategy] else 1.0
+
+    def __str__(self) -> str:
+        return f"noise rows of {self.strategy} contours, {self.pose}"
 
 
 def _noisy_batch(ctx: Context, models: list, class_names: list[str], pose: str, strategy: str, kind: str,
@@ -175,4 +217,4 @@ def _inputs(batch: SequenceBatch, sensor: FSRSensor, kinds: list[str]) -> dict[s
     return inputs
 
 
-__all__ = ["TEST_SEED_OFFSET", "noise_rows"]
+__all__ = ["TEST_SEED_OFFSET", "NoiseJob", "noise_rows"]

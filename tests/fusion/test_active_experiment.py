@@ -245,6 +245,29 @@ def test_active_episodes_give_the_same_records_on_one_worker_or_two(tiny):
     assert records[0]["objects"][0]["policies"]["random"]["planning_s"]  # the timings are there
 
 
+@pytest.mark.parametrize("first", ["active", "unseen"])
+def test_the_active_part_shares_the_unseen_parts_fold_models(tiny, first):
+    """The active part's fold models are the unseen-objects part's (the same store, folds and classifier): whichever
+    part runs first trains one model per fold, on exactly that fold's training objects, and the other reads them."""
+    from fusion.experiments import active
+    from fusion.experiments.protocol import pooled_folds, unseen_objects
+    from tests.fusion.test_experiments import recorder
+
+    context, objects = tiny
+    fits = []
+    ctx = context(f"shared-{first}", classifiers={"nm": recorder(fits)})
+    parts = {"active": lambda: active.active_episodes(ctx, objects, classifier="nm", policies=("random",),
+                                                      max_touches=1, per_fold=1),
+             "unseen": lambda: unseen_objects(ctx, objects)}
+    parts[first]()
+    ds, _ = ctx.store(objects, strategies=ctx.sizes.strategies, contours=ctx.sizes.unseen_contours)
+    folds = pooled_folds(ctx, ds, ctx.sizes.strategies, ctx.sizes.unseen_folds)
+    expected = [(len(train), {ds.object_names[j] for j in np.unique(ds.object_ids[train])}) for train, _ in folds]
+    assert fits == expected
+    parts["unseen" if first == "active" else "active"]()
+    assert fits == expected  # read, not trained again
+
+
 def test_a_test_object_whose_capture_fails_is_left_out_and_listed(tiny, monkeypatch):
     """With the camera in the loop, an object whose capture finds nothing gets no record and is listed in
     capture_failures; the others are recorded."""

@@ -355,10 +355,10 @@ def test_bank_job_makes_the_visual_model_with_its_noise(monkeypatch):
 
 def test_banks_refuse_a_single_test_object_before_any_fit(monkeypatch, tmp_path):
     from benchmarks.active_replay import banks
-    from fusion.experiments import active, models
+    from fusion.experiments import active
 
     monkeypatch.setattr(active, "active_folds", lambda ctx, objects: (None, {}, [(None, {}, [("only", 3)])]))
-    monkeypatch.setattr(models, "fit_cached", lambda *a, **k: pytest.fail("fitted before refusing"))
+    monkeypatch.setattr(active, "fold_models", lambda *a, **k: pytest.fail("fitted before refusing"))
     monkeypatch.setattr("fusion.experiments.data.folder_objects", lambda *a, **k: [])
     with pytest.raises(InvalidArgumentError, match="1 test object"):
         banks(tmp_path, tmp_path / "out", ["svm"], (0,), quick=True)
@@ -403,14 +403,15 @@ def test_cli_passes_noise_mm_to_the_banks_and_records_it(monkeypatch, tmp_path, 
 
 def test_banks_give_each_job_its_noise(monkeypatch, tmp_path):
     from benchmarks.active_replay import banks
-    from fusion.experiments import active, context, models
+    from fusion.experiments import active, context
 
     specs = {name: type("Spec", (), {"label": name.upper(), "name": name})() for name in "ab"}
     monkeypatch.setattr(active, "active_folds", lambda ctx, objects: (None, specs, [(None, {}, [("a", 3), ("b", 4)])]))
-    monkeypatch.setattr(models, "fit_cached", lambda *a, **k: ("model", {}))
+    monkeypatch.setattr(active, "fold_models", lambda ctx, objects, classifiers: [{"svm": "model"}])
     monkeypatch.setattr("fusion.experiments.data.folder_objects", lambda *a, **k: [])
     jobs = []
     monkeypatch.setattr(context.Context, "run_jobs", lambda self, js, *a, **k: jobs.extend(js) or [["bank"] for _ in js])
     rows = banks(tmp_path, tmp_path / "out", ["svm"], (0,), quick=True, noise_mm=2.5)
     assert [(j.noise_mm, j.noise_seed, j.seeds) for j in jobs] == [(2.5, 3, (0,)), (2.5, 4, (0,))]
+    assert all(j.models == {"svm": "model"} for j in jobs)  # the fold's models
     assert rows == [{"object": "a", "label": "A", "banks": ["bank"]}, {"object": "b", "label": "B", "banks": ["bank"]}]

@@ -773,6 +773,22 @@ def test_noise_reads_the_pooled_fold_models_and_a_rerun_reuses_every_prediction(
     assert list(_accuracies(again["unseen"])) == list(_accuracies(results["unseen"]))
 
 
+def test_noise_settings_run_side_by_side_and_give_the_rows_of_one_process(tmp_path):
+    """Each (pose, strategy) of the noise part is a job on the run's workers: two workers give the rows one process
+    gives, field for field, in pose then strategy order."""
+    data = mesh_folder(tmp_path / "meshes", per_class=2)
+    sizes = TINY.with_(strategies=("guided", "blind"), unseen_contours=4, unseen_folds=2, unseen_per_class=2,
+                       objects_per_class=2, noise_levels={"taxel_noise": (0.5,), "pose_jitter": (2.0,)})
+    rows = {}
+    for workers in (1, 2):
+        results = reproduce(data, tmp_path / f"report{workers}", sizes=sizes, classifiers=STANDINS,
+                            parts=("unseen", "noise"), workers=workers, progress=False)
+        rows[workers] = results["noise"]["rows"]
+    assert rows[1] == rows[2]
+    settings = list(dict.fromkeys((r["pose"], r["strategy"]) for r in rows[1]))
+    assert settings == [(p, s) for p in ("upright", "any pose") for s in ("guided", "blind")]
+
+
 def test_unseen_folds_can_train_on_more_contours_than_they_test(tmp_path):
     """``unseen_train_contours``: each fold's model learns from 15 contours per training object, while every test
     object is scored on its 10 contours (upright from a store of their own, any pose as before), in the same folds."""
