@@ -257,7 +257,6 @@ def fold_models(ctx, objects, classifiers: dict) -> list[dict]:
     Raises:
         WorkerError, or what a fit raises (the first failure, once every fit has run).
     """
-    from fusion.experiments.models import load_cached, model_record
     from fusion.experiments.protocol import kfold_tasks
 
     sizes = ctx.sizes
@@ -267,11 +266,8 @@ def fold_models(ctx, objects, classifiers: dict) -> list[dict]:
     ctx.run(list(tasks.values()))
     models: list[dict] = [{} for _ in range(sizes.unseen_folds)]
     for (_, name, i), task in tasks.items():
-        if name not in models[i]:
-            loaded = load_cached(task.model_path(), model_record(task.factory, task.record))
-            if loaded is None:  # just saved: only a file removed or damaged meanwhile lands here
-                raise DatasetError(f"{task.model_path()}: the fold model trained a moment ago cannot be read back")
-            models[i][name] = loaded[0]
+        if name not in models[i]:  # read; trained here only if the file went bad beside predictions still cached
+            models[i][name] = fit_cached(task.factory, task.train, task.model_path(), task.record)[0]
     return models
 
 

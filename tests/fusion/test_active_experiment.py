@@ -268,6 +268,25 @@ def test_the_active_part_shares_the_unseen_parts_fold_models(tiny, first):
     assert fits == expected  # read, not trained again
 
 
+def test_a_damaged_shared_fold_model_is_trained_again(tiny):
+    """A fold model file gone bad while the unseen part's predictions of it are still cached: the active part trains
+    that fold's model again (a warning says why) instead of failing, and the others are read."""
+    from fusion.experiments import active
+    from fusion.experiments.protocol import fold_folder, unseen_objects
+    from tests.fusion.test_experiments import recorder
+
+    context, objects = tiny
+    fits = []
+    ctx = context("damaged", classifiers={"nm": recorder(fits)})
+    unseen_objects(ctx, objects)
+    assert len(fits) == 3
+    damaged = fold_folder(ctx, "unseen", ctx.sizes.strategies, 1) / "nm.vtm"
+    damaged.write_bytes(damaged.read_bytes()[:100])
+    result = active.active_episodes(ctx, objects, classifier="nm", policies=("random",), max_touches=1, per_fold=1)
+    assert len(fits) == 4 and fits[3] == fits[1]  # fold 2 again, on the same training objects
+    assert len(result["objects"]) == 3
+
+
 def test_a_test_object_whose_capture_fails_is_left_out_and_listed(tiny, monkeypatch):
     """With the camera in the loop, an object whose capture finds nothing gets no record and is listed in
     capture_failures; the others are recorded."""
