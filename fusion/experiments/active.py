@@ -1,7 +1,8 @@
 """The ``active`` part: next-touch policies compared on unseen objects in any pose.
 
 Grouped k-fold by object over the unseen-objects store (the ``unseen`` part's objects, contours and folds; one
-classifier per fold trained on every training sequence, both strategies). Each test object is turned by its
+classifier per fold trained on every training sequence, both strategies: the ``unseen`` part's own fold models,
+:func:`fold_models`). Each test object is turned by its
 seeded random pose (:func:`fusion.experiments.data.any_pose`); its visual model is a noisy copy of that mesh
 (vertices moved along their normals by N(0, ``noise_mm``) mm, seeded per object) or, with the camera in the loop, a
 virtual OAK-D reconstruction (:func:`camera_models`). Every policy runs ``episodes`` episodes of ``max(ks)`` touches
