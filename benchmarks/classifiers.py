@@ -9,7 +9,9 @@ objects x ``--contours`` contours each); with ``--store PATH`` a dataset store (
 Split 80/20 by sequence (the paper's protocol; seeded, stratified) or by object (``--split object``:
 test objects unseen in training). Times are wall seconds on this machine: training includes the
 preprocessing; inference is ``predict_proba`` on the whole test part, per sequence (median of
-``--repeats``). The CNN rows also give the median epoch time of each net.
+``--repeats``). The CNN rows also give the median epoch time of each net beside its limit measured in the same run
+(:func:`training_limit`: the forward and backward passes of an epoch's batches and nothing else; ratio = limit /
+epoch, 1 at best).
 
 ``--epoch-timing N`` adds a projection: one CNN epoch of each net on N synthetic 25 x 32 x 32 sequences
 (default off; 18,240 is the paper-scale training set), scaled to 18,240 sequences, times the epochs the
@@ -81,6 +83,7 @@ def cnn_rows(train, test, cue: str, args) -> list[dict]:
     model.fit(train)
     fit_s = time.perf_counter() - start
     infer_s, proba = median_time(lambda: model.predict_proba_modalities(test), args.repeats)
+    limits = training_limit(model, train, args.threads) if model.val_fraction == 0 else {}
     rows = []
     for modality in ("cutaneous", "kinesthetic", "fusion"):
         history = model.history_.get(modality, {})
@@ -91,8 +94,54 @@ def cnn_rows(train, test, cue: str, args) -> list[dict]:
             "train_s": fit_s if modality == "fusion" else None,
             "infer_ms_per_seq": 1000 * infer_s / len(test) if modality == "fusion" else None,
             "epochs": history.get("epochs"), "epoch_s": getattr(model, "epoch_seconds_", {}).get(modality),
+            "limit_epoch_s": limits.get(modality, {}).get("limit_epoch_s"),
+            "limit_ratio": limits.get(modality, {}).get("ratio"),
         })
     return rows
+
+
+def training_limit(model, train, threads: int | None, steps: int = 30) -> dict:
+    """Each net of CNN ``model``, fitted on the batch ``train``, beside its limit: the median seconds of one forward and backward pass
+    (cross-entropy, no optimizer step, no augmentation, no batch gathered from the data) on a batch of the fit's size
+    and input shape, on the fit's threads, times the optimizer steps of one epoch. Returns {net: {"epoch_s": the fit's
+    median epoch, "limit_epoch_s", "ratio": limit / epoch}}; a ratio near 1 leaves nothing but the arithmetic."""
+    import copy
+
+    import torch
+    from torch.nn import functional as F
+
+    from fusion.cnn import _torch_settings
+    from fusion.cues import cue_width
+    from perception.runtime import usable_cores
+
+    full, rest = divmod(len(train), model.batch_size)  # every training sequence (no validation part by default)
+    sizes = {model.batch_size: full, **({rest: 1} if rest >= 2 else {})}  # a last batch of one is skipped
+    frame = tuple(min(n, model.frame_size) for n in train.grid)  # the frames are pooled to at most frame_size
+    out = {}
+    with _torch_settings(threads or usable_cores(), deterministic=True), torch.random.fork_rng([]):
+        torch.manual_seed(0)
+        for kind, net in (("cutaneous", model.cutaneous_net_), ("kinesthetic", model.kinesthetic_net_)):
+            if net is None or kind not in model.epoch_seconds_:
+                continue
+            net = copy.deepcopy(net).train()
+            p = train.n_probes
+            shape = (1, p, *frame) if kind == "cutaneous" else (1, p, cue_width(model.cue))
+            limit = 0.0
+            for size, count in sizes.items():
+                if not count:
+                    continue
+                x, y = torch.randn(size, *shape), torch.randint(0, len(model.classes_), (size,))
+                times = []
+                for i in range(steps + 5):
+                    start = time.perf_counter()
+                    net.zero_grad(set_to_none=True)
+                    F.cross_entropy(net(x), y, label_smoothing=model.label_smoothing).backward()
+                    if i >= 5:  # the first passes warm the kernels' caches
+                        times.append(time.perf_counter() - start)
+                limit += float(np.median(times)) * count
+            epoch = float(model.epoch_seconds_[kind])
+            out[kind] = {"epoch_s": epoch, "limit_epoch_s": limit, "ratio": limit / epoch if epoch > 0 else None}
+    return out
 
 
 def conventional_rows(train, test, args) -> list[dict]:
@@ -147,7 +196,8 @@ def epoch_projection(n: int, epochs_run: dict | None, seed: int, threads: int | 
 
 def _print_table(rows: list[dict]) -> None:
     columns = [("classifier", "classifier"), ("cue", "cue"), ("acc %", "accuracy_pct"), ("train s", "train_s"),
-               ("infer ms/seq", "infer_ms_per_seq"), ("epochs", "epochs"), ("epoch s", "epoch_s")]
+               ("infer ms/seq", "infer_ms_per_seq"), ("epochs", "epochs"), ("epoch s", "epoch_s"),
+               ("limit epoch s", "limit_epoch_s"), ("limit ratio", "limit_ratio")]
     widths = [max(len(head), 12) for head, _ in columns]
     print("  ".join(head.rjust(w) for (head, _), w in zip(columns, widths)))
     for row in rows:

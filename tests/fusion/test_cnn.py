@@ -399,6 +399,24 @@ def test_epoch_projection_takes_the_default_epochs_cut_at_the_step_cap():
                                                                                        "kinesthetic": 12}
 
 
+@pytest.mark.parametrize(("n_per_class", "batches"), [(11, 2), (10, 2), (12, 3)])
+def test_training_limit_times_one_pass_per_batch_of_an_epoch(monkeypatch, n_per_class, batches):
+    """The benchmark's training limit is the forward + backward passes of one epoch's batches: 33 sequences in
+    batches of 16 are 2 (the last one of 1 is skipped, as training skips it), 30 are 16 + 14, 36 are 16 + 16 + 4.
+    A clock that moves 0.5 s per reading makes every pass 0.5 s, so the limit is 0.5 s x batches; frames of 12 x 12
+    taxels pooled to 8 x 8 must reach the net in that shape, or its first layer refuses them."""
+    import benchmarks.classifiers as bench
+
+    batch = make_batch(n_per_class=n_per_class, grid=(12, 12), n_classes=3)
+    model = CNNClassifier(**{**FAST, "epochs": 1, "frame_size": 8}).fit(batch)
+    ticks = iter(np.arange(0.0, 1e6, 0.5))
+    monkeypatch.setattr(bench.time, "perf_counter", lambda: float(next(ticks)))
+    limits = bench.training_limit(model, batch, threads=1, steps=4)
+    for kind in ("cutaneous", "kinesthetic"):
+        assert limits[kind]["limit_epoch_s"] == pytest.approx(0.5 * batches)
+        assert limits[kind]["ratio"] == pytest.approx(0.5 * batches / model.epoch_seconds_[kind])
+
+
 @pytest.fixture
 def step_rates(monkeypatch) -> list[float]:
     """The learning rate of every AdamW step taken while the test runs, in order."""
