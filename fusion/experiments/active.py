@@ -251,19 +251,20 @@ def active_folds(ctx, objects) -> tuple:
 
 def fold_models(ctx, objects, classifiers: dict) -> list[dict]:
     """Each grouped fold's fitted models, [{classifier name: model}] in fold order: the unseen-objects part's fold
-    models (the same store, folds, training rows and classifiers), found in its cache or trained there side by side on
-    the run's workers (and their upright test predictions made, which that part reads later). So a run with both parts
-    trains each fold model once, and never on one core while the other waits.
+    models (its training store, folds, training rows and classifiers), found in its cache or trained there side by
+    side on the run's workers (and their upright test predictions made, which that part reads later). So a run with
+    both parts trains each fold model once, and never on one core while the other waits.
 
     Raises:
         WorkerError, or what a fit raises (the first failure, once every fit has run).
     """
-    from fusion.experiments.protocol import kfold_tasks
+    from fusion.experiments.protocol import kfold_tasks, pose_stores
 
     sizes = ctx.sizes
-    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
-    tasks = kfold_tasks(ctx, "unseen", (ds, record, ds, record), tuple(sizes.strategies), classifiers,
-                        sizes.unseen_folds, "upright")
+    # the unseen part's upright stores: with more training contours (unseen_train_contours) the models train on
+    # those, as the unseen part's do, and the folds deal the same objects
+    stores = pose_stores(ctx, objects, "upright", sizes.strategies, sizes.unseen_contours, sizes.unseen_train_contours)
+    tasks = kfold_tasks(ctx, "unseen", stores, tuple(sizes.strategies), classifiers, sizes.unseen_folds, "upright")
     ctx.run(list(tasks.values()))
     models: list[dict] = [{} for _ in range(sizes.unseen_folds)]
     for (_, name, i), task in tasks.items():

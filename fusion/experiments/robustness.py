@@ -60,8 +60,9 @@ def _attention(ds, models: list, strategy: str, seed: int) -> dict | None:
 
 
 def _on_every_core(model):
-    """``model`` predicting on every core of this process (nothing else runs beside this part): a CNN trained on
-    one thread gives the same probabilities on any thread count (tests/fusion/test_cnn.py)."""
+    """``model`` predicting on every core the process it runs in may use (a worker's share when the part's jobs run
+    on the run's workers, every core in this process with one worker): a CNN trained on one thread gives the same
+    probabilities on any thread count (tests/fusion/test_cnn.py)."""
     if "threads" in model.get_params(deep=False):
         model.set_params(threads=None)
     return model

@@ -567,3 +567,77 @@ def test_module_runner_runs_the_package_module(monkeypatch):
     with pytest.raises(SystemExit) as exited:
         runpy.run_module("fusion.experiments.active", run_name="__main__")
     assert calls == [None] and exited.value.code == 0
+
+
+def test_the_shared_fold_models_train_on_the_workers_and_leave_the_unseen_predictions(tiny):
+    """fold_models trains through ctx.run: with two workers no fit runs in this process, and each fold's upright
+    test predictions are cached for the unseen part (which then only reads them)."""
+    from fusion.experiments import active
+    from fusion.experiments.protocol import kfold_tasks
+    from tests.fusion.test_experiments import CALLS, CountingMean
+
+    context, objects = tiny
+    ctx = context("on-workers", classifiers={"count": CountingMean})
+    ctx.workers = 2
+    CALLS.update(fit=0, predict=0)
+    models = active.fold_models(ctx, objects, {"count": CountingMean})
+    assert CALLS["fit"] == 0  # trained on the workers
+    assert len(models) == ctx.sizes.unseen_folds and all(isinstance(m["count"], CountingMean) for m in models)
+    sizes = ctx.sizes
+    ds, record = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
+    tasks = kfold_tasks(ctx, "unseen", (ds, record, ds, record), tuple(sizes.strategies), {"count": CountingMean},
+                        sizes.unseen_folds, "upright")
+    assert all(task.cached() is not None for task in tasks.values())
+
+
+def test_each_test_object_meets_the_model_of_its_own_fold(tiny, monkeypatch):
+    """The model an object's episodes run on is the saved unseen-part model of the fold that tests that object
+    (never one trained on it)."""
+    from fusion.base import load_model
+    from fusion.experiments import active
+    from fusion.experiments.protocol import fold_folder, pooled_folds
+
+    context, objects = tiny
+    ctx = context("own-fold")
+    ctx.workers = 1  # the episodes in this process, where the spy is
+    seen = []
+    real_run = active.run_episode
+    monkeypatch.setattr(active, "run_episode", lambda true, vis, model, *a, **k: seen.append((true.name, model))
+                        or real_run(true, vis, model, *a, **k))
+    active.active_episodes(ctx, objects, classifier="nm", policies=("random",), max_touches=1)
+    sizes = ctx.sizes
+    ds, _ = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
+    fold_of = {ds.object_names[o]: i for i, (_, test) in
+               enumerate(pooled_folds(ctx, ds, sizes.strategies, sizes.unseen_folds)) for o in ds.object_ids[test]}
+    saved = [load_model(fold_folder(ctx, "unseen", sizes.strategies, i) / "nm.vtm") for i in range(sizes.unseen_folds)]
+    assert len({name for name, _ in seen}) == len(fold_of)
+    for name, model in seen:
+        assert np.array_equal(model.mu_, saved[fold_of[name]].mu_), name
+
+
+def test_more_training_contours_keep_the_unseen_parts_fold_models(tiny):
+    """With ``unseen_train_contours`` set the unseen part trains on a store of its own: the active part must not
+    overwrite the unseen part's fold models or upright predictions (which the noise part and later runs read), and
+    a rerun of both parts trains nothing."""
+    import json
+
+    from fusion.experiments import active
+    from fusion.experiments.context import Context
+    from fusion.experiments.protocol import fold_folder, unseen_objects
+    from tests.fusion.test_experiments import recorder
+
+    context, objects = tiny
+    fits = []
+    base = context("more-train")
+    ctx = Context(base.out, base.seed, base.sizes.with_(unseen_train_contours=15), {"nm": recorder(fits)},
+                  progress=False)
+    unseen_objects(ctx, objects)
+    folder = fold_folder(ctx, "unseen", ctx.sizes.strategies, 0)
+    before = {f.name: f.read_bytes() for f in folder.iterdir() if f.suffix in (".json", ".npz")}
+    active.active_episodes(ctx, objects, classifier="nm", policies=("random",), max_touches=1, per_fold=1)
+    after = {f.name: f.read_bytes() for f in folder.iterdir() if f.name in before}
+    assert after == before, json.loads((folder / "nm.json").read_text())["record"]
+    fits.clear()
+    unseen_objects(ctx, objects)
+    active.active_episodes(ctx, objects, classifier="nm", policies=("random",), max_touches=1, per_fold=1)
+    assert fits == []

@@ -415,3 +415,18 @@ def test_banks_give_each_job_its_noise(monkeypatch, tmp_path):
     assert [(j.noise_mm, j.noise_seed, j.seeds) for j in jobs] == [(2.5, 3, (0,)), (2.5, 4, (0,))]
     assert all(j.models == {"svm": "model"} for j in jobs)  # the fold's models
     assert rows == [{"object": "a", "label": "A", "banks": ["bank"]}, {"object": "b", "label": "B", "banks": ["bank"]}]
+
+
+def test_banks_give_each_fold_its_own_models(monkeypatch, tmp_path):
+    from benchmarks.active_replay import banks
+    from fusion.experiments import active, context
+
+    specs = {name: type("Spec", (), {"label": name.upper(), "name": name})() for name in "abc"}
+    monkeypatch.setattr(active, "active_folds", lambda ctx, objects: (
+        None, specs, [(None, {}, [("a", 3)]), (None, {}, [("b", 4), ("c", 5)])]))
+    monkeypatch.setattr(active, "fold_models", lambda ctx, objects, classifiers: [{"svm": "m1"}, {"svm": "m2"}])
+    monkeypatch.setattr("fusion.experiments.data.folder_objects", lambda *a, **k: [])
+    jobs = []
+    monkeypatch.setattr(context.Context, "run_jobs", lambda self, js, *a, **k: jobs.extend(js) or [["bank"] for _ in js])
+    banks(tmp_path, tmp_path / "out", ["svm"], (0,), quick=True)
+    assert [(j.noise_seed, j.models) for j in jobs] == [(3, {"svm": "m1"}), (4, {"svm": "m2"}), (5, {"svm": "m2"})]

@@ -1207,3 +1207,32 @@ def test_calibration_and_open_set_calibrate_in_one_pool(tmp_path, monkeypatch, o
                              parts=(part,), workers=2, progress=False)[part] for part in ("calibration", "openset")}
     assert both["openset"]["rows"] == alone["openset"]["rows"]
     assert both["calibration"]["rows"] == alone["calibration"]["rows"]
+
+
+def test_noise_rows_read_each_fold_with_its_own_model(tmp_path, monkeypatch):
+    """Each noise job predicts a fold's test objects with that fold's unseen-part model (one that never trained on
+    them), whatever pose or strategy."""
+    from fusion.base import load_model
+    from fusion.experiments import robustness
+    from fusion.experiments.context import Context
+    from fusion.experiments.data import folder_objects
+    from fusion.experiments.protocol import fold_folder, pooled_folds, unseen_objects
+
+    objects = folder_objects(mesh_folder(tmp_path / "meshes"), None, None)
+    sizes = TINY.with_(noise_levels={"taxel_noise": (0.5,)})
+    ctx = Context(tmp_path / "out", 5, sizes, STANDINS, progress=False)
+    ctx.workers = 1  # the jobs in this process, where the spy is
+    unseen_objects(ctx, objects)
+    seen = []
+    real = robustness.predict
+    monkeypatch.setattr(robustness, "predict", lambda estimator, data, *a: seen.append(
+        (estimator.mu_, {data.object_names[o] for o in data.object_ids})) or real(estimator, data, *a))
+    rows = robustness.noise_rows(ctx, objects)
+    assert rows and seen
+    ds, _ = ctx.store(objects, strategies=sizes.strategies, contours=sizes.unseen_contours)
+    folds = pooled_folds(ctx, ds, sizes.strategies, sizes.unseen_folds)
+    tested = [{ds.object_names[o] for o in ds.object_ids[test]} for _, test in folds]
+    saved = [load_model(fold_folder(ctx, "unseen", sizes.strategies, i) / "nm.vtm").mu_ for i in range(len(folds))]
+    for mu, names in seen:
+        fold = next(i for i, t in enumerate(tested) if names <= t)  # one fold's objects at a time
+        assert np.array_equal(mu, saved[fold])
