@@ -789,6 +789,38 @@ def test_noise_settings_run_side_by_side_and_give_the_rows_of_one_process(tmp_pa
     assert settings == [(p, s) for p in ("upright", "any pose") for s in ("guided", "blind")]
 
 
+def test_noise_jobs_touch_each_pose_s_objects_with_that_pose_s_interest_points(tmp_path, monkeypatch):
+    """The any-pose jobs get the objects turned by their poses and read the guided interest points the any-pose store
+    recorded for them (found in that pose); the upright jobs the objects as stored and the upright store's."""
+    from fusion.experiments import robustness
+    from fusion.experiments.context import Context
+    from fusion.experiments.data import folder_objects
+    from fusion.experiments.protocol import pose_stores, unseen_objects
+
+    objects = folder_objects(mesh_folder(tmp_path / "meshes", per_class=2), None, None)
+    sizes = TINY.with_(strategies=("guided", "blind"), unseen_contours=4, unseen_folds=2,
+                       noise_levels={"taxel_noise": (0.5,)})
+    ctx = Context(tmp_path / "out", 5, sizes, STANDINS, progress=False)
+    ctx.workers = 1
+    unseen_objects(ctx, objects)
+    read = []
+    real = robustness._attention
+    monkeypatch.setattr(robustness, "_attention", lambda ds, models, strategy, seed: read.append(
+        (str(ds.path), strategy, sorted(m.name for m in models), [m.vertices.copy() for m in models]))
+        or real(ds, models, strategy, seed))
+    robustness.noise_rows(ctx, objects)
+    stores = {pose: str(pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours)[2].path)
+              for pose in ("upright", "any pose")}
+    assert [(path, strategy) for path, strategy, _, _ in read] == [
+        (stores[pose], strategy) for pose in ("upright", "any pose") for strategy in ("guided", "blind")]
+    upright, turned = read[0][3], read[2][3]
+    assert read[0][2] == read[2][2] and len(upright) == len(objects)
+    for a, b in zip(upright, turned, strict=True):  # the same meshes, each turned about its own rotation
+        assert a.shape == b.shape and not np.allclose(a, b)
+        assert np.allclose(np.sort(np.linalg.norm(a - a.mean(0), axis=1)), np.sort(np.linalg.norm(b - b.mean(0), axis=1)),
+                           atol=1e-6)
+
+
 def test_unseen_folds_can_train_on_more_contours_than_they_test(tmp_path):
     """``unseen_train_contours``: each fold's model learns from 15 contours per training object, while every test
     object is scored on its 10 contours (upright from a store of their own, any pose as before), in the same folds."""
