@@ -231,9 +231,10 @@ def _check_options(policies, candidates, variants, noise_mm, per_fold) -> tuple:
 
 def active_folds(ctx, objects) -> tuple:
     """The active part's plan: (its store, {object name: spec in its seeded pose}, per grouped fold (training rows, the
-    fit record of its models, [(test object name, the noise seed of its visual model)] in :func:`fold_order`)).
-    :func:`active_episodes` and ``benchmarks.active_replay`` both follow it, so a bank is built for the very objects,
-    models and visual models of the part's episodes."""
+    base fit record of the models trained with captures (``train_on_captures``; the others are :func:`fold_models`),
+    [(test object name, the noise seed of its visual model)] in :func:`fold_order`)). :func:`active_episodes` and
+    ``benchmarks.active_replay`` both follow it and take the models of :func:`fold_models`, so a bank is built for the
+    very objects, models and visual models of the part's episodes."""
     from fusion.experiments.data import any_pose
     from fusion.experiments.protocol import pooled_folds
     from tactile.dataset import object_specs
