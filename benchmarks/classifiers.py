@@ -77,8 +77,9 @@ def _accuracy(classes, proba, batch) -> float:
 def cnn_rows(train, test, cue: str, args) -> list[dict]:
     from fusion.cnn import CNNClassifier
 
+    frame = {} if args.frame_size is None else {"frame_size": args.frame_size}
     model = CNNClassifier(cue=cue, epochs=args.epochs, random_state=args.seed, threads=args.threads,
-                          progress=not args.json)
+                          progress=not args.json, **frame)
     start = time.perf_counter()
     model.fit(train)
     fit_s = time.perf_counter() - start
@@ -226,6 +227,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--epoch-timing", type=int, default=0, metavar="N",
                         help="also time one CNN epoch on N synthetic sequences and project to 18,240")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads for the CNNs (default: all usable)")
+    parser.add_argument("--frame-size", type=int, default=None, metavar="N",
+                        help="taxels a side the CNNs pool frames to (default: the classifier's 16; the paper's "
+                             "models in reproduce: 8)")
     parser.add_argument("--repeats", type=int, default=3, help="inference timing repeats (median)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)

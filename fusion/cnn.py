@@ -8,7 +8,13 @@ Architecture (``CutaneousNet``, input (B, 1, P, R, C) standardised gaps):
   (float16) is 4x smaller, so the paper-scale store trains on 2 CPU cores. Measured on the same split
   (guided catalogue, 10 classes x 4 objects x 40 contours, 80/20 by sequence, no augmentation): the
   cutaneous net reached 95.3 % at 16 x 16 and 93.1 % at 32 x 32 (fusion 96.3 / 97.2 %, within one
-  standard error of 320 test sequences), at a quarter of the epoch time;
+  standard error of 320 test sequences), at a quarter of the epoch time. Pooling further, to 8 x 8, halves the
+  cutaneous training step again (21 against 43 ms, batch 64, one thread) but was not taken for these nets: by nested
+  cross-validation (inner grouped 3-fold inside each of the three unseen-SHREC training folds, guided + blind
+  contours pooled, 9 inner models per size, scored on the inner validation objects upright and in any pose; rule
+  set before: take 8 if neither K = 1 nor K = 8 falls by 0.5 points and no outer fold's K = 8 by 1.0) single touches
+  read 87.0 against 86.8 % and K = 8 decisions 91.7 against 93.3 % (per outer fold -2.5 / +0.1 / -2.4). The paper's
+  models (normals cue, paper-scale store) do pool to 8 x 8: ``fusion.experiments.models.PAPER_FRAME_SIZE``;
 - two 3D convolutions (3 x 3 x 3, widths 8 and 16, spatial stride 2, batch norm, ReLU), circular padding
   over the probe axis (a contour is a closed loop: its first and last probes are neighbours), zero
   padding over the taxels;
