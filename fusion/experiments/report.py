@@ -139,7 +139,7 @@ def render(results: dict) -> str:
     if noise:
         lines += ["## Noise", "",
                   "The unseen-objects models (trained on clean data) on the objects they never saw (each fold's "
-                  f"test objects, upright and in any pose), along contours of their own ({noise['contours']} per "
+                  f"test objects, each in its random pose), along contours of their own ({noise['contours']} per "
                   "object and strategy, the same contours at every level) read with: "
                   + "; ".join(f"{k}: {v}" for k, v in noise["kinds"].items())
                   + ". Interval: bootstrap over objects.", ""]

@@ -6,7 +6,7 @@ pose differences over objects), ``touches`` (K per decision, on the paper and un
 ``runtime`` (error vs time, Pareto front), ``calibration`` (ECE at K touches before / after calibration fitted
 inside the training folds, reliability diagrams) and ``openset`` (classes rotated out of training: AUROC known vs
 unknown, share of unknown objects rejected; :mod:`fusion.experiments.openset`). ``touches`` needs ``paper`` (it reuses its predictions), ``noise``
-needs ``unseen`` (it reuses its fold models on their test objects). ``active`` (random / saliency / information touch policies on the unseen objects in any pose, :mod:`fusion.experiments.active`) runs only when named. Everything expensive is cached under the report folder (stores, models, predictions, part
+needs ``unseen`` (it reuses its fold models on their test objects, in any pose). ``active`` (random / saliency / information touch policies on the unseen objects in any pose, :mod:`fusion.experiments.active`) runs only when named. Everything expensive is cached under the report folder (stores, models, predictions, part
 results), so an interrupted run resumes and the same seed gives the same numbers. Models train side by side, one
 worker process per core (:mod:`fusion.experiments.parallel`).
 """
@@ -162,11 +162,11 @@ def _run_parts(ctx, data, out, classes, sizes, parts, paper_objects, results) ->
         results["touches"] = {"rows": rows, "figure": "accuracy_vs_k.png"}
         _write(out, results)  # a partial report after every part
     if "noise" in parts:
-        from fusion.experiments.robustness import noise_rows
+        from fusion.experiments.robustness import NOISE_POSES, noise_rows
 
         unseen_list = folder_objects(data, classes, sizes.unseen_per_class)
         record = {"objects": [str(p) for p, _ in unseen_list], "sizes": sizes.to_dict(), "seed": ctx.seed,
-                  "models": _model_records(out)}
+                  "models": _model_records(out), "poses": list(NOISE_POSES)}
         rows = timed("noise", lambda: ctx.cached_part("noise", record, lambda: {"rows": noise_rows(ctx, unseen_list)}))[
             "rows"]
         figures.plot_noise(rows, NOISE_KINDS, out / "accuracy_vs_noise.png")

@@ -469,17 +469,15 @@ def test_reproduce_writes_a_complete_report(tiny_run):
     assert accs and all(0 <= a["low"] <= a["value"] <= a["high"] <= 1 for a in accs)
     assert {r["kind"] for r in saved["noise"]["rows"]} == {"taxel_noise", "dead_taxels", "dead_taxels_repaired",
                                                           "pose_jitter"}
-    assert {r["pose"] for r in saved["noise"]["rows"]} == {"upright", "any pose"}
-    # Batches touched per (pose, fold): clean and pose jitter only (read-out noise re-reads the clean frames), and
+    assert {r["pose"] for r in saved["noise"]["rows"]} == {"any pose"}  # the robot's world only (NOISE_POSES)
+    # Batches touched per fold, in any pose: clean and pose jitter only (read-out noise re-reads the clean frames), and
     # each fold's batch holds that fold's test objects only, so the objects split into the 3 folds exactly once.
     batches = sorted((out / "noise").glob("*.npz"))
     reads = {p.name.rsplit("-", 2)[0] for p in batches}  # "<pose>-<strategy>-<read>-<level>-<objects>.npz"
-    assert reads == {f"{pose}-blind-{read}" for pose in ("upright", "anypose")
-                     for read in ("clean", "pose_jitter")}
-    for pose in ("upright", "anypose"):
-        clean = [load_batch(p) for p in batches if p.name.startswith(f"{pose}-blind-clean-")]
-        names = [set(b.object_names) for b in clean]
-        assert len(clean) == 3 and sum(len(n) for n in names) == 6 and len(set.union(*names)) == 6
+    assert reads == {f"anypose-blind-{read}" for read in ("clean", "pose_jitter")}
+    clean = [load_batch(p) for p in batches if p.name.startswith("anypose-blind-clean-")]
+    names = [set(b.object_names) for b in clean]
+    assert len(clean) == 3 and sum(len(n) for n in names) == 6 and len(set.union(*names)) == 6
     report = (out / "report.md").read_text()
     for name in ["accuracy_vs_k.png", "accuracy_vs_noise.png", *saved["paper"]["figures"]]:
         assert f"]({name})" in report
@@ -752,8 +750,8 @@ class CountingMean(NearestMean):
 
 def test_noise_reads_the_pooled_fold_models_and_a_rerun_reuses_every_prediction(tmp_path):
     """Both strategies: the noise part loads the 2 pooled fold models the unseen part trained (no fit of its
-    own, rows for both strategies and poses); run again, nothing is fitted or predicted (each strategy's test
-    predictions are cached in a file of their own beside the shared fold model)."""
+    own, rows for both strategies, in any pose only); run again, nothing is fitted or predicted (each strategy's
+    test predictions are cached in a file of their own beside the shared fold model)."""
     CALLS.update(fit=0, predict=0)
     data = mesh_folder(tmp_path / "meshes", per_class=2)
     sizes = TINY.with_(strategies=("guided", "blind"), unseen_classifiers=("count",), unseen_contours=4, unseen_folds=2,
@@ -764,7 +762,7 @@ def test_noise_reads_the_pooled_fold_models_and_a_rerun_reuses_every_prediction(
     results = reproduce(data, tmp_path / "report", **kwargs)
     assert CALLS["fit"] == 2
     assert {(r["pose"], r["strategy"]) for r in results["noise"]["rows"]} == {
-        (p, s) for p in ("upright", "any pose") for s in ("guided", "blind")}
+        ("any pose", s) for s in ("guided", "blind")}
     # every sequence of the 4 objects x 2 noise contours, per (pose, strategy, kind, level)
     assert {r["accuracy"]["n"] for r in results["noise"]["rows"]} == {4 * 2}
     CALLS.update(fit=0, predict=0)
@@ -775,7 +773,7 @@ def test_noise_reads_the_pooled_fold_models_and_a_rerun_reuses_every_prediction(
 
 def test_noise_settings_run_side_by_side_and_give_the_rows_of_one_process(tmp_path):
     """Each (pose, strategy) of the noise part is a job on the run's workers: two workers give the rows one process
-    gives, field for field, in pose then strategy order."""
+    gives, field for field, in strategy order (any pose only)."""
     data = mesh_folder(tmp_path / "meshes", per_class=2)
     sizes = TINY.with_(strategies=("guided", "blind"), unseen_contours=4, unseen_folds=2, unseen_per_class=2,
                        objects_per_class=2, noise_levels={"taxel_noise": (0.5,), "pose_jitter": (2.0,)})
@@ -786,15 +784,16 @@ def test_noise_settings_run_side_by_side_and_give_the_rows_of_one_process(tmp_pa
         rows[workers] = results["noise"]["rows"]
     assert rows[1] == rows[2]
     settings = list(dict.fromkeys((r["pose"], r["strategy"]) for r in rows[1]))
-    assert settings == [(p, s) for p in ("upright", "any pose") for s in ("guided", "blind")]
+    assert settings == [("any pose", s) for s in ("guided", "blind")]
 
 
 def test_noise_jobs_touch_each_pose_s_objects_with_that_pose_s_interest_points(tmp_path, monkeypatch):
-    """The any-pose jobs get the objects turned by their poses and read the guided interest points the any-pose store
-    recorded for them (found in that pose); the upright jobs the objects as stored and the upright store's."""
+    """The noise part runs in any pose only: its jobs get the objects turned by their poses (the meshes as stored,
+    each turned about its own rotation) and read the guided interest points the any-pose store recorded for them
+    (found in that pose), never the upright store's."""
     from fusion.experiments import robustness
     from fusion.experiments.context import Context
-    from fusion.experiments.data import folder_objects
+    from fusion.experiments.data import folder_objects, load_models
     from fusion.experiments.protocol import pose_stores, unseen_objects
 
     objects = folder_objects(mesh_folder(tmp_path / "meshes", per_class=2), None, None)
@@ -811,10 +810,12 @@ def test_noise_jobs_touch_each_pose_s_objects_with_that_pose_s_interest_points(t
     robustness.noise_rows(ctx, objects)
     stores = {pose: str(pose_stores(ctx, objects, pose, sizes.strategies, sizes.unseen_contours)[2].path)
               for pose in ("upright", "any pose")}
+    assert stores["upright"] != stores["any pose"]
     assert [(path, strategy) for path, strategy, _, _ in read] == [
-        (stores[pose], strategy) for pose in ("upright", "any pose") for strategy in ("guided", "blind")]
-    upright, turned = read[0][3], read[2][3]
-    assert read[0][2] == read[2][2] and len(upright) == len(objects)
+        (stores["any pose"], strategy) for strategy in ("guided", "blind")]
+    upright = [m.vertices for m in load_models(objects)]
+    turned = read[0][3]
+    assert read[0][2] == sorted(m.name for m in load_models(objects)) and len(turned) == len(objects)
     for a, b in zip(upright, turned, strict=True):  # the same meshes, each turned about its own rotation
         assert a.shape == b.shape and not np.allclose(a, b)
         assert np.allclose(np.sort(np.linalg.norm(a - a.mean(0), axis=1)), np.sort(np.linalg.norm(b - b.mean(0), axis=1)),
