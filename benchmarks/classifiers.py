@@ -31,6 +31,7 @@ import time
 import numpy as np
 
 from benchmarks._common import machine, median_time
+from fusion.commands import positive_int
 
 log = logging.getLogger(__name__)
 PAPER_TRAIN = 18_240
@@ -227,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--epoch-timing", type=int, default=0, metavar="N",
                         help="also time one CNN epoch on N synthetic sequences and project to 18,240")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads for the CNNs (default: all usable)")
-    parser.add_argument("--frame-size", type=int, default=None, metavar="N",
+    parser.add_argument("--frame-size", type=positive_int, default=None, metavar="N",
                         help="taxels a side the CNNs pool frames to (default: the classifier's 16; the paper's "
                              "models in reproduce: 8)")
     parser.add_argument("--repeats", type=int, default=3, help="inference timing repeats (median)")

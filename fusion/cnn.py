@@ -13,8 +13,9 @@ Architecture (``CutaneousNet``, input (B, 1, P, R, C) standardised gaps):
   cross-validation (inner grouped 3-fold inside each of the three unseen-SHREC training folds, guided + blind
   contours pooled, 9 inner models per size, scored on the inner validation objects upright and in any pose; rule
   set before: take 8 if neither K = 1 nor K = 8 falls by 0.5 points and no outer fold's K = 8 by 1.0) single touches
-  read 87.0 against 86.8 % and K = 8 decisions 91.7 against 93.3 % (per outer fold -2.5 / +0.1 / -2.4). The paper's
-  models (normals cue, paper-scale store) do pool to 8 x 8: ``fusion.experiments.models.PAPER_FRAME_SIZE``;
+  read 87.0 against 86.8 % and K = 8 decisions 91.7 against 93.3 % (per outer fold -2.5 / +0.1 / -2.4). The
+  experiments' paper models (``cnn-normals``, whatever the data) do pool to 8 x 8:
+  ``fusion.experiments.models.PAPER_FRAME_SIZE``;
 - two 3D convolutions (3 x 3 x 3, widths 8 and 16, spatial stride 2, batch norm, ReLU), circular padding
   over the probe axis (a contour is a closed loop: its first and last probes are neighbours), zero
   padding over the taxels;

@@ -44,8 +44,10 @@ MODALITY_DISPLAY = {"cutaneous": "CNN cutaneous", "kinesthetic": "CNN kinestheti
 #: the paper protocol's training part (blind SHREC paper store, its training sequences split again 80/20, the test
 #: sequences unread; rule set before the fits: take 8 unless its fusion accuracy falls by more than 0.2 points):
 #: fusion 99.84 % at both sizes on 3,648 sequences, paired 0.0 [-0.16, +0.16] points, cutaneous alone 97.2 against
-#: 96.8 %, fits of 246 against 382 s on one core. The same question for the pose-free pair (nested grouped 3-fold
-#: inside the unseen-objects folds) answered no: see the ``fusion.cnn`` module docstring.
+#: 96.8 %, fits of 246 against 382 s on one core. Chosen on blind contours, it serves every ``cnn-normals`` model
+#: (the paper part's guided pair too: 100 % on its test sequences at either size, README). The same question for
+#: the pose-free pair (nested grouped 3-fold inside the unseen-objects folds) answered no: see the ``fusion.cnn``
+#: module docstring.
 PAPER_FRAME_SIZE = 8
 
 
@@ -65,7 +67,7 @@ def default_classifiers(seed: int = 0, epochs: int | None = None, progress: bool
     cnn = ({"epochs": epochs} if epochs else {}) | ({"threads": threads} if threads else {})
     factories = {}
     for cue, suffix in (("invariant", ""), ("normals", "-normals")):
-        # the paper's models sum the two nets and pool the frames to 8 x 8 (PAPER_FRAME_SIZE)
+        # the paper's models sum the two nets and pool their frames to PAPER_FRAME_SIZE
         rule = {"modality_rule": "sum", "frame_size": PAPER_FRAME_SIZE} if cue == "normals" else {}
         factories[f"cnn{suffix}"] = functools.partial(make_classifier, "cnn", cue=cue, random_state=seed, progress=progress,
                                                       **cnn, **rule)

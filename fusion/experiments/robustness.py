@@ -45,7 +45,8 @@ TEST_SEED_OFFSET = 7919
 #: unseen-objects part already shows that nothing sees it (its upright and any-pose decisions are equal for every
 #: classifier, strategy and K; in the full run of 2026-12-07 the noise part's 96 upright rows equalled its 96 any-pose
 #: rows, intervals included), so an upright half would repeat its numbers at the cost of touching every test object
-#: again at every level.
+#: again at every level. This holds for pose-free classifiers, the unseen part's (``Sizes.unseen_classifiers``); a
+#: classifier that reads the pose (a ``-normals`` one) would need the upright half back.
 NOISE_POSES = ("any pose",)
 
 

@@ -592,8 +592,8 @@ def test_paper_cnn_sums_the_two_nets_and_the_pose_free_cnn_multiplies():
 
 def test_paper_cnn_reads_8_by_8_frames_and_the_pose_free_cnn_16_by_16():
     """default_classifiers: the paper's pair pools 32 x 32 frames to 8 x 8 taxels (PAPER_FRAME_SIZE), the pose-free
-    pair to 16 x 16: the cutaneous net's first hidden layer reads 16 channels x 5 probes x (side / 4)^2 features
-    after two stride-2 convolutions (hand-computed: 16 * 5 * 2 * 2 = 320 and 16 * 5 * 4 * 4 = 1,280)."""
+    pair to 16 x 16: the cutaneous net's first fully connected layer reads the flattened 16 channels x 5 probes x
+    (side / 4)^2 features of two stride-2 convolutions (hand-computed: 16 * 5 * 2 * 2 = 320 and 16 * 5 * 4 * 4 = 1,280)."""
     from fusion.experiments.models import default_classifiers
 
     batch = make_batch(n_per_class=4, grid=(32, 32))
