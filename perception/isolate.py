@@ -7,6 +7,14 @@ made with a bare ``os.fork()``: copy-on-write, so the mesh is not copied and not
 10 ms), and it works from any process, also from a daemonic ``multiprocessing`` worker or a Ray worker,
 where ``multiprocessing.Process`` refuses to start children. The result comes back pickled through a pipe;
 the parent waits at most ``timeout_s`` and kills the child after that.
+
+A fork copies only the calling thread: a lock that another thread of the parent held at that moment stays held
+in the child forever. Open3D's TBB workers are such threads: after any parallel Open3D call in the parent, a
+child forked while a worker was still in its task arena waits for it in its next parallel call (seen in
+``TriangleMesh.cluster_connected_triangles``: 1 fork in about 200 to 1,200 right after a parallel call). So the
+parent watches the child: one asleep without using the CPU for ``stall_s`` seconds is deadlocked, never slow (a
+computing child runs or waits for the CPU), and is killed and forked again (:data:`ATTEMPTS` in all); the same
+call on the same arguments gives the same result.
 """
 
 from __future__ import annotations
@@ -23,12 +31,19 @@ from typing import Any
 
 log = logging.getLogger(__name__)
 
+#: Seconds a child may sleep without using the CPU before it is taken as deadlocked (:func:`run_isolated`).
+STALL_S = 5.0
+#: Children forked per call at most, when the ones before deadlocked.
+ATTEMPTS = 3
+#: Seconds between looks at the child's state while its result is awaited.
+POLL_S = 0.25
+
 
 class IsolatedCallFailed(RuntimeError):
     """The isolated call crashed (killed by a signal / exited without a result) or ran out of time.
 
     Attributes:
-        reason: ``"crashed"`` or ``"timed out"``.
+        reason: ``"crashed"``, ``"timed out"`` or ``"deadlocked"`` (each followed by details).
     """
 
     def __init__(self, what: str, reason: str) -> None:
@@ -52,18 +67,41 @@ def _quiet_child() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def run_isolated(func: Callable[..., Any], *args: Any, timeout_s: float, what: str = "isolated call") -> Any:
+def run_isolated(func: Callable[..., Any], *args: Any, timeout_s: float, what: str = "isolated call",
+                 stall_s: float | None = None) -> Any:
     """``func(*args)`` evaluated in a forked child; its return value, or the exception it raised, re-raised here.
 
     Args:
-        func: a function whose arguments and result pickle (numpy arrays do).
-        timeout_s: wall-clock limit, seconds; the child is killed (SIGKILL) after it.
+        func: a function whose arguments and result pickle (numpy arrays do); it computes (a child that sleeps
+            ``stall_s`` seconds on end is taken as deadlocked).
+        timeout_s: wall-clock limit per child, seconds; the child is killed (SIGKILL) after it.
         what: names the call in messages.
+        stall_s: seconds a child may sleep without using the CPU before it is killed and forked again (see the
+            module docstring), at most :data:`ATTEMPTS` children in all; None: :data:`STALL_S`.
 
     Raises:
-        IsolatedCallFailed: the child died without a result (abort, segfault, ``os._exit``) or timed out.
+        IsolatedCallFailed: the child died without a result (abort, segfault, ``os._exit``), timed out, or every
+            child deadlocked.
         Exception: whatever ``func`` raised in the child (if it pickles; else IsolatedCallFailed).
     """
+    stall_s = STALL_S if stall_s is None else stall_s
+    for attempt in range(1, ATTEMPTS + 1):
+        try:
+            return _run_child(func, args, timeout_s, what, stall_s)
+        except _Deadlocked:
+            if attempt < ATTEMPTS:
+                log.warning("%s: child %d of %d slept %g s without using the CPU (a lock held at fork); forking "
+                            "again", what, attempt, ATTEMPTS, stall_s)
+    children = "1 child" if ATTEMPTS == 1 else f"{ATTEMPTS} children in a row"
+    raise IsolatedCallFailed(what, f"deadlocked ({children} slept {stall_s:g} s without using the CPU)")
+
+
+class _Deadlocked(Exception):
+    """The child slept without using the CPU for ``stall_s`` seconds (it has been killed)."""
+
+
+def _run_child(func: Callable[..., Any], args: tuple, timeout_s: float, what: str, stall_s: float) -> Any:
+    """One forked child of :func:`run_isolated`."""
     sys.stdout.flush()
     sys.stderr.flush()
     read_fd, write_fd = os.pipe()
@@ -94,19 +132,23 @@ def run_isolated(func: Callable[..., Any], *args: Any, timeout_s: float, what: s
     _reap_finished()
     chunks: list[bytes] = []
     deadline = time.monotonic() + timeout_s
+    watch = _Watch(pid, stall_s)
     done = False
     try:
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise IsolatedCallFailed(what, "timed out")
-            ready, _, _ = select.select([read_fd], [], [], remaining)
+            ready, _, _ = select.select([read_fd], [], [], min(remaining, POLL_S))
             if not ready:
+                if watch.stalled():
+                    raise _Deadlocked
                 continue
             chunk = os.read(read_fd, 1 << 20)
             if not chunk:
                 break
             chunks.append(chunk)
+            watch.progressed()
         done = True
     finally:
         os.close(read_fd)
@@ -130,6 +172,37 @@ def run_isolated(func: Callable[..., Any], *args: Any, timeout_s: float, what: s
     if ok:
         return value
     raise value
+
+
+class _Watch:
+    """Whether a child has slept (state S) without using the CPU for ``stall_s`` seconds on end (Linux's
+    ``/proc/<pid>/stat``; where that cannot be read, never)."""
+
+    def __init__(self, pid: int, stall_s: float) -> None:
+        self.pid, self.stall_s = pid, stall_s
+        self.last = self._sample()
+        self.since = time.monotonic()
+
+    def _sample(self) -> tuple[str, int] | None:
+        """(state, CPU clock ticks of all its threads), or None."""
+        try:
+            with open(f"/proc/{self.pid}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()  # the name may hold spaces and brackets
+            return fields[0].decode(), int(fields[11]) + int(fields[12])
+        except (OSError, IndexError, ValueError):
+            return None
+
+    def progressed(self) -> None:
+        self.since = time.monotonic()
+
+    def stalled(self) -> bool:
+        now = self._sample()
+        if now is None:
+            return False
+        if now[0] != "S" or self.last is None or now[1] != self.last[1]:
+            self.last, self.since = now, time.monotonic()
+            return False
+        return time.monotonic() - self.since >= self.stall_s
 
 
 #: Children that delivered their result but may still be exiting; reaped without blocking on later calls.
@@ -162,4 +235,4 @@ def _kill(pid: int) -> None:
         pass
 
 
-__all__ = ["IsolatedCallFailed", "run_isolated"]
+__all__ = ["ATTEMPTS", "STALL_S", "IsolatedCallFailed", "run_isolated"]

@@ -43,7 +43,7 @@ def check_camera_args(args: argparse.Namespace) -> None:
         InvalidArgumentError, ModelFileError: naming the option and the problem.
     """
     from perception.atomic import check_output_folder
-    from perception.camera.virtual import MAX_DISTANCE_MM
+    from perception.camera.frame import MAX_DISTANCE_MM
     from perception.limits import check_count
 
     if args.contours < 1:

@@ -14,6 +14,10 @@ import numpy as np
 
 from perception.errors import InvalidArgumentError
 
+#: Farthest camera distance, mm (10 m): an OAK-D's depth is meaningless far beyond it, and a distance near the
+#: float range overflows the pose arithmetic (here, not in :mod:`perception.camera.virtual`, so that checking a
+#: command line does not load Open3D).
+MAX_DISTANCE_MM = 10_000.0
 
 @dataclass(frozen=True)
 class Intrinsics:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from perception.camera.frame import Intrinsics, RGBDFrame
+from perception.camera.frame import MAX_DISTANCE_MM, Intrinsics, RGBDFrame
 from perception.errors import InvalidArgumentError
 from perception.geometry import ObjectModel
 
@@ -37,9 +37,6 @@ OAK_MODES = {"800p": (1280, 800, 882.5), "400p": (640, 400, 441.25)}
 OAK_BASELINE_MM = 75.0
 #: Disparity search range of the OAK stereo engine, px (doubled by extended disparity).
 OAK_MAX_DISPARITY_PX = 95.0
-#: Farthest orbit distance, mm (10 m): an OAK-D's depth is meaningless far beyond it, and a distance near the
-#: float range overflows the pose arithmetic.
-MAX_DISTANCE_MM = 10_000.0
 
 _TABLE_RGB = np.array([0.22, 0.42, 0.36])
 _OBJECT_RGB = np.array([0.80, 0.78, 0.72])

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import ctypes
+import json
 import multiprocessing
 import os
+import threading
 import time
 
 import numpy as np
@@ -78,3 +80,91 @@ def test_finished_children_are_reaped():
     time.sleep(1.0)
     run_isolated(int, "1", timeout_s=30)  # reaps the children of the calls before, which have exited
     assert len(isolate._UNREAPED) <= 1  # at most the last one, maybe still exiting
+
+
+# A fork copies only the calling thread: a lock another thread holds at that moment stays held in the child.
+_HELD = threading.Lock()
+
+
+def _take_the_lock() -> str:
+    with _HELD:  # in a child forked while a parent thread held it: blocks for ever, asleep
+        return "took it"
+
+
+def _hold_the_lock_while_forking(release_after_forks: int | None):
+    """A parent thread holds _HELD; it lets go once ``release_after_forks`` children were forked (None: never)."""
+    forks = [0]
+    real_fork = os.fork
+
+    def counting_fork():
+        pid = real_fork()
+        if pid:
+            forks[0] += 1
+            if release_after_forks is not None and forks[0] >= release_after_forks and _HELD.locked():
+                _HELD.release()
+        return pid
+
+    _HELD.acquire()
+    return forks, counting_fork
+
+
+@pytest.fixture
+def fork_with_a_held_lock(monkeypatch):
+    def start(release_after_forks):
+        forks, fork = _hold_the_lock_while_forking(release_after_forks)
+        monkeypatch.setattr(isolate.os, "fork", fork)
+        return forks
+
+    yield start
+    if _HELD.locked():
+        _HELD.release()
+
+
+def test_a_child_deadlocked_at_fork_is_forked_again(fork_with_a_held_lock, caplog):
+    forks = fork_with_a_held_lock(release_after_forks=1)  # the first child inherits the held lock, the second not
+    start = time.perf_counter()
+    assert run_isolated(_take_the_lock, timeout_s=60, stall_s=1.0, what="lock test") == "took it"
+    took = time.perf_counter() - start
+    assert forks[0] == 2
+    assert 1.0 <= took < 10.0  # the stall limit, not the 60 s time limit
+    assert "lock test: child 1 of 3 slept 1 s without using the CPU" in caplog.text
+
+
+def test_children_that_always_deadlock_are_reported_long_before_the_time_limit(fork_with_a_held_lock):
+    forks = fork_with_a_held_lock(release_after_forks=None)
+    start = time.perf_counter()
+    with pytest.raises(IsolatedCallFailed, match="deadlocked") as info:
+        run_isolated(_take_the_lock, timeout_s=60, stall_s=0.5, what="lock test")
+    assert forks[0] == isolate.ATTEMPTS == 3
+    assert info.value.reason.startswith("deadlocked (3 children")
+    assert time.perf_counter() - start < 20.0
+
+
+def _spin(seconds: float) -> str:
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+    return "spun"
+
+
+def test_a_child_that_computes_longer_than_the_stall_limit_is_left_alone(monkeypatch):
+    forks = [0]
+    real_fork = os.fork
+
+    def counting_fork():
+        pid = real_fork()
+        forks[0] += pid > 0
+        return pid
+
+    monkeypatch.setattr(isolate.os, "fork", counting_fork)
+    assert run_isolated(_spin, 2.0, timeout_s=60, stall_s=0.5) == "spun"
+    assert forks[0] == 1
+
+
+def test_the_fork_stress_benchmark_counts_its_calls(capsys):
+    from benchmarks import fork_stress
+
+    assert fork_stress.main(["--calls", "2", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out["calls"], out["attempts"], out["failed_calls"]) == (2, isolate.ATTEMPTS, 0)
+    assert 0 < out["median_s"] <= out["max_s"]
