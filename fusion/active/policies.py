@@ -204,6 +204,8 @@ class Policy:
 
     name = "policy"
     strategy = "blind"
+    #: A precomputed saliency of the visual model (guided policies), else None (computed per visual model).
+    saliency = None
 
     def __init__(self, seed: int = 0, *, cache_size: int = 8) -> None:
         self.seed = _check_seed(seed)
@@ -223,7 +225,7 @@ class Policy:
                 self._cache.pop(next(iter(self._cache)))
             entry = self._cache[key] = {"key": key,
                                         "toucher": Toucher(state.visual, self.strategy, probes=state.probes,
-                                                           saliency_seed=self.seed)}
+                                                           saliency=self.saliency, saliency_seed=self.seed)}
         return entry
 
     def _rng(self, entry: dict, step: int) -> np.random.Generator:
@@ -266,9 +268,23 @@ class RandomPolicy(Policy):
 
 class SaliencyPolicy(Policy):
     """The paper's: a plane through the visual model's centre and two of its multiview interest points, the pairs
-    taken in a seeded order without repeats (:meth:`tactile.touching.Toucher.pair_order`), skipping planes touched."""
+    taken in a seeded order without repeats (:meth:`tactile.touching.Toucher.pair_order`), skipping planes touched.
+
+    Args:
+        seed: seeds the pair order and, unless ``saliency`` is given, the view sphere of the saliency.
+        saliency: the visual model's multiview :class:`~perception.saliency.Saliency`, computed once where the
+            camera's view is processed (a robot looks once, whatever it then touches); None: computed here, once
+            per visual model.
+
+    Raises:
+        SaliencyError: (at the first proposal) ``saliency`` is not the multiview saliency of the visual model.
+    """
 
     name, strategy = "saliency", "guided"
+
+    def __init__(self, seed: int = 0, *, saliency=None, cache_size: int = 8) -> None:
+        super().__init__(seed, cache_size=cache_size)
+        self.saliency = saliency
 
 
 class InformationPolicy(Policy):
@@ -392,18 +408,24 @@ def smoothed(model: ObjectModel, iterations: int) -> ObjectModel:
 
 
 def make_policy(name: str, seed: int = 0, **options) -> Policy:
-    """A new policy by name (:data:`POLICIES`); ``options`` go to :class:`InformationPolicy`.
+    """A new policy by name (:data:`POLICIES`); ``options`` go to :class:`InformationPolicy` or
+    :class:`SaliencyPolicy`.
 
     Raises:
         InvalidArgumentError: unknown name, or options for a policy that takes none.
     """
     if name == "information":
         return InformationPolicy(seed, **options)
+    if name == "saliency":
+        unknown = sorted(set(options) - {"saliency", "cache_size"})
+        if unknown:
+            raise InvalidArgumentError(f"the saliency policy takes saliency and cache_size, got {unknown}")
+        return SaliencyPolicy(seed, **options)
     if name not in POLICIES:
         raise InvalidArgumentError(f"unknown touch policy {name!r}; choose one of {', '.join(POLICIES)}")
     if options:
         raise InvalidArgumentError(f"the {name} policy takes no options, got {sorted(options)}")
-    return {"random": RandomPolicy, "saliency": SaliencyPolicy}[name](seed)
+    return RandomPolicy(seed)
 
 
 def noisy_copy(model: ObjectModel, noise_mm: float = 1.0, seed: int = 0, *, name: str | None = None) -> ObjectModel:

@@ -6,7 +6,9 @@ classifier per fold trained on every training sequence, both strategies: the ``u
 seeded random pose (:func:`fusion.experiments.data.any_pose`); its visual model is a noisy copy of that mesh
 (vertices moved along their normals by N(0, ``noise_mm``) mm, seeded per object) or, with the camera in the loop, a
 virtual OAK-D reconstruction (:func:`camera_models`). Every policy runs ``episodes`` episodes of ``max(ks)`` touches
-per object (planning on the visual model, touching the true mesh; each episode seeded anew), so the decision after
+per object (planning on the visual model, touching the true mesh; each episode seeded anew; the visual model's
+saliency is computed once per object, as a robot looks once, and every saliency episode draws its own pair order
+from it), so the decision after
 K touches is an episode's first K touches fused by the log rule and an object's accuracy the share of its episodes
 that decide right. Reported: accuracy against K with 95 %
 bootstrap intervals over objects, paired differences (policy - random) bootstrapped over objects, the touches
@@ -30,6 +32,7 @@ from fusion.active.policies import (
     POLICIES,
     SMOOTH_ITERATIONS,
     InformationPolicy,
+    SaliencyPolicy,
     smoothed,
     visual_belief,
 )
@@ -42,7 +45,7 @@ from perception.limits import check_count
 from perception.validate import check_length
 from tactile.explore import SequenceBatch
 from tactile.sensor import FSRSensor
-from tactile.touching import touch
+from tactile.touching import Toucher, touch
 
 log = logging.getLogger(__name__)
 
@@ -180,12 +183,16 @@ class EpisodeJob:
         else:
             seen = noisy_copy(true, self.noise_mm, seed=self.noise_seed)
         row = {"object": name, "label": true.label, "fold": self.fold, "policies": {}}
+        options = {"information": {"candidates": self.candidates, "variants": self.variants}}
+        if "saliency" in self.policies:  # the camera's view is looked at once, whatever the episodes then touch
+            start = time.perf_counter()
+            looked = Toucher(seen, SaliencyPolicy.strategy, probes=model.probes, saliency_seed=self.seed)
+            options["saliency"] = {"saliency": looked.saliency}
+            row["saliency_s"] = time.perf_counter() - start
         for pname in self.policies:
             runs = []
             for e in range(self.episodes):  # episode e seeds the policy's draws and the sensor noise with seed + e
-                policy = make_policy(pname, self.seed + e, **({"candidates": self.candidates,
-                                                                "variants": self.variants}
-                                                               if pname == "information" else {}))
+                policy = make_policy(pname, self.seed + e, **options.get(pname, {}))
                 start = time.perf_counter()
                 ep = run_episode(true, seen, model, policy, max_touches=self.max_touches, seed=self.seed + e)
                 if e == 0 and isinstance(policy, InformationPolicy):  # what the camera's view alone would decide
@@ -419,6 +426,10 @@ def summarize(result: dict, seed: int = 0) -> dict:
         goal = accs_by_policy["random"][-1]
         to_random = {p: next((k for k, a in zip(ks, accs) if a >= goal - 1e-12), None)
                      for p, accs in accs_by_policy.items()}
+    looked = [r["saliency_s"] for r in rows if "saliency_s" in r]
+    for t in timing:
+        if t["policy"] == "saliency" and looked:  # once per object, before the episodes: not in their steps
+            t["saliency_per_object_s"] = float(np.median(looked))
     visual_only = None
     if all("visual_decision" in r for r in rows):
         visual_only = float(np.mean([r["visual_decision"] == r["label"] for r in rows]))
@@ -441,7 +452,8 @@ def part_suffix(visual: str, train_on_captures: bool, classifier: str | None = N
 def active_part(ctx, objects, **options) -> dict:
     """The ``active`` part (cached in the report folder): :func:`summarize` of :func:`active_episodes`."""
     record = {"objects": [str(o) for o in objects], "sizes": ctx.sizes.to_dict(), "seed": ctx.seed,
-              "options": {k: v for k, v in options.items() if k != "progress"}}
+              "options": {k: v for k, v in options.items() if k != "progress"},
+              "saliency": "once per object"}  # (until 2026-12-07 once per episode, with the episode's seed)
     name = "active" + part_suffix(options.get("visual", "noisy"), options.get("train_on_captures", False),
                                   options.get("classifier"))
     result = ctx.cached_part(name, record, lambda: active_episodes(ctx, objects, **options))
@@ -486,6 +498,9 @@ def render_markdown(summary: dict) -> str:
               "|---|---|---|---|---|---|---|"]
     lines += [f"| {t['policy']} | {t['planning_first_s']:.3f} | {t['planning_later_s']:.4f} | {t['planning_mean_s']:.3f} | "
               f"{t['touching_s']:.3f} | {t['classifying_s']:.3f} | {t['step_mean_s']:.3f} |" for t in summary["timing"]]
+    lines += [f"\nThe saliency policy's multiview saliency of the visual model, once per object before its episodes "
+              f"(not in the steps above): {t['saliency_per_object_s']:.3f} s (median)."
+              for t in summary["timing"] if "saliency_per_object_s" in t]
     return "\n".join(lines) + "\n"
 
 

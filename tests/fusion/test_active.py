@@ -365,3 +365,29 @@ def test_saliency_policy_takes_every_interest_pair_once_before_any_again(objects
     mine, other = proposals(make_policy("saliency", 4)), proposals(make_policy("saliency", 5))
     assert all(same_plane(a, b) for a, b in zip(mine, planes[:5]))  # same seed, same order
     assert not all(same_plane(a, b) for a, b in zip(mine, other))
+
+
+def test_saliency_policy_given_the_visual_models_saliency_proposes_what_it_would_compute(objects):
+    """A saliency computed once where the camera's view is processed (seed 4) gives the same proposals as the policy
+    computing it with that seed; a saliency of another object is refused."""
+    from perception.errors import SaliencyError
+    from tactile.touching import Toucher
+
+    mug, _, visual = objects
+
+    def proposals(policy, n=4):
+        state = ActiveState(visual, ConstantClassifier())
+        for _ in range(n):
+            state = ActiveState(visual, state.classifier, planes=[*state.planes, policy.propose(state)],
+                                probabilities=[*state.probabilities, np.array([1 / 3] * 3)])
+        return state.planes
+
+    given = Toucher(visual, "guided", probes=25, saliency_seed=4).saliency
+    own = proposals(make_policy("saliency", 4))
+    assert all(same_plane(a, b) for a, b in zip(proposals(make_policy("saliency", 4, saliency=given)), own))
+    other_view = Toucher(visual, "guided", probes=25, saliency_seed=9).saliency  # another turn of the view sphere
+    assert not all(same_plane(a, b) for a, b in zip(proposals(make_policy("saliency", 4, saliency=other_view)), own))
+    with pytest.raises(SaliencyError, match="saliency of"):
+        proposals(make_policy("saliency", 4, saliency=Toucher(mug, "guided", probes=25).saliency), n=1)
+    with pytest.raises(InvalidArgumentError, match="saliency policy takes"):
+        make_policy("saliency", 4, candidates=3)

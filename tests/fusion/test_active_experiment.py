@@ -220,13 +220,41 @@ def test_active_episodes_seeds_episode_e_with_seed_plus_e(tiny, monkeypatch):
             assert a["policies"][p]["posteriors"] == b["policies"][p]["posteriors"]
 
 
+def test_the_visual_models_saliency_is_computed_once_per_object_for_every_episode(tiny, monkeypatch):
+    """The camera's view is looked at once: 3 saliency episodes per object cost one multiview saliency of its visual
+    model (seeded by the run's seed), and each episode still draws its own pair order from those interest points."""
+    from fusion.experiments import active
+    from perception import saliency as attention
+
+    context, objects = tiny
+    looked = []
+    real = attention.saliency
+
+    def spy(model, method, **kw):
+        looked.append((model.name, method, kw.get("seed")))
+        return real(model, method, **kw)
+
+    monkeypatch.setattr(attention, "saliency", spy)
+    ctx = context("saliency-once")
+    ctx.workers = 1  # the objects in this process, where the spy is
+    out = active.active_episodes(ctx, objects, policies=("saliency",), max_touches=3, episodes=3, per_fold=1)
+    names = [f"{row['object']}@visual" for row in out["objects"]]
+    assert len(names) >= 2
+    assert looked == [(name, "multiview", 5) for name in names]
+    assert all(row["saliency_s"] > 0 for row in out["objects"])
+    orders = [[run["posteriors"] for run in active._runs(row, "saliency")] for row in out["objects"]]
+    assert any(o[0] != o[1] or o[0] != o[2] for o in orders)  # the episodes' pair orders differ
+    timing = active.summarize(out)["timing"][0]
+    assert timing["policy"] == "saliency" and timing["saliency_per_object_s"] > 0
+
+
 def test_active_episodes_give_the_same_records_on_one_worker_or_two(tiny):
     """The objects run side by side on the run's workers; each policy's draws are seeded by the object's visual
     model and the step, so the records (all but the timings) are the same as in one process, object by object."""
     from fusion.experiments import active
 
     context, objects = tiny
-    timing = {"planning_s", "touching_s", "classifying_s", "seconds"}
+    timing = {"planning_s", "touching_s", "classifying_s", "seconds", "saliency_s"}
 
     def strip(x):
         if isinstance(x, dict):
