@@ -337,6 +337,15 @@ def test_episode_figure(objects, tmp_path):
     assert path.is_file() and path.stat().st_size > 10_000
 
 
+def _proposals(policy, visual, n: int = 5) -> list:
+    """The first ``n`` planes ``policy`` proposes on ``visual`` as it goes (a classifier that learns nothing)."""
+    state = ActiveState(visual, ConstantClassifier())
+    for _ in range(n):
+        state = ActiveState(visual, state.classifier, planes=[*state.planes, policy.propose(state)],
+                            probabilities=[*state.probabilities, np.array([1 / 3] * 3)])
+    return state.planes
+
+
 def test_saliency_policy_takes_every_interest_pair_once_before_any_again(objects):
     """The saliency policy's contours are the guided strategy's pairs without repeats: as many distinct planes as
     the visual model has usable pairs, then the cycle starts again; the order is the policy seed's."""
@@ -354,15 +363,8 @@ def test_saliency_policy_takes_every_interest_pair_once_before_any_again(objects
     first = planes[: len(usable)]
     assert all(not same_plane(a, b) for i, a in enumerate(first) for b in first[i + 1:])  # each once
     # Another seed, another order (the first five proposals of each policy as it goes).
-    def proposals(policy, n=5):
-        state = ActiveState(visual, ConstantClassifier())
-        for _ in range(n):
-            state = ActiveState(visual, state.classifier, planes=[*state.planes, policy.propose(state)],
-                                probabilities=[*state.probabilities, np.array([1 / 3] * 3)])
-        return state.planes
-
     assert len(usable) > 5
-    mine, other = proposals(make_policy("saliency", 4)), proposals(make_policy("saliency", 5))
+    mine, other = _proposals(make_policy("saliency", 4), visual), _proposals(make_policy("saliency", 5), visual)
     assert all(same_plane(a, b) for a, b in zip(mine, planes[:5]))  # same seed, same order
     assert not all(same_plane(a, b) for a, b in zip(mine, other))
 
@@ -374,14 +376,7 @@ def test_saliency_policy_given_the_visual_models_saliency_proposes_what_it_would
     from tactile.touching import Toucher
 
     mug, _, visual = objects
-
-    def proposals(policy, n=4):
-        state = ActiveState(visual, ConstantClassifier())
-        for _ in range(n):
-            state = ActiveState(visual, state.classifier, planes=[*state.planes, policy.propose(state)],
-                                probabilities=[*state.probabilities, np.array([1 / 3] * 3)])
-        return state.planes
-
+    proposals = lambda policy, n=4: _proposals(policy, visual, n)
     given = Toucher(visual, "guided", probes=25, saliency_seed=4).saliency
     own = proposals(make_policy("saliency", 4))
     assert all(same_plane(a, b) for a, b in zip(proposals(make_policy("saliency", 4, saliency=given)), own))
