@@ -4,8 +4,8 @@ A fork copies only the calling thread, so a child forked while one of Open3D's T
 arena waits for that worker for ever in its next parallel call. This benchmark makes the calls where that was
 seen: the 148-point seed cloud of the file fuzzer (``benchmarks.fuzz``) through ``load_points`` (Poisson
 surface in a forked child), in one process, after the same warm-up as a fuzz child, ``--calls`` times. It prints
-how many children slept without using the CPU (deadlocked, and were forked again), how many calls failed, and
-the median and largest seconds per call.
+how many children slept without using the CPU (presumed deadlocked: killed, and forked again while the call had
+children left), how many calls failed, and the median and largest seconds per call.
 
 ``--attempts 1`` forks once per call, as before retries existed: each deadlock is then a failed call (before the
 stall watch it waited out the call's 150 s limit). ``--json`` prints the same as one JSON object.

@@ -12,9 +12,10 @@ A fork copies only the calling thread: a lock that another thread of the parent 
 in the child forever. Open3D's TBB workers are such threads: after any parallel Open3D call in the parent, a
 child forked while a worker was still in its task arena waits for it in its next parallel call (seen in
 ``TriangleMesh.cluster_connected_triangles``: 1 fork in about 200 to 1,200 right after a parallel call). So the
-parent watches the child: one asleep without using the CPU for ``stall_s`` seconds is deadlocked, never slow (a
-computing child runs or waits for the CPU), and is killed and forked again (:data:`ATTEMPTS` in all); the same
-call on the same arguments gives the same result.
+parent watches the child: one asleep without using the CPU for ``stall_s`` seconds is presumed deadlocked (a
+computing child runs or waits for the CPU; it is not asleep) and is killed and forked again (:data:`ATTEMPTS` in
+all). That presumes what the isolated calls are: native computations that never wait on a clock, a process or
+the network, and that give the same result when run again. A function that waits must pass ``stall_s=math.inf``.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ import sys
 import time
 from collections.abc import Callable
 from typing import Any
+
+from perception.errors import InvalidArgumentError
 
 log = logging.getLogger(__name__)
 
@@ -72,26 +75,31 @@ def run_isolated(func: Callable[..., Any], *args: Any, timeout_s: float, what: s
     """``func(*args)`` evaluated in a forked child; its return value, or the exception it raised, re-raised here.
 
     Args:
-        func: a function whose arguments and result pickle (numpy arrays do); it computes (a child that sleeps
-            ``stall_s`` seconds on end is taken as deadlocked).
+        func: a function whose arguments and result pickle (numpy arrays do), that computes and may be run
+            again (module docstring).
         timeout_s: wall-clock limit per child, seconds; the child is killed (SIGKILL) after it.
         what: names the call in messages.
         stall_s: seconds a child may sleep without using the CPU before it is killed and forked again (see the
-            module docstring), at most :data:`ATTEMPTS` children in all; None: :data:`STALL_S`.
+            module docstring), at most :data:`ATTEMPTS` children in all; None: :data:`STALL_S`; ``math.inf``: no
+            watch. Worst case: ``(ATTEMPTS - 1) * (stall_s + POLL_S) + timeout_s``.
 
     Raises:
+        InvalidArgumentError: ``stall_s`` not a number above 0 (before anything is forked).
         IsolatedCallFailed: the child died without a result (abort, segfault, ``os._exit``), timed out, or every
-            child deadlocked.
+            child was presumed deadlocked.
         Exception: whatever ``func`` raised in the child (if it pickles; else IsolatedCallFailed).
     """
     stall_s = STALL_S if stall_s is None else stall_s
+    if isinstance(stall_s, bool) or not isinstance(stall_s, (int, float)) or not stall_s > 0:
+        raise InvalidArgumentError(f"{what}: stall_s must be a number of seconds above 0 (math.inf: no watch), "
+                                   f"got {stall_s!r}")
     for attempt in range(1, ATTEMPTS + 1):
         try:
             return _run_child(func, args, timeout_s, what, stall_s)
         except _Deadlocked:
-            if attempt < ATTEMPTS:
-                log.warning("%s: child %d of %d slept %g s without using the CPU (a lock held at fork); forking "
-                            "again", what, attempt, ATTEMPTS, stall_s)
+            log.warning("%s: child %d of %d slept %g s without using the CPU (presumed deadlocked: a lock held at "
+                        "the fork); %s", what, attempt, ATTEMPTS, stall_s,
+                        "forking again" if attempt < ATTEMPTS else "giving up")
     children = "1 child" if ATTEMPTS == 1 else f"{ATTEMPTS} children in a row"
     raise IsolatedCallFailed(what, f"deadlocked ({children} slept {stall_s:g} s without using the CPU)")
 
@@ -148,7 +156,6 @@ def _run_child(func: Callable[..., Any], args: tuple, timeout_s: float, what: st
             if not chunk:
                 break
             chunks.append(chunk)
-            watch.progressed()
         done = True
     finally:
         os.close(read_fd)
@@ -191,9 +198,6 @@ class _Watch:
             return fields[0].decode(), int(fields[11]) + int(fields[12])
         except (OSError, IndexError, ValueError):
             return None
-
-    def progressed(self) -> None:
-        self.since = time.monotonic()
 
     def stalled(self) -> bool:
         now = self._sample()

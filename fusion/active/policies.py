@@ -209,6 +209,8 @@ class Policy:
 
     def __init__(self, seed: int = 0, *, cache_size: int = 8) -> None:
         self.seed = _check_seed(seed)
+        if isinstance(cache_size, bool) or not isinstance(cache_size, (int, np.integer)) or cache_size < 1:
+            raise InvalidArgumentError(f"{self.name} policy: cache_size must be an integer >= 1, got {cache_size!r}")
         self.cache_size = int(cache_size)
         self._cache: dict[str, dict] = {}
         self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -273,17 +275,24 @@ class SaliencyPolicy(Policy):
     Args:
         seed: seeds the pair order and, unless ``saliency`` is given, the view sphere of the saliency.
         saliency: the visual model's multiview :class:`~perception.saliency.Saliency`, computed once where the
-            camera's view is processed (a robot looks once, whatever it then touches); None: computed here, once
-            per visual model.
+            camera's view is processed (a robot looks once, whatever it then touches), in this process and of the
+            very :class:`~perception.geometry.ObjectModel` the states hold (a copy, even an equal one, is another
+            object); None: computed here, once per visual model.
 
     Raises:
+        InvalidArgumentError: ``saliency`` is not a Saliency, or a bad seed or cache size.
         SaliencyError: (at the first proposal) ``saliency`` is not the multiview saliency of the visual model.
     """
 
     name, strategy = "saliency", "guided"
 
     def __init__(self, seed: int = 0, *, saliency=None, cache_size: int = 8) -> None:
+        from perception.saliency import Saliency
+
         super().__init__(seed, cache_size=cache_size)
+        if saliency is not None and not isinstance(saliency, Saliency):
+            raise InvalidArgumentError(f"saliency policy: saliency must be a perception.saliency.Saliency of the "
+                                       f"visual model or None, got {type(saliency).__name__}")
         self.saliency = saliency
 
 

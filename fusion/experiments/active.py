@@ -38,14 +38,16 @@ from fusion.active.policies import (
 )
 from fusion.evaluate import accuracy
 from fusion.experiments.models import fit_cached, pick
+from perception import saliency as attention
 from perception.atomic import atomic_path
 from perception.errors import DatasetError, InvalidArgumentError, InvalidMeshError
 from perception.geometry import ObjectModel
 from perception.limits import check_count
 from perception.validate import check_length
 from tactile.explore import SequenceBatch
+from tactile.sampling import STRATEGIES
 from tactile.sensor import FSRSensor
-from tactile.touching import Toucher, touch
+from tactile.touching import touch
 
 log = logging.getLogger(__name__)
 
@@ -186,8 +188,8 @@ class EpisodeJob:
         options = {"information": {"candidates": self.candidates, "variants": self.variants}}
         if "saliency" in self.policies:  # the camera's view is looked at once, whatever the episodes then touch
             start = time.perf_counter()
-            looked = Toucher(seen, SaliencyPolicy.strategy, probes=model.probes, saliency_seed=self.seed)
-            options["saliency"] = {"saliency": looked.saliency}
+            options["saliency"] = {"saliency": attention.saliency(seen, STRATEGIES[SaliencyPolicy.strategy],
+                                                                  seed=self.seed)}
             row["saliency_s"] = time.perf_counter() - start
         for pname in self.policies:
             runs = []
@@ -286,7 +288,7 @@ def fold_model_path(ctx, fold: int, file: str) -> Path:
     return ctx.path("models", "active", f"fold{fold}", file)
 
 
-def active_episodes(ctx, objects, *, classifier: str | None = None, policies=("random", "saliency", "information"),
+def active_episodes(ctx, objects, *, classifier: str | None = None, policies=POLICIES,
                     max_touches: int = 8, noise_mm: float = 1.0, candidates: int = 24, variants: int = 2,
                     visual: str = "noisy", per_fold: int | None = None, train_on_captures: bool = False,
                     episodes: int = 1, progress: bool = False) -> dict:
@@ -452,8 +454,9 @@ def part_suffix(visual: str, train_on_captures: bool, classifier: str | None = N
 def active_part(ctx, objects, **options) -> dict:
     """The ``active`` part (cached in the report folder): :func:`summarize` of :func:`active_episodes`."""
     record = {"objects": [str(o) for o in objects], "sizes": ctx.sizes.to_dict(), "seed": ctx.seed,
-              "options": {k: v for k, v in options.items() if k != "progress"},
-              "saliency": "once per object"}  # (until 2026-12-07 once per episode, with the episode's seed)
+              "options": {k: v for k, v in options.items() if k != "progress"}}
+    if "saliency" in options.get("policies", POLICIES):  # until 2026-12-07 once per episode, with its seed
+        record["saliency"] = "once per object"
     name = "active" + part_suffix(options.get("visual", "noisy"), options.get("train_on_captures", False),
                                   options.get("classifier"))
     result = ctx.cached_part(name, record, lambda: active_episodes(ctx, objects, **options))

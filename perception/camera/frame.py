@@ -19,6 +19,7 @@ from perception.errors import InvalidArgumentError
 #: command line does not load Open3D).
 MAX_DISTANCE_MM = 10_000.0
 
+
 @dataclass(frozen=True)
 class Intrinsics:
     """Pinhole intrinsics of the (colour-aligned) depth image.
