@@ -64,25 +64,14 @@ def run(calls: int, attempts: int, stall_s: float) -> dict:
             "median_s": statistics.median(times), "max_s": max(times)}
 
 
-def _seconds(text: str) -> float:
-    """An argparse ``type``: a finite number of seconds above 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number of seconds above 0, got {text!r}")
-    return value
-
-
 def main(argv: list[str] | None = None) -> int:
-    from fusion.commands import positive_int
+    from fusion.commands import positive_int, positive_seconds
 
     parser = argparse.ArgumentParser(prog="python -m benchmarks.fork_stress", description=__doc__.split("\n\n")[0])
     parser.add_argument("--calls", type=positive_int, default=2000, help="isolated surface calls (default 2000)")
     parser.add_argument("--attempts", type=positive_int, default=None,
                         help="children forked per call at most (default perception.isolate.ATTEMPTS)")
-    parser.add_argument("--stall-s", type=_seconds, default=None,
+    parser.add_argument("--stall-s", type=positive_seconds, default=None,
                         help="seconds asleep without CPU before a child is deadlocked (default isolate.STALL_S)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)

@@ -24,3 +24,16 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text[:40]!r}")
     return value
 
+
+
+def positive_seconds(text: str) -> float:
+    """An argparse ``type`` for durations: a finite number of seconds above 0, else argparse's one-line error."""
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds above 0, got {text[:40]!r}")
+    return value

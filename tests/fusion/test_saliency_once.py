@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fusion.active import ActiveState, make_policy, noisy_copy
+from fusion.active import make_policy, noisy_copy
 from fusion.experiments.active import render_markdown, summarize
 from perception.errors import SaliencyError
 from perception.shapes import make_object
+from tests.fusion.test_active import _proposals
 
 
 def _policy(decisions, top):
@@ -66,32 +67,15 @@ def visual():
     return noisy_copy(make_object("mug", 0), 0.5, seed=1)
 
 
-def _first_proposal(policy, visual):
-    return policy.propose(ActiveState(visual, _Constant()))
-
-
-class _Constant:
-    classes_ = np.array(["a", "b", "c"], dtype=object)
-    probes = 8
-
-    def sensor(self):
-        from tactile.sensor import FSRSensor
-
-        return FSRSensor(rows=8, cols=8)
-
-    def predict_proba(self, batch):
-        return np.full((len(batch), 3), 1 / 3)
-
-
 def test_a_saliency_of_another_method_or_of_a_copy_of_the_visual_model_is_refused(visual):
     from perception import saliency as attention
 
     mesh = attention.saliency(visual, "mesh")
     with pytest.raises(SaliencyError, match="needs 'multiview' saliency"):
-        _first_proposal(make_policy("saliency", 0, saliency=mesh), visual)
+        _proposals(make_policy("saliency", 0, saliency=mesh), visual, 1)
     twin = noisy_copy(make_object("mug", 0), 0.5, seed=1)  # the same geometry, another object
     with pytest.raises(SaliencyError, match="saliency of"):
-        _first_proposal(make_policy("saliency", 0, saliency=attention.saliency(twin, "multiview")), visual)
+        _proposals(make_policy("saliency", 0, saliency=attention.saliency(twin, "multiview")), visual, 1)
 
 
 @pytest.mark.parametrize("bad", ["abc", 123, np.zeros(3)])

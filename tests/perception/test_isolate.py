@@ -140,27 +140,6 @@ def test_children_that_always_deadlock_are_reported_long_before_the_time_limit(f
     assert time.perf_counter() - start < 20.0
 
 
-def _spin(seconds: float) -> str:
-    end = time.perf_counter() + seconds
-    while time.perf_counter() < end:
-        pass
-    return "spun"
-
-
-def test_a_child_that_computes_longer_than_the_stall_limit_is_left_alone(monkeypatch):
-    forks = [0]
-    real_fork = os.fork
-
-    def counting_fork():
-        pid = real_fork()
-        forks[0] += pid > 0
-        return pid
-
-    monkeypatch.setattr(isolate.os, "fork", counting_fork)
-    assert run_isolated(_spin, 2.0, timeout_s=60, stall_s=0.5) == "spun"
-    assert forks[0] == 1
-
-
 def test_the_fork_stress_benchmark_counts_its_calls(capsys):
     from benchmarks import fork_stress
 

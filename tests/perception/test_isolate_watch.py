@@ -1,5 +1,5 @@
 """The stall watch of perception.isolate.run_isolated (break attempt 2026-12-07): what it must not take for a
-deadlock (a stopped child, a child whose threads compute while its main thread waits, a child that sleeps briefly
+deadlock (a child computing longer than the stall limit, a stopped child, a child whose threads compute while its main thread waits, a child that sleeps briefly
 and then computes), and the surface call's hint per reason."""
 
 from __future__ import annotations
@@ -58,11 +58,16 @@ def test_a_stopped_child_is_not_taken_for_deadlocked(forks):
     assert len(forks) == 1
 
 
-def _spin(seconds: float) -> int:
-    end, n = time.perf_counter() + seconds, 0
+def _spin(seconds: float) -> str:
+    end = time.perf_counter() + seconds
     while time.perf_counter() < end:
-        n += 1
-    return n
+        pass
+    return "spun"
+
+
+def test_a_child_that_computes_longer_than_the_stall_limit_is_left_alone(forks):
+    assert run_isolated(_spin, 2.0, timeout_s=60, stall_s=0.5) == "spun"
+    assert len(forks) == 1
 
 
 def _threads_compute_while_main_waits(seconds: float) -> str:
