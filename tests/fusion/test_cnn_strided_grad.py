@@ -1,0 +1,64 @@
+"""The cutaneous net's strided 3D convolution computes its input gradient its own way on the CPU
+(``fusion.cnn._strided_input_grad``); it must be the gradient of the convolution: compared with PyTorch's own
+autograd (oneDNN) and, in float64, with central finite differences."""
+
+import pytest
+import torch
+from torch.nn import functional as F
+
+from fusion.cnn import CutaneousNet, _conv, _strided_input_grad
+
+
+def _reference(x: torch.Tensor, weight: torch.Tensor, grad_out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    x = x.detach().requires_grad_(True)
+    weight = weight.detach().requires_grad_(True)
+    out = F.conv3d(x, weight, stride=(1, 2, 2), padding=(0, 1, 1))
+    return torch.autograd.grad(out, (x, weight), grad_out)
+
+
+@pytest.mark.parametrize("shape", [(2, 3, 7, 8, 8), (2, 1, 5, 5, 7), (1, 2, 4, 1, 2), (3, 4, 6, 9, 4), (2, 8, 27, 16, 16)])
+def test_gradients_equal_autograd(shape):
+    gen = torch.Generator().manual_seed(sum(shape))
+    b, c, t, rows, cols = shape
+    x = torch.randn(shape, generator=gen)
+    layer = torch.nn.Conv3d(c, 5, 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False)
+    grad_out = torch.randn(b, 5, t - 2, (rows + 1) // 2, (cols + 1) // 2, generator=gen)
+    want_x, want_w = _reference(x, layer.weight, grad_out)
+    xg = x.clone().requires_grad_(True)
+    out = _conv(layer, xg)
+    assert torch.equal(out, F.conv3d(x, layer.weight, stride=(1, 2, 2), padding=(0, 1, 1)))  # the forward untouched
+    got_x, got_w = torch.autograd.grad(out, (xg, layer.weight), grad_out)
+    assert got_x.shape == x.shape
+    torch.testing.assert_close(got_x, want_x, rtol=1e-5, atol=1e-5 * float(want_x.abs().max()))
+    assert torch.equal(got_w, want_w)  # PyTorch's own weight gradient
+
+
+def test_input_gradient_matches_finite_differences():
+    gen = torch.Generator().manual_seed(3)
+    x = torch.randn(1, 2, 5, 5, 6, generator=gen, dtype=torch.float64)
+    weight = torch.randn(3, 2, 3, 3, 3, generator=gen, dtype=torch.float64)
+    grad_out = torch.randn(1, 3, 3, 3, 3, generator=gen, dtype=torch.float64)
+
+    def objective(v: torch.Tensor) -> float:
+        return float((F.conv3d(v, weight, stride=(1, 2, 2), padding=(0, 1, 1)) * grad_out).sum())
+
+    got = _strided_input_grad(grad_out, weight, 5, 6)
+    eps = 1e-6
+    for index in [(0, 0, 0, 0, 0), (0, 1, 2, 3, 4), (0, 0, 4, 4, 5), (0, 1, 1, 2, 1), (0, 0, 3, 1, 3)]:
+        up, down = x.clone(), x.clone()
+        up[index] += eps
+        down[index] -= eps
+        assert float(got[index]) == pytest.approx((objective(up) - objective(down)) / (2 * eps), rel=1e-6, abs=1e-8)
+
+
+def test_net_trains_through_it_and_other_layers_keep_pytorchs_path():
+    torch.manual_seed(0)
+    net = CutaneousNet(6, (8, 8), 3)
+    x = torch.randn(4, 1, 6, 8, 8)
+    loss = net(x).logsumexp(1).sum()
+    loss.backward()
+    grads = {name: p.grad for name, p in net.named_parameters()}
+    assert all(g is not None and torch.isfinite(g).all() for g in grads.values())
+    plain = torch.nn.Conv3d(1, 2, 3, stride=1, padding=1, bias=False)
+    v = torch.randn(1, 1, 4, 4, 4)
+    assert torch.equal(_conv(plain, v), plain(v))  # not the strided layout: PyTorch's layer as is
