@@ -270,7 +270,7 @@ def _conv(layer: nn.Module, x: torch.Tensor) -> torch.Tensor:
     """``layer(x)``; the cutaneous net's strided 3D convolutions on the CPU go through :class:`_StridedConv3d`."""
     strided = (isinstance(layer, nn.Conv3d) and layer.kernel_size == (3, 3, 3) and layer.stride == (1, 2, 2)
                and layer.padding == (0, 1, 1) and layer.dilation == (1, 1, 1) and layer.groups == 1)
-    if strided and layer.bias is None and x.device.type == "cpu":
+    if strided and layer.bias is None and x.dim() == 5 and x.device.type == "cpu":
         return _StridedConv3d.apply(x, layer.weight)
     return layer(x)
 

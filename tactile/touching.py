@@ -263,19 +263,27 @@ class Toucher:
         for plane in planes:
             yield Planned(self.cut(plane), int(noise_rng.integers(2**31 - 1)))
 
-    def draw(self, rng: np.random.Generator) -> Contour:
+    def draw(self, rng: np.random.Generator, *, cut_by: Toucher | None = None) -> Contour:
         """One contour through two candidate points drawn with ``rng``; planes that miss the object are re-drawn.
+        ``cut_by``: the plane is drawn through this object's centre and points but cut by that Toucher (another
+        model of the same object, e.g. a smoothed copy, that the contours are then pressed on: each plane cut once,
+        where it is used); the contour returned is that cut.
 
         Raises:
-            ContourError: ``MAX_DRAWS`` planes in a row missed the object.
+            ContourError: ``MAX_DRAWS`` planes in a row missed the object (``cut_by``'s).
+            InvalidArgumentError: ``cut_by`` is not a Toucher.
         """
+        if cut_by is not None and not isinstance(cut_by, Toucher):
+            raise InvalidArgumentError(f"{self.model.name}: cut_by must be a Toucher or None, got "
+                                       f"{type(cut_by).__name__}")
+        cutter = self if cut_by is None else cut_by
         for _ in range(sampling.MAX_DRAWS):
             plane = sampling.draw_plane(self.model, self.points, rng)
             try:
-                return self.cut(plane)
+                return cutter.cut(plane)
             except ContourError as exc:
-                log.debug("%s: re-drawing a plane (%s)", self.model.name, exc)
-        raise ContourError(f"{self.model.name}: {sampling.MAX_DRAWS} planes in a row missed the object")
+                log.debug("%s: re-drawing a plane (%s)", cutter.model.name, exc)
+        raise ContourError(f"{cutter.model.name}: {sampling.MAX_DRAWS} planes in a row missed the object")
 
     def stream(self, n: int, seed: int | np.random.Generator | None, *, order_seed: int | None = None,
                start: int = 0) -> Iterator[Planned]:

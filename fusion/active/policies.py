@@ -345,14 +345,14 @@ class InformationPolicy(Policy):
         cached = entry.get("planes")
         if cached is not None:
             return cached
-        toucher = entry["toucher"]
+        toucher, surface = entry["toucher"], self._surface(state)
         rng = np.random.default_rng([self.seed, int(entry["key"][:16], 16) % 2**32, 2**31])
         planes: list[Plane] = []
         points, normals = np.empty((self.candidates, 3)), np.empty((self.candidates, 3))  # of the planes so far
         for _ in range(self.candidates * sampling.MAX_DRAWS):
             if len(planes) == self.candidates:
                 break
-            plane = toucher.draw(rng).plane
+            plane = toucher.draw(rng, cut_by=surface).plane  # drawn on the visual model, cut where it is pressed
             if not _same_as_any(plane, points[:len(planes)], normals[:len(planes)]).any():
                 points[len(planes)], normals[len(planes)] = plane.point, plane.normal
                 planes.append(plane)
@@ -361,11 +361,17 @@ class InformationPolicy(Policy):
         entry["planes"] = planes
         return planes
 
+    def _surface(self, state: ActiveState) -> Toucher:
+        """The Toucher of the smoothed visual model (made once per visual model): it cuts the candidate planes."""
+        entry = self._entry(state)
+        if "surface" not in entry:
+            entry["surface"] = Toucher(smoothed(state.visual, self.smooth_iterations), "blind", probes=state.probes)
+        return entry["surface"]
+
     def simulated_touches(self, state: ActiveState, planes: list[Plane]) -> list[list[TactileSequence]]:
         """The touches of ``planes`` on the smoothed visual model, one list per variant (the first as planned, the
         others jittered by ``jitter_mm``): the planes cut once, every variant pressed in one pass."""
-        surface = Toucher(smoothed(state.visual, self.smooth_iterations), "blind", probes=state.probes)
-        return touch_variants(surface, planes, state.sensor(),
+        return touch_variants(self._surface(state), planes, state.sensor(),
                               [(self.seed + v, self.jitter_mm if v else 0.0) for v in range(self.variants)])
 
     def scores(self, state: ActiveState) -> np.ndarray:

@@ -6,7 +6,7 @@ import pytest
 import torch
 from torch.nn import functional as F
 
-from fusion.cnn import CutaneousNet, _conv, _strided_input_grad
+from fusion.cnn import CNNClassifier, CutaneousNet, _conv, _strided_input_grad
 
 
 def _reference(x: torch.Tensor, weight: torch.Tensor, grad_out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -62,3 +62,61 @@ def test_net_trains_through_it_and_other_layers_keep_pytorchs_path():
     plain = torch.nn.Conv3d(1, 2, 3, stride=1, padding=1, bias=False)
     v = torch.randn(1, 1, 4, 4, 4)
     assert torch.equal(_conv(plain, v), plain(v))  # not the strided layout: PyTorch's layer as is
+
+
+def _custom(out: torch.Tensor) -> bool:
+    return type(out.grad_fn).__name__ == "_StridedConv3dBackward"
+
+
+def test_the_cutaneous_nets_strided_layers_take_the_custom_gradient():
+    net = CutaneousNet(6, (8, 8), 3)
+    for layer in (net.conv1, net.conv2):
+        assert _custom(_conv(layer, torch.randn(2, layer.in_channels, 8, 8, 8)))
+
+
+def test_input_gradient_with_the_weight_frozen():
+    torch.manual_seed(0)
+    layer = torch.nn.Conv3d(2, 3, 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False).requires_grad_(False)
+    x = torch.randn(2, 2, 5, 7, 6, requires_grad=True)
+    (got,) = torch.autograd.grad(_conv(layer, x).square().sum(), x)
+    plain = x.detach().requires_grad_(True)
+    (want,) = torch.autograd.grad(layer(plain).square().sum(), plain)
+    torch.testing.assert_close(got, want)
+
+
+@pytest.mark.parametrize("options", [{"stride": 1, "padding": (0, 1, 1)}, {"stride": (1, 2, 1), "padding": (0, 1, 1)},
+                                     {"stride": (1, 2, 2), "padding": (1, 1, 1)}, {"stride": (1, 2, 2), "padding": 0},
+                                     {"kernel_size": (1, 3, 3), "stride": (1, 2, 2), "padding": (0, 1, 1)},
+                                     {"stride": (1, 2, 2), "padding": (0, 1, 1), "dilation": (1, 2, 2)},
+                                     {"stride": (1, 2, 2), "padding": (0, 1, 1), "groups": 2},
+                                     {"stride": (1, 2, 2), "padding": (0, 1, 1), "bias": True}])
+def test_other_conv3d_layouts_keep_pytorchs_own_path(options):
+    torch.manual_seed(0)
+    layer = torch.nn.Conv3d(2, 4, **{"kernel_size": 3, "bias": False, **options})
+    x = torch.randn(2, 2, 5, 9, 8, requires_grad=True)
+    out = _conv(layer, x)
+    assert not _custom(out)
+    plain = x.detach().requires_grad_(True)
+    want = layer(plain)
+    assert torch.equal(out, want)
+    grad = torch.randn_like(want)
+    for a, b in zip(torch.autograd.grad(out, (x, layer.weight), grad),
+                    torch.autograd.grad(want, (plain, layer.weight), grad), strict=True):
+        assert torch.equal(a, b)
+
+
+def test_unbatched_input_keeps_pytorchs_own_path():
+    layer = torch.nn.Conv3d(2, 3, 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False)
+    x = torch.randn(2, 5, 7, 6, requires_grad=True)
+    out = _conv(layer, x)
+    assert not _custom(out)
+    out.sum().backward()
+    assert x.grad.shape == x.shape
+
+
+@pytest.mark.parametrize("weight_decay", [0.0, 1e-3])
+def test_the_optimizer_is_fused(weight_decay):
+    model = CNNClassifier(epochs=2, weight_decay=weight_decay, schedule="constant")
+    opt, _ = model._optimizer(CutaneousNet(5, (8, 8), 3), 48, "cutaneous")
+    assert type(opt) is (torch.optim.AdamW if weight_decay > 0 else torch.optim.Adam)
+    assert opt.defaults["fused"] is True and not opt.defaults.get("foreach")
