@@ -231,7 +231,7 @@ def _strided_input_grad(grad_out: torch.Tensor, weight: torch.Tensor, rows: int,
     """The input gradient of ``conv3d(x, weight, stride=(1, 2, 2), padding=(0, 1, 1))``, x of (B, C, T + 2, rows,
     cols), from its output gradient (B, O, T, ceil(rows / 2), ceil(cols / 2)).
 
-    Why not autograd's: on the CPU oneDNN computes this strided transposed convolution 1.3-1.6 times slower than one
+    Why not autograd's: on the CPU oneDNN computes this strided transposed convolution 1.2-1.6 times slower than one
     stride-1 convolution of the output gradient whose 4 C output channels are the input's four (row, column)
     parities (2 x 2 taps, zero where a parity has one tap), followed by a depth-to-space shuffle; a quarter to a third
     of the cutaneous net's training step was this gradient. Equal to autograd's within float32 rounding (tested).
