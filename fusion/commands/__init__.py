@@ -25,7 +25,6 @@ def positive_int(text: str) -> int:
     return value
 
 
-
 def positive_seconds(text: str) -> float:
     """An argparse ``type`` for durations: a finite number of seconds above 0, else argparse's one-line error."""
     import argparse

@@ -1,6 +1,6 @@
 """The stall watch of perception.isolate.run_isolated (break attempt 2026-12-07): what it must not take for a
-deadlock (a child computing longer than the stall limit, a stopped child, a child whose threads compute while its main thread waits, a child that sleeps briefly
-and then computes), and the surface call's hint per reason."""
+deadlock (a child computing longer than the stall limit, a stopped child, a child whose threads compute while its
+main thread waits, a child that sleeps briefly and then computes), and the surface call's hint per reason."""
 
 from __future__ import annotations
 
