@@ -31,6 +31,7 @@ from perception.runtime import (
     exit_with,
     kill_handles,
     libc,
+    limit_cores,
     package_version,
     progress_bar,
     stop_as_told,
@@ -337,14 +338,23 @@ def _reason_for_exit(code: int | None) -> str:
     return f"worker process exited with code {code} before reporting (the object's loader, or a library, ended it)"
 
 
-def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache: str | None, caller: int) -> None:
-    """Worker process body: explore the objects the parent sends, one at a time, until it sends None; report each
-    one's progress and outcome through ``conn``. One process explores many objects, so only the first pays for a
-    fresh process's memory (page faults, first calls: 0.55 of the 5.3 s of a SHREC object explored alone); an object
-    that kills its worker (a native abort) or hangs is recorded as failed and the parent starts a new worker."""
+def worker_cores(n_workers: int) -> int:
+    """Cores each of ``n_workers`` local workers may use (its thread pools and Open3D's ray casting), so that together
+    they use each usable core once: at least 1."""
+    return max(1, usable_cores() // n_workers)
+
+
+def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache: str | None, caller: int,
+            cores: int) -> None:
+    """Worker process body: explore the objects the parent sends, one at a time, until it sends None, on at most
+    ``cores`` cores (:func:`worker_cores`); report each one's progress and outcome through ``conn``. One process
+    explores many objects, so only the first pays for a fresh process's memory (page faults, first calls: 0.55 of the
+    5.3 s of a SHREC object explored alone); an object that kills its worker (a native abort) or hangs is recorded as
+    failed and the parent starts a new worker."""
     stop_as_told()  # asked to stop mid-object (an interrupt, a timeout): unwind, removing a chunk file half written
     exit_with(caller)  # generate's process killed: no orphan writes on into the store
     _keep_freed_memory()
+    limit_cores(cores)
     from tactile.dataset.worker import explore_into_store
 
     while (task := _next_task(conn)) is not None:
@@ -410,7 +420,8 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
 
     def start_worker() -> _Running:
         parent, child = ctx.Pipe(duplex=True)
-        proc = ctx.Process(target=_worker, args=(child, store, settings, sensor, saliency_cache, os.getpid()),
+        proc = ctx.Process(target=_worker, args=(child, store, settings, sensor, saliency_cache, os.getpid(),
+                                                   worker_cores(n_workers)),
                            name="generate-worker", daemon=True)
         with without_main_module():
             proc.start()
@@ -505,6 +516,7 @@ def _ray_task(store: str, index: int, spec: ObjectSpec, settings: dict, sensor: 
               saliency_cache: str | None = None) -> tuple:
     from tactile.dataset.worker import explore_into_store
 
+    limit_cores(1)  # the task holds one of Ray's CPUs
     try:
         explore_into_store(store, index, spec, settings, sensor, saliency_cache=saliency_cache)
         return True, None

@@ -128,3 +128,24 @@ class TestProgressSwitch:
             runtime.progress_enabled(True)) or 0)
         assert cli.main(["verify", "x.zarr", "--no-progress"]) == 0
         assert seen == [False] and runtime.progress_enabled(True)
+
+
+def test_limit_cores_bounds_open3d_and_lifting_it_restores_open3d_default():
+    """Open3D's ray casting spreads over every core unless told: ``limit_cores`` tells it, and None lifts the limit."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import open3d as o3d
+        from perception import runtime
+        default = o3d.utility.get_max_threads()
+        runtime.limit_cores(1)
+        print(o3d.utility.get_max_threads(), runtime.usable_cores())
+        runtime.limit_cores(None)
+        print(o3d.utility.get_max_threads() == default)
+    """)
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-c", script], cwd=root, capture_output=True, text=True, timeout=120,
+                         env={**__import__("os").environ, "PYTHONPATH": str(root)}, check=True).stdout.split()
+    assert out == ["1", "1", "True"]

@@ -305,3 +305,37 @@ def test_descendants_are_listed_and_killed_even_once_orphaned():
     finally:
         child.kill()
         child.wait()
+
+
+def test_each_generation_worker_casts_on_its_share_of_the_cores(monkeypatch):
+    """A worker limits Open3D's threads (its ray casting) and its own pools to the cores it is given, so that two workers
+    on two cores do not each spread over both; its share is the usable cores split among the workers, at least 1."""
+    import importlib
+    import multiprocessing as mp
+
+    import open3d as o3d
+
+    from perception import runtime
+    from tactile.dataset import worker
+
+    gen = importlib.import_module("tactile.dataset.generate")  # the module: the package exports its function
+
+    def report_limits(store, index, spec, settings, sensor, progress, saliency_cache):
+        progress((o3d.utility.get_max_threads(), runtime.usable_cores()))
+
+    monkeypatch.setattr(worker, "explore_into_store", report_limits)  # the forked worker imports it from here
+    parent, child = mp.get_context("fork").Pipe(duplex=True)
+    proc = mp.get_context("fork").Process(target=gen._worker, args=(child, "unused", {}, None, None, os.getpid(), 1))
+    proc.start()
+    try:
+        child.close()
+        parent.send((0, None))
+        assert parent.recv() == ("progress", (1, 1))
+        assert parent.recv() == ("done", None)
+        parent.send(None)
+        proc.join(30)
+        assert proc.exitcode == 0
+    finally:
+        proc.kill()
+    monkeypatch.setattr(gen, "usable_cores", lambda: 8)
+    assert [gen.worker_cores(n) for n in (1, 2, 3, 8, 9)] == [8, 4, 2, 1, 1]
