@@ -513,10 +513,11 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
 
 # -------------------------------------------------------------------------------------- Ray executor
 def _ray_task(store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor,
-              saliency_cache: str | None = None) -> tuple:
+              saliency_cache: str | None = None, caller: int | None = None) -> tuple:
     from tactile.dataset.worker import explore_into_store
 
-    limit_cores(1)  # the task holds one of Ray's CPUs
+    if os.getpid() != caller:  # the task holds one of Ray's CPUs; a task run in the caller's process leaves its limits
+        limit_cores(1)
     try:
         explore_into_store(store, index, spec, settings, sensor, saliency_cache=saliency_cache)
         return True, None
@@ -540,7 +541,7 @@ def _run_ray(store, specs, settings, sensor, todo, n_workers, finished, bar, sal
             ray.init(num_cpus=n_workers, include_dashboard=False, log_to_driver=False)
     task = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
     layout = layout_of(settings)
-    refs = {task.remote(store, i, specs[i], settings, sensor, saliency_cache): i for i in todo}
+    refs = {task.remote(store, i, specs[i], settings, sensor, saliency_cache, os.getpid()): i for i in todo}
     try:
         while refs:
             ready, _ = ray.wait(list(refs), num_returns=1)

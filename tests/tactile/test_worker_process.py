@@ -339,3 +339,38 @@ def test_each_generation_worker_casts_on_its_share_of_the_cores(monkeypatch):
         proc.kill()
     monkeypatch.setattr(gen, "usable_cores", lambda: 8)
     assert [gen.worker_cores(n) for n in (1, 2, 3, 8, 9)] == [8, 4, 2, 1, 1]
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs 2 usable cores to tell a limit of 1 from none")
+def test_a_ray_task_limits_its_worker_to_one_core_but_never_the_process_that_called_generate(monkeypatch):
+    """A Ray task holds one CPU, so its worker process casts on one core; a task that Ray runs in the caller's own
+    process (local mode) leaves the caller's limits alone."""
+    import importlib
+    import multiprocessing as mp
+
+    import open3d as o3d
+
+    from tactile.dataset import worker
+
+    gen = importlib.import_module("tactile.dataset.generate")
+    seen = []
+    monkeypatch.setattr(worker, "explore_into_store", lambda *a, **k: seen.append(o3d.utility.get_max_threads()))
+    o3d.utility.set_max_threads(2)  # a limit of the caller's own, unlike the one a task sets
+    parent, child = mp.get_context("fork").Pipe()
+
+    def in_a_ray_worker():
+        gen._ray_task("unused", 0, None, {}, None, None, os.getppid())
+        child.send(seen[-1])
+
+    try:
+        assert gen._ray_task("unused", 0, None, {}, None, None, os.getpid()) == (True, None)
+        assert seen == [2] and o3d.utility.get_max_threads() == 2
+        proc = mp.get_context("fork").Process(target=in_a_ray_worker)  # inherits the 2
+        proc.start()
+        try:
+            assert parent.poll(30) and parent.recv() == 1
+            proc.join(30)
+        finally:
+            proc.kill()
+    finally:
+        o3d.utility.set_max_threads(0)
