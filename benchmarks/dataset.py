@@ -8,8 +8,8 @@ One run measures, on the same objects and cores:
     with ``--repeats`` N > 1 only the first run samples memory and the time is the median of the other N - 1.
 (b) The raw limit: the same probes' full-resolution rays (one 1,024-ray pad per probe at the side the
     store recorded, i.e. the fewest rays that give those frames) cast with ``RaycastingScene.cast_rays``
-    and nothing else, one process per object, ``--workers`` at a time, each on its share of the cores as the workers are; rays are built before the clock
-    starts. Limit = sequences x workers / (sum of cast seconds). Ratio = generation rate / limit. Guided
+    and nothing else, one process per object, ``--workers`` at a time, each on its share of the cores as the
+    workers are; rays are built before the clock starts. Limit = sequences x workers / (sum of cast seconds). Ratio = generation rate / limit. Guided
     contours repeat (pairs of 10 interest points), and generation presses a repeated contour once, so the
     ratio can pass 1; the table also gives the raw time of the distinct contours alone and the ratio of
     that to the generation time (the share of generation that is the unavoidable ray casting), and the raw time
@@ -166,12 +166,11 @@ def raw_limit(store: Path, workers: int) -> dict:
         n = len(batch) * ds.probes
         jobs.append((specs[name], ds.sensor_spec, batch.positions.reshape(n, 3), batch.normals.reshape(n, 3),
                      batch.tangents.reshape(n, 3), batch.pad_sides_mm.reshape(n), np.repeat(distinct, ds.probes)))
-    from perception.runtime import limit_cores
-    from tactile.dataset.generate import worker_cores
+    from perception.runtime import limit_cores, worker_cores
 
-    # Each process on its share of the cores, as generation's workers are: Open3D spreading every process over every
-    # core casts fewer rays per second.
-    with mp.get_context("forkserver").Pool(workers, limit_cores, (worker_cores(workers),)) as pool:
+    # Each process on its share of the cores, as generation's workers are (as many as objects at most): Open3D
+    # spreading every process over every core casts fewer rays per second.
+    with mp.get_context("forkserver").Pool(workers, limit_cores, (worker_cores(min(workers, len(jobs))),)) as pool:
         results = pool.map(_raw_cast, jobs, chunksize=1)
     rays_distinct = sum(r[0] for r in results)
     seconds_distinct = sum(r[1] for r in results)

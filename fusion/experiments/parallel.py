@@ -47,6 +47,7 @@ from perception.runtime import (
     stop_as_told,
     usable_cores,
     without_main_module,
+    worker_cores,
 )
 
 log = logging.getLogger(__name__)
@@ -373,7 +374,7 @@ def _travelling(outcome):
 def _in_workers(jobs: list, order: list[int], workers: int, bar) -> dict[int, object]:
     """Outcomes of ``jobs[i]`` for ``i`` in ``order``; a job whose worker died runs again alone, once."""
     done: dict[int, object] = {}
-    cores = max(1, usable_cores() // workers)
+    cores = worker_cores(workers)
     left = _run_pool(jobs, order, workers, cores, done, bar)
     if left:  # every unfinished job again, each in a fresh worker of its own: only the one that kills dies
         log.warning("a worker process died; running its %d unfinished jobs again one by one", len(left))

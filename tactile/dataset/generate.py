@@ -27,6 +27,7 @@ from pathlib import Path
 from perception.errors import DatasetError, InvalidArgumentError
 from perception.runtime import (
     STOP_GRACE_S,
+    cores_limited,
     descendant_handles,
     exit_with,
     kill_handles,
@@ -37,6 +38,7 @@ from perception.runtime import (
     stop_as_told,
     usable_cores,
     without_main_module,
+    worker_cores,
 )
 from tactile import sampling
 from tactile.dataset.objects import ObjectSpec, object_specs
@@ -338,12 +340,6 @@ def _reason_for_exit(code: int | None) -> str:
     return f"worker process exited with code {code} before reporting (the object's loader, or a library, ended it)"
 
 
-def worker_cores(n_workers: int) -> int:
-    """Cores each of ``n_workers`` local workers may use (its thread pools and Open3D's ray casting), so that together
-    they use each usable core once: at least 1."""
-    return max(1, usable_cores() // n_workers)
-
-
 def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache: str | None, caller: int,
             cores: int) -> None:
     """Worker process body: explore the objects the parent sends, one at a time, until it sends None, on at most
@@ -513,13 +509,13 @@ def _run_local(store, specs, settings, sensor, todo, n_workers, finished, bar, s
 
 # -------------------------------------------------------------------------------------- Ray executor
 def _ray_task(store: str, index: int, spec: ObjectSpec, settings: dict, sensor: FSRSensor,
-              saliency_cache: str | None = None, caller: int | None = None) -> tuple:
+              saliency_cache: str | None = None) -> tuple:
     from tactile.dataset.worker import explore_into_store
 
-    if os.getpid() != caller:  # the task holds one of Ray's CPUs; a task run in the caller's process leaves its limits
-        limit_cores(1)
     try:
-        explore_into_store(store, index, spec, settings, sensor, saliency_cache=saliency_cache)
+        # The task holds one of Ray's CPUs; the worker process is Ray's, so its limits are given back after.
+        with cores_limited(1):
+            explore_into_store(store, index, spec, settings, sensor, saliency_cache=saliency_cache)
         return True, None
     except Exception as exc:  # noqa: BLE001 -- any failure of one object is recorded, never raised
         return False, f"{type(exc).__name__}: {exc}"
@@ -541,7 +537,7 @@ def _run_ray(store, specs, settings, sensor, todo, n_workers, finished, bar, sal
             ray.init(num_cpus=n_workers, include_dashboard=False, log_to_driver=False)
     task = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
     layout = layout_of(settings)
-    refs = {task.remote(store, i, specs[i], settings, sensor, saliency_cache, os.getpid()): i for i in todo}
+    refs = {task.remote(store, i, specs[i], settings, sensor, saliency_cache): i for i in todo}
     try:
         while refs:
             ready, _ = ray.wait(list(refs), num_returns=1)

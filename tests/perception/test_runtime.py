@@ -144,8 +144,11 @@ def test_limit_cores_bounds_open3d_and_lifting_it_restores_open3d_default():
         print(o3d.utility.get_max_threads(), runtime.usable_cores())
         runtime.limit_cores(None)
         print(o3d.utility.get_max_threads() == default)
+        for n in (0, -1):  # one core: never Open3D's "no limit" 0, nor its error for a negative count
+            runtime.limit_cores(n)
+            print(o3d.utility.get_max_threads(), runtime.usable_cores())
     """)
     root = Path(__file__).resolve().parents[2]
     out = subprocess.run([sys.executable, "-c", script], cwd=root, capture_output=True, text=True, timeout=120,
                          env={**__import__("os").environ, "PYTHONPATH": str(root)}, check=True).stdout.split()
-    assert out == ["1", "1", "True"]
+    assert out == ["1", "1", "True", "1", "1", "1", "1"]

@@ -307,9 +307,15 @@ def test_descendants_are_listed_and_killed_even_once_orphaned():
         child.wait()
 
 
+
+two_cores = pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs 2 usable cores to tell a limit of 1 "
+                               "from none")
+
+
+@two_cores
 def test_each_generation_worker_casts_on_its_share_of_the_cores(monkeypatch):
     """A worker limits Open3D's threads (its ray casting) and its own pools to the cores it is given, so that two workers
-    on two cores do not each spread over both; its share is the usable cores split among the workers, at least 1."""
+    on two cores do not each spread over both."""
     import importlib
     import multiprocessing as mp
 
@@ -330,47 +336,60 @@ def test_each_generation_worker_casts_on_its_share_of_the_cores(monkeypatch):
     try:
         child.close()
         parent.send((0, None))
-        assert parent.recv() == ("progress", (1, 1))
-        assert parent.recv() == ("done", None)
+        assert parent.poll(30) and parent.recv() == ("progress", (1, 1))
+        assert parent.poll(30) and parent.recv() == ("done", None)
         parent.send(None)
         proc.join(30)
         assert proc.exitcode == 0
     finally:
         proc.kill()
-    monkeypatch.setattr(gen, "usable_cores", lambda: 8)
-    assert [gen.worker_cores(n) for n in (1, 2, 3, 8, 9)] == [8, 4, 2, 1, 1]
 
 
-@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs 2 usable cores to tell a limit of 1 from none")
-def test_a_ray_task_limits_its_worker_to_one_core_but_never_the_process_that_called_generate(monkeypatch):
-    """A Ray task holds one CPU, so its worker process casts on one core; a task that Ray runs in the caller's own
-    process (local mode) leaves the caller's limits alone."""
+def test_generation_starts_each_worker_on_its_share_of_the_cores(monkeypatch):
+    """The usable cores split among the workers, at least 1 each (workers forked here so that the stand-in explorer
+    reaches them; it reports the limit it runs under as its failure)."""
     import importlib
     import multiprocessing as mp
 
+    from perception import runtime
+    from tactile.dataset import worker
+
+    gen = importlib.import_module("tactile.dataset.generate")
+
+    def report_limit(*args, **kwargs):
+        raise RuntimeError(f"limit {runtime._core_limit}")
+
+    monkeypatch.setattr(worker, "explore_into_store", report_limit)
+    monkeypatch.setattr(gen, "_context", lambda: mp.get_context("fork"))
+    monkeypatch.setattr(runtime, "usable_cores", lambda: 8)
+    for n_workers, share in ((3, 2), (8, 1), (9, 1)):
+        seen = []
+        gen._run_local("unused", [None] * n_workers, {}, None, list(range(n_workers)), n_workers,
+                       lambda i, ok, detail, seen=seen: seen.append((ok, detail)), None, None, 60)
+        assert seen == [(False, f"RuntimeError: limit {share}")] * n_workers
+    assert runtime.worker_cores(1) == 8 and runtime._core_limit is None  # this process keeps its own
+
+
+@two_cores
+def test_a_ray_task_limits_its_process_to_one_core_and_gives_the_limits_back(monkeypatch):
+    """A Ray task holds one CPU, so it casts on one core; the process is Ray's worker (or the caller's own, in local
+    mode), which runs other tasks after it, so its limits are as before once the task ends."""
+    import importlib
+
     import open3d as o3d
 
+    from perception import runtime
     from tactile.dataset import worker
 
     gen = importlib.import_module("tactile.dataset.generate")
     seen = []
-    monkeypatch.setattr(worker, "explore_into_store", lambda *a, **k: seen.append(o3d.utility.get_max_threads()))
-    o3d.utility.set_max_threads(2)  # a limit of the caller's own, unlike the one a task sets
-    parent, child = mp.get_context("fork").Pipe()
-
-    def in_a_ray_worker():
-        gen._ray_task("unused", 0, None, {}, None, None, os.getppid())
-        child.send(seen[-1])
-
+    monkeypatch.setattr(worker, "explore_into_store",
+                        lambda *a, **k: seen.append((o3d.utility.get_max_threads(), runtime.usable_cores())))
+    monkeypatch.setattr(runtime, "_core_limit", None)
+    o3d.utility.set_max_threads(2)
     try:
-        assert gen._ray_task("unused", 0, None, {}, None, None, os.getpid()) == (True, None)
-        assert seen == [2] and o3d.utility.get_max_threads() == 2
-        proc = mp.get_context("fork").Process(target=in_a_ray_worker)  # inherits the 2
-        proc.start()
-        try:
-            assert parent.poll(30) and parent.recv() == 1
-            proc.join(30)
-        finally:
-            proc.kill()
+        assert gen._ray_task("unused", 0, None, {}, None, None) == (True, None)
+        assert seen == [(1, 1)]
+        assert o3d.utility.get_max_threads() == 2 and runtime._core_limit is None
     finally:
         o3d.utility.set_max_threads(0)
