@@ -8,12 +8,12 @@ One run measures, on the same objects and cores:
     with ``--repeats`` N > 1 only the first run samples memory and the time is the median of the other N - 1.
 (b) The raw limit: the same probes' full-resolution rays (one 1,024-ray pad per probe at the side the
     store recorded, i.e. the fewest rays that give those frames) cast with ``RaycastingScene.cast_rays``
-    and nothing else, one process per object, ``--workers`` at a time, each on its share of the cores as the
-    workers are; rays are built before the clock starts. Limit = sequences x workers / (sum of cast seconds).
-    Ratio = generation rate / limit. Guided contours repeat (pairs of 10 interest points), and generation
-    presses a repeated contour once, so the ratio can pass 1; the table also gives the raw time of the distinct contours alone and the ratio of
-    that to the generation time (the share of generation that is the unavoidable ray casting), and the raw time
-    of every ray the generation cast (each object's record counts them: the adaptive pad's survey, shrink and
+    and nothing else, one process per object, ``--workers`` at a time, each on its share of the cores as the workers
+    are; rays are built before the clock starts. Limit = sequences x workers / (sum of cast seconds). Ratio =
+    generation rate / limit. Guided contours repeat (pairs of 10 interest points), and generation presses a repeated
+    contour once, so the ratio can pass 1; the table also gives the raw time of the distinct contours alone and the
+    ratio of that to the generation time (the share of generation that is the unavoidable ray casting), and the raw
+    time of every ray the generation cast (each object's record counts them: the adaptive pad's survey, shrink and
     settle passes too), the floor of the algorithm as it is.
 (c) Writing: the seconds the workers spent writing rows (encode, checksum, write the files) beside Blosc with
     the store's settings encoding the same bytes chunk by chunk and nothing else (both summed over workers,

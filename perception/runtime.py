@@ -405,6 +405,6 @@ def _log_bar_class():
 
 
 __all__ = ["DISTRIBUTION", "PROGRESS_ENV", "STOP_GRACE_S", "Stopped", "checkout_root", "child_pids", "cores_limited",
-           "descendant_handles", "exit_with", "kill_handles", "limit_cores", "machine", "machine_line", "package_version",
-           "progress_bar", "progress_enabled", "set_progress", "stop_as_told", "usable_cores", "versions",
-           "without_main_module", "worker_cores"]
+           "descendant_handles", "exit_with", "kill_handles", "limit_cores", "machine", "machine_line",
+           "package_version", "progress_bar", "progress_enabled", "set_progress", "stop_as_told", "usable_cores",
+           "versions", "without_main_module", "worker_cores"]

@@ -343,10 +343,10 @@ def _reason_for_exit(code: int | None) -> str:
 def _worker(conn, store: str, settings: dict, sensor: FSRSensor, saliency_cache: str | None, caller: int,
             cores: int) -> None:
     """Worker process body: explore the objects the parent sends, one at a time, until it sends None, on at most
-    ``cores`` cores (:func:`~perception.runtime.worker_cores`); report each one's progress and outcome through ``conn``. One process
-    explores many objects, so only the first pays for a fresh process's memory (page faults, first calls: 0.55 of the
-    5.3 s of a SHREC object explored alone); an object that kills its worker (a native abort) or hangs is recorded as
-    failed and the parent starts a new worker."""
+    ``cores`` cores (:func:`~perception.runtime.worker_cores`); report each one's progress and outcome through
+    ``conn``. One process explores many objects, so only the first pays for a fresh process's memory (page faults,
+    first calls: 0.55 of the 5.3 s of a SHREC object explored alone); an object that kills its worker (a native
+    abort) or hangs is recorded as failed and the parent starts a new worker."""
     stop_as_told()  # asked to stop mid-object (an interrupt, a timeout): unwind, removing a chunk file half written
     exit_with(caller)  # generate's process killed: no orphan writes on into the store
     _keep_freed_memory()

@@ -314,8 +314,8 @@ two_cores = pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs 2
 
 @two_cores
 def test_each_generation_worker_casts_on_its_share_of_the_cores(monkeypatch):
-    """A worker limits Open3D's threads (its ray casting) and its own pools to the cores it is given, so that two workers
-    on two cores do not each spread over both."""
+    """A worker limits Open3D's threads (its ray casting) and its own pools to the cores it is given, so that two
+    workers on two cores do not each spread over both."""
     import importlib
     import multiprocessing as mp
 
