@@ -266,13 +266,19 @@ class _StridedConv3d(torch.autograd.Function):
         return grad_x, grad_w
 
 
-def _conv(layer: nn.Module, x: torch.Tensor) -> torch.Tensor:
-    """``layer(x)``; the cutaneous net's strided 3D convolutions on the CPU go through :class:`_StridedConv3d`."""
-    strided = (isinstance(layer, nn.Conv3d) and layer.kernel_size == (3, 3, 3) and layer.stride == (1, 2, 2)
-               and layer.padding == (0, 1, 1) and layer.dilation == (1, 1, 1) and layer.groups == 1)
-    if strided and layer.bias is None and x.dim() == 5 and x.device.type == "cpu":
-        return _StridedConv3d.apply(x, layer.weight)
-    return layer(x)
+class _HalvingConv3d(nn.Conv3d):
+    """The cutaneous net's bias-free 3 x 3 x 3 convolution of stride (1, 2, 2) and padding (0, 1, 1), which halves each
+    frame side; a plain ``nn.Conv3d`` to everything that reads it (its parameters, its state dict). On the CPU its
+    input gradient is :func:`_strided_input_grad` (:class:`_StridedConv3d`); on other devices, and on unbatched input,
+    PyTorch's own."""
+
+    def __init__(self, in_channels: int, out_channels: int):
+        super().__init__(in_channels, out_channels, 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.dim() == 5 and x.device.type == "cpu":
+            return _StridedConv3d.apply(x, self.weight)
+        return super().forward(x)
 
 
 def _circular_probes(x: torch.Tensor, pad: int = 1) -> torch.Tensor:
@@ -286,8 +292,8 @@ class _TwoConvNet(nn.Module):
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """(B, hidden) the hidden layer the classifying layer reads (after its ReLU)."""
-        x = F.relu(self.bn1(_conv(self.conv1, _circular_probes(x))))
-        x = F.relu(self.bn2(_conv(self.conv2, _circular_probes(x))))
+        x = F.relu(self.bn1(self.conv1(_circular_probes(x))))
+        x = F.relu(self.bn2(self.conv2(_circular_probes(x))))
         return F.relu(self.fc1(x.flatten(1)))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -300,9 +306,9 @@ class CutaneousNet(_TwoConvNet):
     def __init__(self, n_probes: int, grid: tuple[int, int], n_classes: int, widths=(8, 16), hidden: int = 64,
                  dropout: float = 0.2):
         super().__init__()
-        self.conv1 = nn.Conv3d(1, widths[0], 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False)
+        self.conv1 = _HalvingConv3d(1, widths[0])
         self.bn1 = nn.BatchNorm3d(widths[0])
-        self.conv2 = nn.Conv3d(widths[0], widths[1], 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False)
+        self.conv2 = _HalvingConv3d(widths[0], widths[1])
         self.bn2 = nn.BatchNorm3d(widths[1])
         rows, cols = grid
         for _ in range(2):  # each stride-2 convolution with padding 1: n -> ceil(n / 2)
