@@ -31,6 +31,7 @@ plane chosen on one is touched on the other. Policies (:data:`POLICIES`):
 from __future__ import annotations
 
 import hashlib
+import inspect
 import logging
 import time
 import weakref
@@ -423,24 +424,20 @@ def smoothed(model: ObjectModel, iterations: int) -> ObjectModel:
 
 
 def make_policy(name: str, seed: int = 0, **options) -> Policy:
-    """A new policy by name (:data:`POLICIES`); ``options`` go to :class:`InformationPolicy` or
-    :class:`SaliencyPolicy`.
+    """A new policy by name (:data:`POLICIES`); ``options`` are its class's keyword arguments (:class:`RandomPolicy`,
+    :class:`SaliencyPolicy`, :class:`InformationPolicy`).
 
     Raises:
-        InvalidArgumentError: unknown name, or options for a policy that takes none.
+        InvalidArgumentError: unknown name, an option the policy does not take, or a bad value of one it takes.
     """
-    if name == "information":
-        return InformationPolicy(seed, **options)
-    if name == "saliency":
-        unknown = sorted(set(options) - {"saliency", "cache_size"})
-        if unknown:
-            raise InvalidArgumentError(f"the saliency policy takes saliency and cache_size, got {unknown}")
-        return SaliencyPolicy(seed, **options)
-    if name not in POLICIES:
+    if not isinstance(name, str) or name not in POLICIES:
         raise InvalidArgumentError(f"unknown touch policy {name!r}; choose one of {', '.join(POLICIES)}")
-    if options:
-        raise InvalidArgumentError(f"the {name} policy takes no options, got {sorted(options)}")
-    return RandomPolicy(seed)
+    policy = {"random": RandomPolicy, "saliency": SaliencyPolicy, "information": InformationPolicy}[name]
+    takes = [p.name for p in inspect.signature(policy).parameters.values() if p.kind is p.KEYWORD_ONLY]
+    unknown = sorted(set(options) - set(takes))
+    if unknown:
+        raise InvalidArgumentError(f"the {name} policy takes {', '.join(takes)}; got {', '.join(unknown)}")
+    return policy(seed, **options)
 
 
 def noisy_copy(model: ObjectModel, noise_mm: float = 1.0, seed: int = 0, *, name: str | None = None) -> ObjectModel:

@@ -297,8 +297,12 @@ class TestEpisode:
             make_policy("information", visual_weight=-1.0)
         with pytest.raises(InvalidArgumentError, match="smooth_iterations"):
             make_policy("information", smooth_iterations=-1)
-        with pytest.raises(InvalidArgumentError, match="no options"):
+        with pytest.raises(InvalidArgumentError, match="the random policy takes cache_size; got candidates"):
             make_policy("random", candidates=3)
+        with pytest.raises(InvalidArgumentError, match="the information policy takes candidates, .*; got foo"):
+            make_policy("information", foo=1)  # a project error, not the TypeError of an unknown keyword
+        with pytest.raises(InvalidArgumentError, match="unknown touch policy"):
+            make_policy(["random"])
 
 
 class TestNoisyCopy:
