@@ -42,16 +42,27 @@ ATTEMPTS = 3
 POLL_S = 0.25
 
 
+#: What went wrong in an isolated call (:attr:`IsolatedCallFailed.kind`).
+FAILURES = ("crashed", "timed out", "deadlocked")
+
+
 class IsolatedCallFailed(RuntimeError):
-    """The isolated call crashed (killed by a signal / exited without a result) or ran out of time.
+    """The isolated call crashed (killed by a signal / exited without a result), ran out of time or deadlocked.
 
     Attributes:
-        reason: ``"crashed"``, ``"timed out"`` or ``"deadlocked"`` (each followed by details).
+        kind: one of :data:`FAILURES`.
+        reason: ``kind``, then any details in brackets (for messages).
     """
 
-    def __init__(self, what: str, reason: str) -> None:
-        super().__init__(f"{what}: {reason}")
-        self.reason = reason
+    def __init__(self, what: str, kind: str, details: str | None = None) -> None:
+        if kind not in FAILURES:
+            raise ValueError(f"IsolatedCallFailed: kind must be one of {FAILURES}, got {kind!r}")
+        self.what, self.kind, self.details = what, kind, details
+        self.reason = kind if details is None else f"{kind} ({details})"
+        super().__init__(f"{what}: {self.reason}")
+
+    def __reduce__(self):  # sent back from a worker process whole, not as its message alone
+        return type(self), (self.what, self.kind, self.details)
 
 
 def _quiet_child() -> None:
@@ -101,7 +112,7 @@ def run_isolated(func: Callable[..., Any], *args: Any, timeout_s: float, what: s
                         "the fork); %s", what, attempt, ATTEMPTS, stall_s,
                         "forking again" if attempt < ATTEMPTS else "giving up")
     children = "1 child" if ATTEMPTS == 1 else f"{ATTEMPTS} children in a row"
-    raise IsolatedCallFailed(what, f"deadlocked ({children} slept {stall_s:g} s without using the CPU)")
+    raise IsolatedCallFailed(what, "deadlocked", f"{children} slept {stall_s:g} s without using the CPU")
 
 
 class _Deadlocked(Exception):
@@ -172,7 +183,7 @@ def _run_child(func: Callable[..., Any], args: tuple, timeout_s: float, what: st
             how = f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status) else f"exit {os.WEXITSTATUS(status)}"
         except ChildProcessError:  # SIGCHLD ignored by the application: the child was reaped for us
             how = "exit status unknown"
-        raise IsolatedCallFailed(what, f"crashed ({how})")
+        raise IsolatedCallFailed(what, "crashed", how)
     # The child is exiting (its teardown takes tens of ms for a large process): reap it later, not now.
     _UNREAPED.append(pid)
     _reap_finished()
@@ -239,4 +250,4 @@ def _kill(pid: int) -> None:
         pass
 
 
-__all__ = ["ATTEMPTS", "STALL_S", "IsolatedCallFailed", "run_isolated"]
+__all__ = ["ATTEMPTS", "FAILURES", "STALL_S", "IsolatedCallFailed", "run_isolated"]

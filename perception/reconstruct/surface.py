@@ -135,7 +135,7 @@ def _surface_isolated(points, normals, method, poisson_depth, density_trim, max_
                             name, timeout_s=timeout, what=what)
     except IsolatedCallFailed as exc:
         hint = ("each child forked waited on a lock another thread of this process held at the fork"
-                if exc.reason.startswith("deadlocked") else "check the cloud: duplicated, degenerate or extreme points")
+                if exc.kind == "deadlocked" else "check the cloud: duplicated, degenerate or extreme points")
         raise InvalidMeshError(f"{what}: Open3D {exc.reason}; no surface was built ({hint})") from None
     except RuntimeError as exc:  # Open3D's and Qhull's own errors: precision, degenerate input
         first = next((line.strip() for line in str(exc).splitlines() if line.strip()), type(exc).__name__)

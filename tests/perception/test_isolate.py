@@ -43,15 +43,16 @@ def test_returns_the_childs_value():
 def test_a_native_crash_is_reported_and_the_caller_survives(crash):
     with pytest.raises(IsolatedCallFailed, match="crashed") as info:
         run_isolated(crash, timeout_s=30, what="crash test")
-    assert info.value.reason.startswith("crashed")
+    assert info.value.kind == "crashed" and info.value.reason.startswith("crashed (")
     assert run_isolated(int, "7", timeout_s=30) == 7  # this process still works
 
 
 def test_a_hang_is_cut_at_the_time_limit():
     start = time.perf_counter()
-    with pytest.raises(IsolatedCallFailed, match="timed out"):
+    with pytest.raises(IsolatedCallFailed, match="timed out") as info:
         run_isolated(_sleep, 60.0, timeout_s=0.5)
     assert time.perf_counter() - start < 5.0
+    assert info.value.kind == info.value.reason == "timed out"
 
 
 def test_the_childs_exception_is_raised_here():
@@ -136,7 +137,7 @@ def test_children_that_always_deadlock_are_reported_long_before_the_time_limit(f
     with pytest.raises(IsolatedCallFailed, match="deadlocked") as info:
         run_isolated(_take_the_lock, timeout_s=60, stall_s=0.5, what="lock test")
     assert forks[0] == isolate.ATTEMPTS == 3
-    assert info.value.reason.startswith("deadlocked (3 children")
+    assert info.value.kind == "deadlocked" and info.value.reason.startswith("deadlocked (3 children")
     assert time.perf_counter() - start < 20.0
 
 
@@ -147,3 +148,16 @@ def test_the_fork_stress_benchmark_counts_its_calls(capsys):
     out = json.loads(capsys.readouterr().out)
     assert (out["calls"], out["attempts"], out["failed_calls"]) == (2, isolate.ATTEMPTS, 0)
     assert 0 < out["median_s"] <= out["max_s"]
+
+
+def test_a_failure_of_an_unknown_kind_is_a_bug_of_ours():
+    with pytest.raises(ValueError, match="kind must be one of"):
+        IsolatedCallFailed("x", "exploded")
+
+
+def test_a_failure_survives_pickling_whole():
+    import pickle
+
+    back = pickle.loads(pickle.dumps(IsolatedCallFailed("mesh m: pymeshlab curvature", "crashed", "signal 6")))
+    assert (back.kind, back.reason, str(back)) == ("crashed", "crashed (signal 6)",
+                                                   "mesh m: pymeshlab curvature: crashed (signal 6)")

@@ -95,22 +95,23 @@ def test_a_child_that_sleeps_less_than_the_stall_limit_then_computes_is_left_alo
     assert len(forks) == 1
 
 
-def _raise_reason(reason):
+def _raise_reason(kind, details):
     def fake(*args, what, **kwargs):
-        raise IsolatedCallFailed(what, reason)
+        raise IsolatedCallFailed(what, kind, details)
     return fake
 
 
-@pytest.mark.parametrize("reason, hint, not_hint", [
-    ("deadlocked (3 children in a row slept 5 s without using the CPU)", "lock", "check the cloud"),
-    ("timed out", "check the cloud", "lock"),
-    ("crashed (signal 11)", "check the cloud", "lock"),
+@pytest.mark.parametrize("kind, details, reason, hint, not_hint", [
+    ("deadlocked", "3 children in a row slept 5 s without using the CPU",
+     "deadlocked (3 children in a row slept 5 s without using the CPU)", "lock", "check the cloud"),
+    ("timed out", None, "timed out", "check the cloud", "lock"),
+    ("crashed", "signal 11", "crashed (signal 11)", "check the cloud", "lock"),
 ])
-def test_the_surface_call_hints_per_reason(monkeypatch, reason, hint, not_hint):
+def test_the_surface_call_hints_per_reason(monkeypatch, kind, details, reason, hint, not_hint):
     from perception.errors import InvalidMeshError
     from perception.reconstruct import surface
 
-    monkeypatch.setattr(surface, "run_isolated", _raise_reason(reason))
+    monkeypatch.setattr(surface, "run_isolated", _raise_reason(kind, details))
     rng = np.random.default_rng(0)
     points = rng.normal(size=(50, 3)) * 20.0
     normals = points / np.linalg.norm(points, axis=1, keepdims=True)
