@@ -225,6 +225,8 @@ def _described(value) -> str:
 #: an even input row 2m is reached by tap 1 from output row m only; an odd row 2m+1 by tap 2 from row m and tap 0
 #: from row m+1. Index 3 is a zero tap (the weight padded by one).
 _PARITY_TAPS = torch.tensor([[1, 3], [2, 0]])
+#: Stride and padding of the cutaneous net's 3 x 3 x 3 convolutions, which halve each frame side.
+_HALVING_STRIDE, _HALVING_PADDING = (1, 2, 2), (0, 1, 1)
 
 
 def _strided_input_grad(grad_out: torch.Tensor, weight: torch.Tensor, rows: int, cols: int) -> torch.Tensor:
@@ -252,7 +254,7 @@ class _StridedConv3d(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
         ctx.save_for_backward(x, weight)
-        return F.conv3d(x, weight, stride=(1, 2, 2), padding=(0, 1, 1))
+        return F.conv3d(x, weight, stride=_HALVING_STRIDE, padding=_HALVING_PADDING)
 
     @staticmethod
     def backward(ctx, grad_out: torch.Tensor):
@@ -261,7 +263,7 @@ class _StridedConv3d(torch.autograd.Function):
         if ctx.needs_input_grad[0]:
             grad_x = _strided_input_grad(grad_out, weight, x.shape[3], x.shape[4])
         if ctx.needs_input_grad[1]:
-            grad_w = torch.ops.aten.convolution_backward(grad_out, x, weight, None, (1, 2, 2), (0, 1, 1), (1, 1, 1),
+            grad_w = torch.ops.aten.convolution_backward(grad_out, x, weight, None, _HALVING_STRIDE, _HALVING_PADDING, (1, 1, 1),
                                                          False, (0, 0, 0), 1, (False, True, False))[1]
         return grad_x, grad_w
 
@@ -273,7 +275,7 @@ class _HalvingConv3d(nn.Conv3d):
     PyTorch's own."""
 
     def __init__(self, in_channels: int, out_channels: int):
-        super().__init__(in_channels, out_channels, 3, stride=(1, 2, 2), padding=(0, 1, 1), bias=False)
+        super().__init__(in_channels, out_channels, 3, stride=_HALVING_STRIDE, padding=_HALVING_PADDING, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.dim() == 5 and x.device.type == "cpu":

@@ -117,10 +117,8 @@ def cores_limited(n: int) -> Iterator[None]:
 
     global _core_limit
     before, open3d_before = _core_limit, o3d.utility.get_max_threads()
-    limit = max(1, int(n))
-    with threadpool_limits(limit):
-        o3d.utility.set_max_threads(limit)
-        _core_limit = limit
+    with threadpool_limits(None):  # changes nothing on entry; gives BLAS and OpenMP their limits back on exit
+        limit_cores(n)
         try:
             yield
         finally:
