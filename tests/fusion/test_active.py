@@ -303,6 +303,8 @@ class TestEpisode:
             make_policy("information", foo=1)  # a project error, not the TypeError of an unknown keyword
         with pytest.raises(InvalidArgumentError, match="unknown touch policy"):
             make_policy(["random"])
+        with pytest.raises(InvalidArgumentError, match="unknown touch policy"):
+            make_policy(np.array(["random"]))  # compares equal to "random", but is no name
 
 
 class TestNoisyCopy:

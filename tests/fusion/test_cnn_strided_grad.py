@@ -115,3 +115,11 @@ def test_the_optimizer_is_fused(weight_decay):
     opt, _ = model._optimizer(CutaneousNet(5, (8, 8), 3), 48, "cutaneous")
     assert type(opt) is (torch.optim.AdamW if weight_decay > 0 else torch.optim.Adam)
     assert opt.defaults["fused"] is True and not opt.defaults.get("foreach")
+
+
+def test_off_the_cpu_it_is_pytorchs_own_path():
+    """Any other device (a meta tensor stands in for CUDA here) takes PyTorch's convolution and its gradient."""
+    layer = _HalvingConv3d(2, 3).to("meta")
+    out = layer(torch.empty(2, 2, 5, 9, 8, device="meta", requires_grad=True))
+    assert not _custom(out)
+    assert out.shape == (2, 3, 3, 5, 4)
