@@ -52,7 +52,6 @@ from tactile.touching import MAX_JITTER_MM, Toucher, touch_variants
 
 log = logging.getLogger(__name__)
 
-POLICIES = ("random", "saliency", "information")
 #: Most vertex noise (mm, standard deviation) of :func:`noisy_copy`: a depth camera errs by millimetres, and objects
 #: load 150 mm across; beyond a metre the copy is no view of the object at all.
 MAX_NOISE_MM = 1000.0
@@ -423,6 +422,11 @@ def smoothed(model: ObjectModel, iterations: int) -> ObjectModel:
     return ObjectModel(np.asarray(mesh.vertices), model.triangles, name=f"{model.name}@smoothed", label=None)
 
 
+#: Each policy class by its name; :data:`POLICIES` lists the names in this order.
+_BY_NAME = {policy.name: policy for policy in (RandomPolicy, SaliencyPolicy, InformationPolicy)}
+POLICIES = tuple(_BY_NAME)
+
+
 def make_policy(name: str, seed: int = 0, **options) -> Policy:
     """A new policy by name (:data:`POLICIES`); ``options`` are its class's keyword arguments (:class:`RandomPolicy`,
     :class:`SaliencyPolicy`, :class:`InformationPolicy`).
@@ -432,7 +436,7 @@ def make_policy(name: str, seed: int = 0, **options) -> Policy:
     """
     if not isinstance(name, str) or name not in POLICIES:
         raise InvalidArgumentError(f"unknown touch policy {name!r}; choose one of {', '.join(POLICIES)}")
-    policy = {"random": RandomPolicy, "saliency": SaliencyPolicy, "information": InformationPolicy}[name]
+    policy = _BY_NAME[name]
     takes = [p.name for p in inspect.signature(policy).parameters.values() if p.kind is p.KEYWORD_ONLY]
     unknown = sorted(set(options) - set(takes))
     if unknown:

@@ -22,7 +22,7 @@ import numpy as np
 
 from fusion.active.episode import touch_seed
 from fusion.active.policies import ActiveState, InformationPolicy, plan_scores, simulated_outcomes
-from fusion.decide import fuse_touches
+from fusion.decide import PROBA_FLOOR, fuse_touches
 from perception.errors import ContourError, InvalidArgumentError
 from perception.geometry import ObjectModel
 from perception.limits import check_count
@@ -227,6 +227,38 @@ def replay(bank: CandidateBank, criterion: Criterion, decide: str, max_touches: 
     return order, np.asarray(posteriors)
 
 
+def hindsight(bank: CandidateBank, decide: str, max_touches: int = 8) -> tuple[list[int], np.ndarray]:
+    """Not a policy: the ceiling of every rule over ``bank``'s candidates that does not know the label. It reads every
+    candidate's real reading (which no policy may), takes the class that all of them fused by the log rule name (what
+    the object reads as, through classifier ``decide``) and touches the candidates in the order of their reading's
+    margin for that class (its log-probability minus the highest of another class), the widest first, ties by index;
+    past the last candidate, the first again (as :func:`replay` does). With two classes the first K of that order name
+    the pooled class whenever any K candidates do; with more it is greedy.
+
+    Returns:
+        the candidates in that order, and (max_touches, C) the posterior after each touch (as :func:`replay`).
+
+    Raises:
+        InvalidArgumentError: as :func:`replay` for the bank, ``decide`` and ``max_touches``.
+    """
+    if not isinstance(bank, CandidateBank) or not bank.planes:
+        raise InvalidArgumentError(f"hindsight: needs a CandidateBank with at least one plane, got {type(bank).__name__}")
+    if not isinstance(decide, str) or decide not in bank.real:
+        raise InvalidArgumentError(f"hindsight: no classifier {decide!r} in the bank of {bank.object} "
+                                   f"(it holds {sorted(bank.real)})")
+    if isinstance(max_touches, bool) or not isinstance(max_touches, (int, np.integer)) or max_touches < 1:
+        raise InvalidArgumentError(f"hindsight: max_touches must be an integer >= 1, got {max_touches!r}")
+    check_count("touches", max_touches, "hindsight: max_touches")
+    real = np.asarray(bank.real[decide], dtype=np.float64)
+    verdict = int(np.argmax(fuse_touches(real, rule="log")))
+    log_p = np.log(np.maximum(real, PROBA_FLOOR))  # the floor the log rule reads with
+    margin = log_p[:, verdict] - np.delete(log_p, verdict, axis=1).max(axis=1, initial=-np.inf)
+    ranked = np.argsort(-margin, kind="stable").tolist()
+    order = [ranked[k] if k < len(ranked) else ranked[0] for k in range(int(max_touches))]
+    posteriors = [fuse_touches(real[order[: k + 1]], rule="log") for k in range(len(order))]
+    return order, np.asarray(posteriors)
+
+
 def _scores(criterion: Criterion, view: ReplayView, n: int) -> np.ndarray:
     raw = np.asarray(criterion(view))
     if raw.dtype.kind not in "biuf" or raw.shape != (n,) or np.isnan(raw.astype(np.float64)).any():
@@ -241,4 +273,4 @@ def _read_only(values: np.ndarray) -> np.ndarray:
     return view
 
 
-__all__ = ["CandidateBank", "Criterion", "ReplayView", "build_bank", "information_criterion", "replay"]
+__all__ = ["CandidateBank", "Criterion", "ReplayView", "build_bank", "hindsight", "information_criterion", "replay"]

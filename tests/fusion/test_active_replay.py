@@ -12,7 +12,7 @@ import pytest
 
 from fusion.active import InformationPolicy, make_policy, noisy_copy, run_episode
 from fusion.active.policies import ActiveState, simulated_outcomes
-from fusion.active.replay import CandidateBank, build_bank, information_criterion, replay
+from fusion.active.replay import CandidateBank, build_bank, hindsight, information_criterion, replay
 from fusion.decide import fuse_touches
 from perception.errors import InvalidArgumentError
 from perception.shapes import make_object
@@ -284,10 +284,13 @@ def test_screen_rows():                                                         
         for planner in ("x", "y"):
             acc = right(rows, lambda s, p=planner: information_criterion(p), decide)
             assert got[(planner, decide)] == acc.mean(0).tolist()
+        assert got[("hindsight", decide)] == right(rows, lambda s: None, decide).mean(0).tolist()
     own = {d: right(rows, lambda s, d=d: information_criterion(d), d)[:, 0] for d in ("x", "y")}
     for diff in result["differences"]:
         if diff["k"] == 1:
-            mine = right(rows, lambda s, p=diff["planner"]: information_criterion(p), diff["decider"])[:, 0]
+            planner = diff["planner"]
+            mine = right(rows, lambda s, p=planner: None if p == "hindsight" else information_criterion(p),
+                         diff["decider"])[:, 0]
             assert diff["vs_own_planner"]["difference"] == pytest.approx((mine - own[diff["decider"]]).mean())
 
 
@@ -430,3 +433,51 @@ def test_banks_give_each_fold_its_own_models(monkeypatch, tmp_path):
     monkeypatch.setattr(context.Context, "run_jobs", lambda self, js, *a, **k: jobs.extend(js) or [["bank"] for _ in js])
     banks(tmp_path, tmp_path / "out", ["svm"], (0,), quick=True)
     assert [(j.noise_seed, j.models) for j in jobs] == [(3, {"svm": "m1"}), (4, {"svm": "m2"}), (5, {"svm": "m2"})]
+
+
+# ---------------------------------------------------------------------------- the hindsight ceiling
+def test_hindsight_by_hand():
+    # pooled: a 0.9 * 0.3 * 0.6 = 0.162 against b 0.1 * 0.7 * 0.4 = 0.028, so "a"; margins ln 9, ln 3/7, ln 1.5
+    real = np.array([[0.9, 0.1], [0.3, 0.7], [0.6, 0.4]])
+    bank = CandidateBank("hand", ["a", "b"], [Plane(np.zeros(3), np.eye(3)[i]) for i in range(3)],
+                         {"x": np.full((3, 1, 2), 0.5)}, {"x": real}, np.zeros(3, dtype=bool))
+    order, posteriors = hindsight(bank, "x", 5)
+    assert order == [0, 2, 1, 0, 0]
+    np.testing.assert_allclose(posteriors[:3, 0], [0.9, 0.54 / 0.58, 0.162 / 0.19], rtol=1e-12)
+    np.testing.assert_allclose(posteriors[3, 0], 0.1458 / (0.1458 + 0.0028), rtol=1e-12)  # 0.9^2 * 0.3 * 0.6
+
+
+def test_hindsight_reads_with_the_log_rules_floor_and_misses_count_uniform():
+    # a zero reading is floored at 1e-12 (as the log rule reads it), so one exact 0 for "a" does not outvote the rest
+    real = np.array([[0.0, 1.0], [0.99, 0.01], [0.99, 0.01], [0.99, 0.01], [0.5, 0.5]])
+    bank = CandidateBank("floor", ["a", "b"], [Plane(np.zeros(3), np.eye(3)[i % 3]) for i in range(5)],
+                         {"x": np.full((5, 1, 2), 0.5)}, {"x": real}, np.array([False] * 4 + [True]))
+    order, posteriors = hindsight(bank, "x", 5)
+    # pooled: 3 ln 99 - ln 1e12 = 13.8 - 27.6 < 0, so "b"; margins: ln 1e12 (0), -ln 99 (1-3), 0 (the miss, 4)
+    assert order == [0, 4, 1, 2, 3]
+    assert posteriors.argmax(axis=1).tolist() == [1, 1, 1, 1, 1]
+
+
+def test_hindsight_names_the_pooled_class_whenever_any_k_candidates_do():
+    # with two classes, the widest-margin K are the best K subset: checked against every subset of random banks
+    from itertools import combinations
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        m = int(rng.integers(2, 7))
+        real = rng.dirichlet([0.7, 0.7], size=m)
+        bank = CandidateBank("r", ["a", "b"], [Plane(np.zeros(3), np.eye(3)[i % 3]) for i in range(m)],
+                             {"x": np.full((m, 1, 2), 0.5)}, {"x": real}, np.zeros(m, dtype=bool))
+        verdict = int(np.log(real).sum(axis=0).argmax())
+        _, posteriors = hindsight(bank, "x", m)
+        for k in range(1, m + 1):
+            reachable = any(np.log(real[list(s)]).sum(axis=0).argmax() == verdict for s in combinations(range(m), k))
+            assert (posteriors[k - 1].argmax() == verdict) == reachable
+
+
+def test_hindsight_refusals():
+    bank = _bank(3)
+    for decide, touches in (("nope", 3), ("x", 0), ("x", True), ("x", 2.0)):
+        with pytest.raises(InvalidArgumentError, match="hindsight"):
+            hindsight(bank, decide, touches)
+    with pytest.raises(InvalidArgumentError, match="hindsight"):
+        hindsight(object(), "x", 3)
