@@ -201,16 +201,9 @@ def replay(bank: CandidateBank, criterion: Criterion, decide: str, max_touches: 
             budget below 1 or above the touch limit (:func:`perception.limits.check_count`), scores that are not (M,)
             real numbers without NaN (+inf is the highest score, -inf never chosen while another candidate is not).
     """
-    if not isinstance(bank, CandidateBank) or not bank.planes:
-        raise InvalidArgumentError(f"replay: needs a CandidateBank with at least one plane, got {type(bank).__name__}")
+    _check_episode("replay", bank, decide, max_touches)
     if not callable(criterion):
         raise InvalidArgumentError(f"replay: criterion must be callable, got {type(criterion).__name__}")
-    if not isinstance(decide, str) or decide not in bank.real:
-        raise InvalidArgumentError(f"replay: no classifier {decide!r} in the bank of {bank.object} "
-                                   f"(it holds {sorted(bank.real)})")
-    if isinstance(max_touches, bool) or not isinstance(max_touches, (int, np.integer)) or max_touches < 1:
-        raise InvalidArgumentError(f"replay: max_touches must be an integer >= 1, got {max_touches!r}")
-    check_count("touches", max_touches, "replay: max_touches")  # a bound: each step allocates and the loop is O(K^2)
     n = len(bank.planes)
     simulated = {name: _read_only(values) for name, values in bank.simulated.items()}  # a criterion cannot edit the bank
     touched, order, posteriors = np.zeros(n, dtype=bool), [], []
@@ -241,14 +234,7 @@ def hindsight(bank: CandidateBank, decide: str, max_touches: int = 8) -> tuple[l
     Raises:
         InvalidArgumentError: as :func:`replay` for the bank, ``decide`` and ``max_touches``.
     """
-    if not isinstance(bank, CandidateBank) or not bank.planes:
-        raise InvalidArgumentError(f"hindsight: needs a CandidateBank with at least one plane, got {type(bank).__name__}")
-    if not isinstance(decide, str) or decide not in bank.real:
-        raise InvalidArgumentError(f"hindsight: no classifier {decide!r} in the bank of {bank.object} "
-                                   f"(it holds {sorted(bank.real)})")
-    if isinstance(max_touches, bool) or not isinstance(max_touches, (int, np.integer)) or max_touches < 1:
-        raise InvalidArgumentError(f"hindsight: max_touches must be an integer >= 1, got {max_touches!r}")
-    check_count("touches", max_touches, "hindsight: max_touches")
+    _check_episode("hindsight", bank, decide, max_touches)
     real = np.asarray(bank.real[decide], dtype=np.float64)
     verdict = int(np.argmax(fuse_touches(real, rule="log")))
     log_p = np.log(np.maximum(real, PROBA_FLOOR))  # the floor the log rule reads with
@@ -257,6 +243,18 @@ def hindsight(bank: CandidateBank, decide: str, max_touches: int = 8) -> tuple[l
     order = [ranked[k] if k < len(ranked) else ranked[0] for k in range(int(max_touches))]
     posteriors = [fuse_touches(real[order[: k + 1]], rule="log") for k in range(len(order))]
     return order, np.asarray(posteriors)
+
+
+def _check_episode(where: str, bank, decide, max_touches) -> None:
+    """What :func:`replay` and :func:`hindsight` refuse alike: no bank, an unknown decider, a bad touch budget."""
+    if not isinstance(bank, CandidateBank) or not bank.planes:
+        raise InvalidArgumentError(f"{where}: needs a CandidateBank with at least one plane, got {type(bank).__name__}")
+    if not isinstance(decide, str) or decide not in bank.real:
+        raise InvalidArgumentError(f"{where}: no classifier {decide!r} in the bank of {bank.object} "
+                                   f"(it holds {sorted(bank.real)})")
+    if isinstance(max_touches, bool) or not isinstance(max_touches, (int, np.integer)) or max_touches < 1:
+        raise InvalidArgumentError(f"{where}: max_touches must be an integer >= 1, got {max_touches!r}")
+    check_count("touches", max_touches, f"{where}: max_touches")  # a bound: each step allocates and the loop is O(K^2)
 
 
 def _scores(criterion: Criterion, view: ReplayView, n: int) -> np.ndarray:
