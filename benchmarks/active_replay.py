@@ -9,9 +9,9 @@ outcomes and readings choose, the decider's readings decide), and each decider r
 random order as a reference. With planner = decider the replay is the information policy's episode to the bit, so
 the row "cnn -> cnn" equals the information row of ``python -m fusion.experiments.active --classifier cnn`` run with
 the default seed 0 into the same folder (policy seeds 0..4 are its episodes 0..4), and the other rows are what a
-changed planner would give, without touching anything again. The row "hindsight -> d" is no policy but the ceiling of
-any rule over the candidates that does not know the label: it reads every candidate's real reading and touches first
-those that most confirm what all of them say (:func:`fusion.active.replay.hindsight`).
+changed planner would give, without touching anything again. The row "hindsight -> d" is no policy: it reads every
+candidate's real reading and touches first those that most confirm what all of them pooled say (what classifier d
+would decide with every candidate touched, reached as early as a choice can; :func:`fusion.active.replay.hindsight`).
 
 Accuracy after K touches is the mean over an object's seeds, then over objects; differences are paired over
 objects (95 % bootstrap). The fold models are those of the active part's run in ``--out`` (fitted there if absent).
@@ -103,7 +103,7 @@ def _random_order(seed: int):
 
 def right(rows: list[dict], criterion_of, decide: str) -> np.ndarray:
     """(objects, BUDGET) the share of an object's seeds whose decision after K touches is right; ``criterion_of(seed
-    index)`` is a criterion, or None for the hindsight ceiling (:func:`fusion.active.replay.hindsight`)."""
+    index)`` is a criterion, or None for the hindsight reference (:func:`fusion.active.replay.hindsight`)."""
     from fusion.active.replay import hindsight, replay
 
     out = []
@@ -127,12 +127,12 @@ def screen(rows: list[dict], classifiers: list[str]) -> dict:
         reference = right(rows, lambda s: _random_order(1000 + s), decide)
         own = right(rows, lambda s, d=decide: information_criterion(d), decide)
         table.append({"planner": "random order", "decider": decide, "accuracy": reference.mean(axis=0).tolist()})
-        ceiling = right(rows, lambda s: None, decide)
-        table.append({"planner": "hindsight", "decider": decide, "accuracy": ceiling.mean(axis=0).tolist()})
+        pooled = right(rows, lambda s: None, decide)
+        table.append({"planner": "hindsight", "decider": decide, "accuracy": pooled.mean(axis=0).tolist()})
         for k in (1, 2, 4, 8):
             differences.append({"planner": "hindsight", "decider": decide, "k": k,
-                                "vs_random_order": paired_over_objects(ceiling[:, k - 1], reference[:, k - 1]),
-                                "vs_own_planner": paired_over_objects(ceiling[:, k - 1], own[:, k - 1])})
+                                "vs_random_order": paired_over_objects(pooled[:, k - 1], reference[:, k - 1]),
+                                "vs_own_planner": paired_over_objects(pooled[:, k - 1], own[:, k - 1])})
         for planner in classifiers:
             acc = own if planner == decide else right(rows, lambda s, p=planner: information_criterion(p), decide)
             table.append({"planner": planner, "decider": decide, "accuracy": acc.mean(axis=0).tolist()})

@@ -221,12 +221,16 @@ def replay(bank: CandidateBank, criterion: Criterion, decide: str, max_touches: 
 
 
 def hindsight(bank: CandidateBank, decide: str, max_touches: int = 8) -> tuple[list[int], np.ndarray]:
-    """Not a policy: the ceiling of every rule over ``bank``'s candidates that does not know the label. It reads every
-    candidate's real reading (which no policy may), takes the class that all of them fused by the log rule name (what
-    the object reads as, through classifier ``decide``) and touches the candidates in the order of their reading's
-    margin for that class (its log-probability minus the highest of another class), the widest first, ties by index;
-    past the last candidate, the first again (as :func:`replay` does). With two classes the first K of that order name
-    the pooled class whenever any K candidates do; with more it is greedy.
+    """Not a policy: what the classifier ``decide`` would say with every candidate touched, reached in as few touches
+    as a choice can. It reads every candidate's real reading (which no policy may), takes the class that all of them
+    fused by the log rule name (the pooled verdict) and touches the candidates in the order of their reading's margin
+    for that class (its log-probability minus the highest of another class), the widest first, ties by index; past the
+    last candidate, the first again (as :func:`replay` does). With two classes the first K of that order name the
+    pooled verdict whenever any K candidates do (barring an exact tie of the pooled scores, which float summation in
+    another order may break the other way); with more classes it is greedy.
+
+    A reference, not a bound: a rule that knew every reading but not the label would decide as the pooled verdict, so
+    where that verdict is wrong this is wrong at every K, where a random choice is sometimes right.
 
     Returns:
         the candidates in that order, and (max_touches, C) the posterior after each touch (as :func:`replay`).

@@ -435,7 +435,7 @@ def test_banks_give_each_fold_its_own_models(monkeypatch, tmp_path):
     assert [(j.noise_seed, j.models) for j in jobs] == [(3, {"svm": "m1"}), (4, {"svm": "m2"}), (5, {"svm": "m2"})]
 
 
-# ---------------------------------------------------------------------------- the hindsight ceiling
+# ---------------------------------------------------------------------------- the hindsight reference
 def test_hindsight_by_hand():
     # pooled: a 0.9 * 0.3 * 0.6 = 0.162 against b 0.1 * 0.7 * 0.4 = 0.028, so "a"; margins ln 9, ln 3/7, ln 1.5
     real = np.array([[0.9, 0.1], [0.3, 0.7], [0.6, 0.4]])
