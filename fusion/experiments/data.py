@@ -118,14 +118,16 @@ def catalogue_objects(classes, per_class: int, first_seed: int = 0) -> list[tupl
 
 def store_record(objects, contours: int, seed: int, strategies=("guided", "blind"), sensor: FSRSensor | None = None,
                  probes: int = 25) -> dict:
-    """What identifies a store's content (its name and the cache records of models trained on it use it)."""
-    from tactile.dataset import object_specs
+    """What identifies a store's content (its name and the cache records of models trained on it use it): the
+    settings and the code that generates the rows (:func:`tactile.dataset.generation_code_version`), so a folder's
+    store made by other code is not read as this code's."""
+    from tactile.dataset import generation_code_version, object_specs
     from tactile.sampling import pair_setting
 
     strategies = [strategies] if isinstance(strategies, str) else list(strategies)
     return {"objects": [_identity(spec) for spec in object_specs(objects)], "contours": contours, "seed": seed,
             "strategies": strategies, "sensor": (sensor or FSRSensor()).spec(), "probes": probes,
-            **pair_setting(strategies)}
+            **pair_setting(strategies), "generation_code": generation_code_version()}
 
 
 def _identity(spec) -> list:

@@ -23,6 +23,7 @@ from tactile.dataset.objects import ObjectSpec, object_specs
 from tactile.dataset.reader import TactileDataset, open_dataset
 from tactile.dataset.rerun import RerunReport, rerun_objects
 from tactile.dataset.store import contour_seed, frame_encoding, pair_order_seed
+from tactile.dataset.version import generation_code_version
 
 __all__ = [
     "EXECUTORS",
@@ -34,6 +35,7 @@ __all__ = [
     "contour_seed",
     "frame_encoding",
     "generate",
+    "generation_code_version",
     "object_specs",
     "open_dataset",
     "pair_order_seed",

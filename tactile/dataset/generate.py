@@ -53,6 +53,7 @@ from tactile.dataset.store import (
     store_lock,
     write_record,
 )
+from tactile.dataset.version import generation_code_version
 from tactile.sensor import FSRSensor
 
 log = logging.getLogger(__name__)
@@ -157,9 +158,14 @@ def _open_or_create(out: Path, settings: dict, command: str | None) -> None:
         if attrs.get("package_version") != package_version():
             log.warning("%s: made by visuotactile %s, resuming with %s", out, attrs.get("package_version"),
                         package_version())
+        elif attrs.get("generation_code", generation_code_version()) != generation_code_version():
+            log.warning("%s: begun by other generation code (%s, now %s): the objects generated now may read "
+                        "otherwise than those before; generate into a new path for one code's rows", out,
+                        attrs["generation_code"], generation_code_version())
         return
     meta = {
         "package_version": package_version(),
+        "generation_code": generation_code_version(),
         "command": command if command is not None else shlex.join(sys.argv),
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "store_id": uuid.uuid4().hex,  # tells two stores of the same settings apart (models record it)

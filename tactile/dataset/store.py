@@ -6,7 +6,8 @@ Layout of ``STORE/`` (one row per sequence; the rows of object ``o``, strategy `
 - ``zarr.json``: group attributes under ``"visuotactile_dataset"``: ``settings`` (what must match to
   resume: objects, strategies, contours per object, probes, sensor spec, seed, encoding, and with a guided
   strategy how its pairs are drawn, ``guided_pairs``), and
-  ``package_version``, ``command``, ``created`` (recorded, not compared).
+  ``package_version``, ``generation_code`` (:func:`~tactile.dataset.generation_code_version`), ``command``,
+  ``created`` (recorded, not compared; resuming a store of another package version or generation code warns).
 - ``frames`` (rows, P, R, C) uint16: quantised readings, ``value = code * scale`` with ``scale`` in
   ``settings["encoding"]``. Sharded, one shard per (object, strategy) block, one inner chunk per
   sequence: a random-order read decodes one sequence; a shard is written in one go by one worker.

@@ -1,0 +1,50 @@
+"""What a store's rows depend on beyond its settings: the code that generated them.
+
+Two stores of the same settings made by other code (a change to the pad, the contours, saliency) hold other rows.
+:func:`generation_code_version` digests that code, so a store made by other code is told apart: the experiments name
+their stores after it (:func:`fusion.experiments.data.store_record`), so an output folder's old store is never read
+as the current code's, and :func:`~tactile.dataset.generate` records it and warns when it resumes a store begun by
+other code.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+from pathlib import Path
+
+#: Libraries a store's rows depend on (ray casting, meshes, saliency, filters, the encoding): another version of one is
+#: other generation code.
+GENERATION_LIBRARIES = ("numpy", "scipy", "open3d", "pymeshlab", "zarr", "numcodecs")
+
+
+def sources_digest(roots: dict[str, Path], libraries: tuple[str, ...] = GENERATION_LIBRARIES) -> str:
+    """A 16-hex-digit digest of every ``*.py`` file under each root folder (by its path relative to the root, named by
+    the key) and of the installed versions of ``libraries``: any edit, added or removed file, or upgrade changes it."""
+    from perception.runtime import versions
+
+    h = hashlib.blake2b(digest_size=8)
+    for name in sorted(roots):
+        root = Path(roots[name])
+        for path in sorted(root.rglob("*.py")):
+            h.update(f"{name}/{path.relative_to(root).as_posix()}\0".encode())
+            h.update(path.read_bytes())
+            h.update(b"\0")
+    h.update(repr(sorted(versions(*libraries).items())).encode())
+    return h.hexdigest()
+
+
+@functools.cache
+def generation_code_version() -> str:
+    """The digest (:func:`sources_digest`) of the ``tactile`` and ``perception`` packages, the code every row of a
+    store comes from, and of :data:`GENERATION_LIBRARIES`. Read once per process: the code that runs is the code that
+    was imported. Conservative: an edit to a module generation does not use (the reader, a docstring) also changes
+    it, so at worst a store is generated again."""
+    import perception
+    import tactile
+
+    return sources_digest({"perception": Path(perception.__file__).resolve().parent,
+                           "tactile": Path(tactile.__file__).resolve().parent})
+
+
+__all__ = ["GENERATION_LIBRARIES", "generation_code_version", "sources_digest"]
