@@ -47,14 +47,16 @@ class Context:
         return self.out.joinpath(*parts)
 
     def cached_part(self, name: str, record: dict, compute: Callable[[], dict]) -> dict:
-        """The JSON result of part ``name``: from ``parts/<name>.json`` when made with the same ``record``
-        (measured timings are kept, so a re-run reports the same numbers), else ``compute()`` saved there."""
+        """The JSON result of part ``name``: from ``parts/<name>.json`` when made with the same ``record`` and the
+        same generation code (:func:`tactile.dataset.generation_code_version`: a part computed on stores of other
+        code is computed again; measured timings are kept, so a re-run reports the same numbers), else ``compute()``
+        saved there."""
         saved = self._saved_part(name, record)
         if saved is not None:
             return saved
         result = compute()
         write_text(self.path("parts", f"{name}.json"),
-                   json.dumps({"key": digest(record), "record": record, "result": result}, indent=2, default=str))
+                   json.dumps({"key": _part_key(record), "record": record, "result": result}, indent=2, default=str))
         return result
 
     def has_part(self, name: str, record: dict) -> bool:
@@ -66,7 +68,7 @@ class Context:
         if path.is_file():
             try:
                 saved = json.loads(path.read_text())
-                if saved.get("key") == digest(record):
+                if saved.get("key") == _part_key(record):
                     return saved["result"]
             except (OSError, ValueError, AttributeError, KeyError, TypeError) as exc:
                 log.warning("%s unreadable (%s); recomputing", path, exc)
@@ -100,3 +102,10 @@ class Context:
 
 
 __all__ = ["Context"]
+
+
+def _part_key(record: dict) -> str:
+    """The cache key of a part: its record and the generation code of the stores it read (looked up per call)."""
+    from tactile.dataset import generation_code_version
+
+    return digest(record, generation_code_version())

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from perception.errors import DatasetError, InvalidArgumentError
+from perception.errors import DatasetError, InvalidArgumentError, shown
 from perception.runtime import (
     STOP_GRACE_S,
     cores_limited,
@@ -156,12 +156,12 @@ def _open_or_create(out: Path, settings: dict, command: str | None) -> None:
                 "re-run with the same settings to resume, or choose another output path"
             )
         if attrs.get("package_version") != package_version():
-            log.warning("%s: made by visuotactile %s, resuming with %s", out, attrs.get("package_version"),
+            log.warning("%s: made by visuotactile %s, resuming with %s", out, _inert(attrs.get("package_version")),
                         package_version())
         elif attrs.get("generation_code", generation_code_version()) != generation_code_version():
             log.warning("%s: begun by other generation code (%s, now %s): the objects generated now may read "
                         "otherwise than those before; generate into a new path for one code's rows", out,
-                        attrs["generation_code"], generation_code_version())
+                        _inert(attrs["generation_code"]), generation_code_version())
         return
     meta = {
         "package_version": package_version(),
@@ -171,6 +171,14 @@ def _open_or_create(out: Path, settings: dict, command: str | None) -> None:
         "store_id": uuid.uuid4().hex,  # tells two stores of the same settings apart (models record it)
     }
     create_store(out, settings, meta)
+
+
+def _inert(value) -> str:
+    """A value read from a store's attributes (untrusted) as a log line may show it: a short printable string as it
+    is, anything else abbreviated and escaped (no megabytes, no terminal escapes)."""
+    if isinstance(value, str) and len(value) <= 64 and value.isprintable():
+        return value
+    return shown(value)
 
 
 def _remove_stale_temporaries(out: Path) -> None:

@@ -13,9 +13,9 @@ import functools
 import hashlib
 from pathlib import Path
 
-#: Libraries a store's rows depend on (ray casting, meshes, saliency, filters, the encoding): another version of one is
-#: other generation code.
-GENERATION_LIBRARIES = ("numpy", "scipy", "open3d", "pymeshlab", "zarr", "numcodecs")
+#: Libraries a store's rows depend on (ray casting, meshes and the catalogue's solids, saliency, filters, the
+#: encoding): another version of one is other generation code.
+GENERATION_LIBRARIES = ("numpy", "scipy", "open3d", "pymeshlab", "manifold3d", "zarr", "numcodecs")
 
 
 def sources_digest(roots: dict[str, Path], libraries: tuple[str, ...] = GENERATION_LIBRARIES) -> str:

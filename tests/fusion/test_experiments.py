@@ -619,12 +619,11 @@ def test_a_model_saved_over_an_old_one_never_pairs_with_the_old_record(tmp_path)
 
 
 def test_a_saved_part_without_its_result_is_computed_again(tmp_path, caplog):
-    from fusion.experiments.context import Context
-    from fusion.experiments.models import digest
+    from fusion.experiments.context import Context, _part_key
 
     ctx = Context(tmp_path, 0, TINY, {})
     (tmp_path / "parts").mkdir()
-    (tmp_path / "parts" / "x.json").write_text(json.dumps({"key": digest({"a": 1})}))  # no "result"
+    (tmp_path / "parts" / "x.json").write_text(json.dumps({"key": _part_key({"a": 1})}))  # no "result"
     with caplog.at_level("WARNING"):
         assert not ctx.has_part("x", {"a": 1})
         assert ctx.cached_part("x", {"a": 1}, lambda: {"made": True}) == {"made": True}

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 from fusion.experiments import reproduce
-from fusion.experiments.models import digest
+from fusion.experiments.context import _part_key
 from tests.fusion.test_experiments import STANDINS, TINY, mesh_folder
 
 
@@ -31,7 +31,7 @@ def test_an_old_noise_part_with_upright_rows_is_computed_again_in_any_pose_only(
     part = out / "parts" / "noise.json"
     saved = json.loads(part.read_text())
     record = {k: v for k, v in saved["record"].items() if k != "poses"}  # the old code's record
-    part.write_text(json.dumps({"key": digest(record), "record": record, "result": saved["result"]}, indent=2))
+    part.write_text(json.dumps({"key": _part_key(record), "record": record, "result": saved["result"]}, indent=2))
 
     new = reproduce(data, out, **kwargs)
     assert {r["pose"] for r in new["noise"]["rows"]} == {"any pose"}

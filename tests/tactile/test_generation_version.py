@@ -9,8 +9,6 @@ import logging
 import shutil
 from pathlib import Path
 
-import pytest
-
 import perception
 import tactile
 from fusion.experiments.data import ensure_store, store_record
