@@ -101,11 +101,11 @@ class Context:
         return self.stores[key]
 
 
-__all__ = ["Context"]
-
-
 def _part_key(record: dict) -> str:
     """The cache key of a part: its record and the generation code of the stores it read (looked up per call)."""
     from tactile.dataset import generation_code_version
 
     return digest(record, generation_code_version())
+
+
+__all__ = ["Context"]
