@@ -96,13 +96,16 @@ def camera_models(captures: Path, spec, true, seed: int, views: int = CAMERA_VIE
     captured by a virtual OAK-D from ``views`` orbit views (:func:`tactile.captures.virtual_capture`, stereo
     noise seeded by ``seed``); the visual model is the reconstruction, the true model the mesh as placed, both
     in the table's frame (mm, physical size). Cached in the folder ``captures`` (``captures/`` of the report
-    folder; a capture takes about 3 s on 2 cores)."""
+    folder; a capture takes about 3 s on 2 cores), named after the code that made it
+    (:func:`tactile.dataset.generation_code_version`: capturing and reconstructing are ``tactile`` and
+    ``perception`` code), so a capture of other code is made again."""
     import zlib
 
     from tactile.captures import virtual_capture
+    from tactile.dataset import generation_code_version
 
     path = Path(captures) / (f"{spec.name.replace('/', '_')}-{zlib.crc32(spec.name.encode()):08x}"
-                             f"-r{spec.rotation_seed}-s{seed}-v{views}.npz")
+                             f"-r{spec.rotation_seed}-s{seed}-v{views}-g{generation_code_version()}.npz")
     if path.is_file():
         with np.load(path) as saved:
             visual = ObjectModel(saved["visual_vertices"], saved["visual_triangles"], name=f"{true.name}@capture")

@@ -669,3 +669,22 @@ def test_more_training_contours_keep_the_unseen_parts_fold_models(tiny):
     unseen_objects(ctx, objects)
     active.active_episodes(ctx, objects, classifier="nm", policies=("random",), max_touches=1, per_fold=1)
     assert fits == []
+
+
+def test_a_capture_of_other_code_is_made_again(tmp_path, monkeypatch):
+    """The capture cache is named after the generation code: a capture made by other code (another reconstruction)
+    is not read as this code's; the same code reads its own file back."""
+    import tactile.captures
+    import tactile.dataset
+    from fusion.experiments import active
+    from tactile.dataset import ObjectSpec
+
+    spec = ObjectSpec("mug/0", "mug", catalogue=("mug", 0))
+    made, capture = [], tactile.captures.virtual_capture  # camera_models imports it when called: patched at home
+    monkeypatch.setattr(tactile.captures, "virtual_capture", lambda *a, **k: made.append(1) or capture(*a, **k))
+    first, _ = active.camera_models(tmp_path, spec, spec.load(), 0)
+    again, _ = active.camera_models(tmp_path, spec, spec.load(), 0)
+    assert len(made) == 1 and np.array_equal(first.vertices, again.vertices)  # read back
+    monkeypatch.setattr(tactile.dataset, "generation_code_version", lambda: "0123456789abcdef")
+    active.camera_models(tmp_path, spec, spec.load(), 0)
+    assert len(made) == 2 and len(list(tmp_path.glob("*.npz"))) == 2
