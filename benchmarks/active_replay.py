@@ -89,7 +89,7 @@ def banks(data: Path, out: Path, classifiers: list[str], seeds: tuple, quick: bo
     for i, ((_, _, tests), models) in enumerate(zip(folds, trained, strict=True)):
         jobs = [job(specs[name], models, noise_seed, seeds, noise_mm) for name, noise_seed in tests]
         for (name, _), made in zip(tests, ctx.run_jobs(jobs, f"banks, fold {i + 1}", "object"), strict=True):
-            rows.append({"object": name, "label": specs[name].label, "banks": made})
+            rows.append({"object": name, "label": specs[name].label, "banks": made, "seeds": list(seeds)})
     return rows
 
 
@@ -102,15 +102,18 @@ def _random_order(seed: int):
 
 
 def right(rows: list[dict], criterion_of, decide: str) -> np.ndarray:
-    """(objects, BUDGET) the share of an object's seeds whose decision after K touches is right; ``criterion_of(seed
-    index)`` is a criterion, or None for the hindsight reference (:func:`fusion.active.replay.hindsight`)."""
+    """(objects, BUDGET) the share of an object's seeds whose decision after K touches is right; ``criterion_of(seed)``
+    is a criterion, or None for the hindsight reference (:func:`fusion.active.replay.hindsight`). The seed is the
+    policy seed of the bank (a row's ``"seeds"``; without them, the bank's position), so the random order of policy
+    seed s is the same whatever other seeds a run holds."""
     from fusion.active.replay import hindsight, replay
 
     out = []
     for row in rows:
         per_seed = []
-        for s, bank in enumerate(row["banks"]):
-            criterion = criterion_of(s)
+        seeds = row.get("seeds", range(len(row["banks"])))
+        for seed, bank in zip(seeds, row["banks"], strict=True):
+            criterion = criterion_of(seed)
             _, posteriors = (hindsight(bank, decide, BUDGET) if criterion is None
                              else replay(bank, criterion, decide, BUDGET))
             per_seed.append([bank.classes[int(i)] == row["label"] for i in posteriors.argmax(axis=1)])

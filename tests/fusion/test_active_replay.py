@@ -417,7 +417,8 @@ def test_banks_give_each_job_its_noise(monkeypatch, tmp_path):
     rows = banks(tmp_path, tmp_path / "out", ["svm"], (0,), quick=True, noise_mm=2.5)
     assert [(j.noise_mm, j.noise_seed, j.seeds) for j in jobs] == [(2.5, 3, (0,)), (2.5, 4, (0,))]
     assert all(j.models == {"svm": "model"} for j in jobs)  # the fold's models
-    assert rows == [{"object": "a", "label": "A", "banks": ["bank"]}, {"object": "b", "label": "B", "banks": ["bank"]}]
+    assert rows == [{"object": "a", "label": "A", "banks": ["bank"], "seeds": [0]},
+                    {"object": "b", "label": "B", "banks": ["bank"], "seeds": [0]}]
 
 
 def test_banks_give_each_fold_its_own_models(monkeypatch, tmp_path):
@@ -481,3 +482,21 @@ def test_hindsight_refusals():
             hindsight(bank, decide, touches)
     with pytest.raises(InvalidArgumentError, match="hindsight"):
         hindsight(object(), "x", 3)
+
+
+def test_the_random_order_of_a_policy_seed_does_not_depend_on_the_other_seeds():
+    # a bank replayed as seed 3 reads the random order of seed 3 (1000 + 3) whether the run holds seeds 0-4 or 3
+    # alone (it used to be seeded by the bank's position in the run)
+    from benchmarks.active_replay import _random_order, right
+
+    bank = _hand_bank()
+    alone = [{"object": "hand", "label": "a", "banks": [bank], "seeds": [3]}]
+    among = [{"object": "hand", "label": "a", "banks": [bank] * 5, "seeds": [0, 1, 2, 3, 4]}]
+    expected = right([{"object": "hand", "label": "a", "banks": [bank]}], lambda s: _random_order(1003), "x")
+    assert right(alone, lambda s: _random_order(1000 + s), "x").tolist() == expected.tolist()
+    seen = []
+    right(among, lambda s: seen.append(s) or _random_order(1000 + s), "x")
+    assert seen == [0, 1, 2, 3, 4]
+    order_3 = np.random.default_rng(1003).permutation(3).tolist()
+    order_0 = np.random.default_rng(1000).permutation(3).tolist()
+    assert order_3 != order_0  # the check has teeth: the two seeds touch in other orders
