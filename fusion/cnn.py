@@ -263,8 +263,8 @@ class _StridedConv3d(torch.autograd.Function):
         if ctx.needs_input_grad[0]:
             grad_x = _strided_input_grad(grad_out, weight, x.shape[3], x.shape[4])
         if ctx.needs_input_grad[1]:
-            grad_w = torch.ops.aten.convolution_backward(grad_out, x, weight, None, _HALVING_STRIDE, _HALVING_PADDING, (1, 1, 1),
-                                                         False, (0, 0, 0), 1, (False, True, False))[1]
+            grad_w = torch.ops.aten.convolution_backward(grad_out, x, weight, None, _HALVING_STRIDE, _HALVING_PADDING,
+                                                         (1, 1, 1), False, (0, 0, 0), 1, (False, True, False))[1]
         return grad_x, grad_w
 
 

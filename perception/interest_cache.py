@@ -52,17 +52,11 @@ SALIENCY_LIBRARIES = ("numpy", "scipy", "open3d", "pymeshlab")
 
 @functools.cache
 def code_version() -> str:
-    """A digest of the ``perception`` package's Python sources and of the versions of
-    :data:`SALIENCY_LIBRARIES` (read once per process)."""
-    from perception.runtime import versions
+    """A digest of the ``perception`` package's Python sources and of the versions of :data:`SALIENCY_LIBRARIES`
+    (:func:`perception.runtime.sources_digest`; read once per process)."""
+    from perception.runtime import sources_digest
 
-    root = Path(__file__).resolve().parent
-    h = hashlib.blake2b(digest_size=8)
-    for path in sorted(root.rglob("*.py")):
-        h.update(path.relative_to(root).as_posix().encode())
-        h.update(path.read_bytes())
-    h.update(repr(sorted(versions(*SALIENCY_LIBRARIES).items())).encode())
-    return h.hexdigest()
+    return sources_digest({"perception": Path(__file__).resolve().parent}, SALIENCY_LIBRARIES)
 
 
 class InterestPointCache:

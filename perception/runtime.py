@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import configparser
 import contextlib
+import hashlib
 import os
 import platform
 import select
@@ -72,6 +73,22 @@ def versions(*distributions: str) -> dict[str, str]:
         except PackageNotFoundError:
             found[name] = "not installed"
     return found
+
+
+def sources_digest(roots: dict[str, Path], libraries: tuple[str, ...]) -> str:
+    """A 16-hex-digit digest of every ``*.py`` file under each root folder (by its path relative to the root, named by
+    the key) and of the installed versions of ``libraries`` (:func:`versions`): any edit, added, moved or removed
+    file, or upgrade changes it. What caches of computed results key on, so that results of other code are made
+    again."""
+    h = hashlib.blake2b(digest_size=8)
+    for name in sorted(roots):
+        root = Path(roots[name])
+        for path in sorted(root.rglob("*.py")):
+            h.update(f"{name}/{path.relative_to(root).as_posix()}\0".encode())
+            h.update(path.read_bytes())
+            h.update(b"\0")
+    h.update(repr(sorted(versions(*libraries).items())).encode())
+    return h.hexdigest()
 
 
 #: At most this many cores for this process's own parallel work (None: no limit; :func:`limit_cores`).
@@ -404,5 +421,5 @@ def _log_bar_class():
 
 __all__ = ["DISTRIBUTION", "PROGRESS_ENV", "STOP_GRACE_S", "Stopped", "checkout_root", "child_pids", "cores_limited",
            "descendant_handles", "exit_with", "kill_handles", "limit_cores", "machine", "machine_line",
-           "package_version", "progress_bar", "progress_enabled", "set_progress", "stop_as_told", "usable_cores",
-           "versions", "without_main_module", "worker_cores"]
+           "package_version", "progress_bar", "progress_enabled", "set_progress", "sources_digest", "stop_as_told",
+           "usable_cores", "versions", "without_main_module", "worker_cores"]

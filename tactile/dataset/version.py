@@ -10,41 +10,26 @@ other code.
 from __future__ import annotations
 
 import functools
-import hashlib
 from pathlib import Path
+
+from perception.runtime import sources_digest
 
 #: Libraries a store's rows depend on (ray casting, meshes and the catalogue's solids, saliency, filters, the
 #: encoding): another version of one is other generation code.
 GENERATION_LIBRARIES = ("numpy", "scipy", "open3d", "pymeshlab", "manifold3d", "zarr", "numcodecs")
 
 
-def sources_digest(roots: dict[str, Path], libraries: tuple[str, ...] = GENERATION_LIBRARIES) -> str:
-    """A 16-hex-digit digest of every ``*.py`` file under each root folder (by its path relative to the root, named by
-    the key) and of the installed versions of ``libraries``: any edit, added or removed file, or upgrade changes it."""
-    from perception.runtime import versions
-
-    h = hashlib.blake2b(digest_size=8)
-    for name in sorted(roots):
-        root = Path(roots[name])
-        for path in sorted(root.rglob("*.py")):
-            h.update(f"{name}/{path.relative_to(root).as_posix()}\0".encode())
-            h.update(path.read_bytes())
-            h.update(b"\0")
-    h.update(repr(sorted(versions(*libraries).items())).encode())
-    return h.hexdigest()
-
-
 @functools.cache
 def generation_code_version() -> str:
-    """The digest (:func:`sources_digest`) of the ``tactile`` and ``perception`` packages, the code every row of a
-    store comes from, and of :data:`GENERATION_LIBRARIES`. Read once per process: the code that runs is the code that
-    was imported. Conservative: an edit to a module generation does not use (the reader, a docstring) also changes
-    it, so at worst a store is generated again."""
+    """The digest (:func:`perception.runtime.sources_digest`) of the ``tactile`` and ``perception`` packages, the
+    code every row of a store comes from, and of :data:`GENERATION_LIBRARIES`. Read once per process: the code that
+    runs is the code that was imported. Conservative: an edit to a module generation does not use (the reader, a
+    docstring) also changes it, so at worst a store is generated again."""
     import perception
     import tactile
 
     return sources_digest({"perception": Path(perception.__file__).resolve().parent,
-                           "tactile": Path(tactile.__file__).resolve().parent})
+                           "tactile": Path(tactile.__file__).resolve().parent}, GENERATION_LIBRARIES)
 
 
-__all__ = ["GENERATION_LIBRARIES", "generation_code_version", "sources_digest"]
+__all__ = ["GENERATION_LIBRARIES", "generation_code_version"]

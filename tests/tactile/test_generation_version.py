@@ -12,9 +12,10 @@ from pathlib import Path
 import perception
 import tactile
 from fusion.experiments.data import ensure_store, store_record
+from perception.runtime import sources_digest
 from tactile.dataset import generate, generation_code_version
 from tactile.dataset.store import ATTRS_KEY
-from tactile.dataset.version import sources_digest
+from tactile.dataset.version import GENERATION_LIBRARIES
 from tactile.sensor import FSRSensor
 
 
@@ -27,26 +28,26 @@ def _tree(root: Path, files: dict) -> Path:
 
 def test_the_digest_follows_every_python_source_and_nothing_else(tmp_path, monkeypatch):
     a = _tree(tmp_path / "a", {"m.py": "x = 1\n", "sub/n.py": "y = 2\n", "notes.txt": "n"})
-    first = sources_digest({"pkg": a})
-    assert first == sources_digest({"pkg": a}) and len(first) == 16
+    first = sources_digest({"pkg": a}, GENERATION_LIBRARIES)
+    assert first == sources_digest({"pkg": a}, GENERATION_LIBRARIES) and len(first) == 16
     (a / "notes.txt").write_text("other")  # not code
-    assert sources_digest({"pkg": a}) == first
+    assert sources_digest({"pkg": a}, GENERATION_LIBRARIES) == first
     (a / "sub/n.py").write_text("y = 3\n")  # an edit
-    edited = sources_digest({"pkg": a})
+    edited = sources_digest({"pkg": a}, GENERATION_LIBRARIES)
     assert edited != first
     (a / "sub/n.py").write_text("y = 2\n")
-    assert sources_digest({"pkg": a}) == first  # content, not time stamps
+    assert sources_digest({"pkg": a}, GENERATION_LIBRARIES) == first  # content, not time stamps
     (a / "sub/n.py").rename(a / "sub/o.py")  # a rename
-    assert sources_digest({"pkg": a}) != first
+    assert sources_digest({"pkg": a}, GENERATION_LIBRARIES) != first
     (a / "sub/o.py").rename(a / "sub/n.py")
     (a / "new.py").write_text("")  # an added file, even empty
-    assert sources_digest({"pkg": a}) != first
+    assert sources_digest({"pkg": a}, GENERATION_LIBRARIES) != first
     (a / "new.py").unlink()
-    assert sources_digest({"other": a}) != first  # the root's name
+    assert sources_digest({"other": a}, GENERATION_LIBRARIES) != first  # the root's name
     import perception.runtime
     real = perception.runtime.versions
     monkeypatch.setattr(perception.runtime, "versions", lambda *names: {**real(*names), "open3d": "0.0.1"})
-    assert sources_digest({"pkg": a}) != first  # another library version
+    assert sources_digest({"pkg": a}, GENERATION_LIBRARIES) != first  # another library version
 
 
 def test_the_version_is_the_digest_of_the_tactile_and_perception_sources(tmp_path):
@@ -54,10 +55,10 @@ def test_the_version_is_the_digest_of_the_tactile_and_perception_sources(tmp_pat
     copies = {name: tmp_path / name for name in ("perception", "tactile")}
     for name, package in (("perception", perception), ("tactile", tactile)):
         shutil.copytree(Path(package.__file__).parent, copies[name], ignore=shutil.ignore_patterns("__pycache__"))
-    assert sources_digest(copies) == generation_code_version()
+    assert sources_digest(copies, GENERATION_LIBRARIES) == generation_code_version()
     touching = copies["tactile"] / "touching.py"
     touching.write_text(touching.read_text() + "\n# an edit\n")
-    assert sources_digest(copies) != generation_code_version()
+    assert sources_digest(copies, GENERATION_LIBRARIES) != generation_code_version()
 
 
 def test_a_store_of_other_generation_code_is_another_store(tmp_path, monkeypatch):

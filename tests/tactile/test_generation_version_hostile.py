@@ -16,9 +16,10 @@ import perception.runtime
 import tactile.dataset
 import tactile.dataset.version
 from perception.errors import DatasetError
+from perception.runtime import sources_digest
 from tactile.dataset import generate, generation_code_version
 from tactile.dataset.store import ATTRS_KEY
-from tactile.dataset.version import sources_digest
+from tactile.dataset.version import GENERATION_LIBRARIES
 from tactile.sensor import FSRSensor
 
 ARGS = {"strategies": "blind", "contours_per_object": 2, "sensor": FSRSensor(rows=4, cols=4), "probes": 4,
@@ -63,18 +64,18 @@ def test_moving_a_file_to_another_subfolder_changes_the_digest(tmp_path):
     # the same files in the same order, one of them in another subfolder
     a = _tree(tmp_path / "a", {"p/m.py": "v = 1\n", "r/n.py": "w = 2\n"})
     b = _tree(tmp_path / "b", {"q/m.py": "v = 1\n", "r/n.py": "w = 2\n"})
-    assert sources_digest({"pkg": a}) != sources_digest({"pkg": b})
+    assert sources_digest({"pkg": a}, GENERATION_LIBRARIES) != sources_digest({"pkg": b}, GENERATION_LIBRARIES)
 
 
 def test_the_digest_does_not_depend_on_the_order_the_filesystem_lists_files(tmp_path, monkeypatch):
     """Two machines list a folder in other orders (os.scandir order is the filesystem's): the same sources
     digest the same."""
     a = _tree(tmp_path / "a", {"m.py": "x = 1\n", "n.py": "y = 2\n", "sub/o.py": "z = 3\n"})
-    first = sources_digest({"pkg": a})
+    first = sources_digest({"pkg": a}, GENERATION_LIBRARIES)
     real = pathlib.Path.rglob
     monkeypatch.setattr(pathlib.Path, "rglob",
                         lambda self, pattern: iter(sorted(real(self, pattern), reverse=True)))
-    assert sources_digest({"pkg": a}) == first
+    assert sources_digest({"pkg": a}, GENERATION_LIBRARIES) == first
 
 
 #: What the rows depend on (ray casting, meshes, saliency, filters, the encoding): written out here, so a
@@ -88,11 +89,11 @@ def test_another_version_of_each_generation_library_changes_the_digest(tmp_path,
     """Each library's installed version is part of the default digest (``versions()`` asked for the libraries,
     none dropped from GENERATION_LIBRARIES). The version is changed where it is read (importlib.metadata)."""
     a = _tree(tmp_path / "a", {"m.py": "x = 1\n"})
-    first = sources_digest({"pkg": a})
+    first = sources_digest({"pkg": a}, GENERATION_LIBRARIES)
     real = perception.runtime.version
     monkeypatch.setattr(perception.runtime, "version",
                         lambda name: "999.0.0" if name == library else real(name))
-    assert sources_digest({"pkg": a}) != first
+    assert sources_digest({"pkg": a}, GENERATION_LIBRARIES) != first
 
 
 def test_the_generation_code_version_is_read_once_per_process(monkeypatch):
@@ -100,7 +101,7 @@ def test_the_generation_code_version_is_read_once_per_process(monkeypatch):
     run does not change store names between two parts of one run."""
     calls = []
     monkeypatch.setattr(tactile.dataset.version, "sources_digest",
-                        lambda roots: calls.append(roots) or "f" * 16)
+                        lambda roots, libraries: calls.append(roots) or "f" * 16)
     tactile.dataset.version.generation_code_version.cache_clear()
     try:
         assert generation_code_version() == generation_code_version() == "f" * 16
